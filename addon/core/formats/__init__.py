@@ -1,0 +1,1 @@
+"""One module per splat file format; `splat_io` chooses among them."""
