@@ -72,6 +72,7 @@ typedef struct {
     float r, g, b;       /* SH colour + 0.5, clamped at 0 */
     float depth;         /* view-space z of the mean */
     int32_t row0, row1;  /* pixel rows its alpha >= 1/255 footprint can reach, inclusive */
+    int32_t col0, col1;  /* pixel columns likewise */
 } sc_splat;
 
 /* Where a projected Gaussian reaches: the ellipse alpha >= 1/255, i.e. d^T cov^-1 d <= k2. */

@@ -13,6 +13,11 @@
 /* Tile columns [*t0, *t1) that Gaussian `s`/`f` reaches within tile row `ty`. */
 static void row_tiles(const sc_footprint *f, const sc_splat *s, int ty, const sc_camera *cam,
                       int32_t *t0, int32_t *t1) {
+    /* One tile row or column: the rectangle is already exact (or a harmless superset). */
+    if (f->tx1 - f->tx0 == 1 || f->ty1 - f->ty0 == 1) {
+        *t0 = f->tx0, *t1 = f->tx1;
+        return;
+    }
     *t0 = *t1 = 0;
     int32_t j_lo = ty * SC_TILE > s->row0 ? ty * SC_TILE : s->row0;
     int32_t j_hi = ty * SC_TILE + SC_TILE - 1 < s->row1 ? ty * SC_TILE + SC_TILE - 1 : s->row1;

@@ -128,14 +128,14 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
      * can never put a drawn pixel outside the tiles found here. */
     f->cov_a = a, f->cov_b = b, f->cov_c = c;
     f->tx0 = f->ty0 = f->tx1 = f->ty1 = 0;
-    s->row0 = 0, s->row1 = -1;
+    s->row0 = s->col0 = 0, s->row1 = s->col1 = -1;
     if (!(s->opacity >= SC_ALPHA_MIN)) return 1;
     f->k2 = 2.0 * log(255.0 * (double)s->opacity) * (1.0 + 1e-4) + 1e-4;
     int32_t x0, x1, y0, y1;
     pixel_range(s->x, sqrt(f->k2 * a), cam->width, &x0, &x1);
     pixel_range(s->y, sqrt(f->k2 * c), cam->height, &y0, &y1);
     if (x0 > x1 || y0 > y1) return 1;
-    s->row0 = y0, s->row1 = y1;
+    s->row0 = y0, s->row1 = y1, s->col0 = x0, s->col1 = x1;
     f->tx0 = x0 / SC_TILE, f->tx1 = x1 / SC_TILE + 1;
     f->ty0 = y0 / SC_TILE, f->ty1 = y1 / SC_TILE + 1;
     return 1;
@@ -151,7 +151,7 @@ static void project_range(void *ctx, int64_t begin, int64_t end, int thread) {
         if (result != 1) {
             memset(s, 0, sizeof *s);
             memset(f, 0, sizeof *f);
-            s->row1 = -1;
+            s->row1 = s->col1 = -1;
         }
         j->out->valid[i] = (uint8_t)(result == 1);
         if (result < 0) {
