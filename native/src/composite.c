@@ -68,13 +68,14 @@ enum { BLOCK = 8 }; /* pixels evaluated together: half a tile row */
 
 /* One Gaussian over the 8 pixels of a half row starting at `first`. The decisions are 0/1 float
  * masks rather than branches so that the loop vectorises. */
-static inline void blend_block(tile_state *st, int first, float dy, const columns *c) {
+static inline void blend_block(tile_state *st, int first, float power_y, float cb_dy,
+                               const columns *c) {
     const int col = first % SC_TILE;
     float *restrict T = st->T + first, *restrict live = st->live + first;
     float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
                     *restrict depth = st->depth + first, *restrict weight = st->weight + first;
     const float *restrict dx = c->dx + col, *restrict power_x = c->power_x + col;
-    const float power_y = -(c->half_cc * dy * dy), cb_dy = c->cb * dy, opacity = c->opacity;
+    const float opacity = c->opacity;
     const float cr = c->r, cg = c->g, cbl = c->b, cz = c->depth;
     for (int x = 0; x < BLOCK; ++x) {
         const float power = power_x[x] + power_y - cb_dy * dx[x];
@@ -163,7 +164,8 @@ static int64_t composite(tile_state *st, mesh_state *ms, const sc_splat *splats,
         prepare_columns(&c, s, px0);
         for (int j = j0; j <= j1; ++j) {
             const float dy = c.y - ((float)(ms->y0 + j) + 0.5f);
-            for (int i = i0; i < i1; i += BLOCK) blend_block(st, j * SC_TILE + i, dy, &c);
+            const float power_y = -(c.half_cc * dy * dy), cb_dy = c.cb * dy;
+            for (int i = i0; i < i1; i += BLOCK) blend_block(st, j * SC_TILE + i, power_y, cb_dy, &c);
         }
         evaluations += (int64_t)(j1 - j0 + 1) * (i1 - i0);
     }

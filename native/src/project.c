@@ -65,25 +65,6 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
     const double z = p[2];
     if (!(z >= j->opt->near)) return 0;
 
-    /* Sigma = R S S R^T, then into the camera frame: W Sigma W^T. */
-    double r[9], m[9], sigma[9], wm[9], cov[9];
-    quat_to_matrix(q, r);
-    const double sx = exp((double)ls[0]), sy = exp((double)ls[1]), sz = exp((double)ls[2]);
-    for (int k = 0; k < 3; ++k) m[3 * k] = r[3 * k] * sx, m[3 * k + 1] = r[3 * k + 1] * sy,
-                                m[3 * k + 2] = r[3 * k + 2] * sz;
-    for (int a = 0; a < 3; ++a)
-        for (int b = 0; b < 3; ++b)
-            sigma[3 * a + b] = m[3 * a] * m[3 * b] + m[3 * a + 1] * m[3 * b + 1] +
-                               m[3 * a + 2] * m[3 * b + 2];
-    for (int a = 0; a < 3; ++a)
-        for (int b = 0; b < 3; ++b)
-            wm[3 * a + b] = v[4 * a] * sigma[b] + v[4 * a + 1] * sigma[3 + b] +
-                            v[4 * a + 2] * sigma[6 + b];
-    for (int a = 0; a < 3; ++a)
-        for (int b = 0; b < 3; ++b)
-            cov[3 * a + b] = wm[3 * a] * v[4 * b] + wm[3 * a + 1] * v[4 * b + 1] +
-                             wm[3 * a + 2] * v[4 * b + 2];
-
     /* EWA Jacobian with x/z and y/z clamped to the guard band (inside J only). */
     const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
     const double tan_x = 0.5 * cam->width / fx, tan_y = 0.5 * cam->height / fy;
@@ -92,10 +73,24 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
     const double ty = clampd(p[1] / z, -(cy / fy) - SC_GUARD * tan_y,
                              (cam->height - cy) / fy + SC_GUARD * tan_y);
     const double j00 = fx / z, j02 = -fx * tx / z, j11 = fy / z, j12 = -fy * ty / z;
-    /* cov2 = J cov J^T with J = [[j00, 0, j02], [0, j11, j12]] */
-    const double a0 = j00 * (j00 * cov[0] + j02 * cov[2]) + j02 * (j00 * cov[6] + j02 * cov[8]);
-    const double b0 = j00 * (j11 * cov[1] + j12 * cov[2]) + j02 * (j11 * cov[7] + j12 * cov[8]);
-    const double c0 = j11 * (j11 * cov[4] + j12 * cov[5]) + j12 * (j11 * cov[7] + j12 * cov[8]);
+
+    /* Sigma2 = J W R S S^T R^T W^T J^T = A A^T with the 2x3 factor A = J W R S:
+     * fewer operations than forming the 3x3 covariances, and symmetric by construction. */
+    double r[9], jw[2][3], a_rows[2][3];
+    quat_to_matrix(q, r);
+    const double scale[3] = {exp((double)ls[0]), exp((double)ls[1]), exp((double)ls[2])};
+    for (int k = 0; k < 3; ++k) {
+        jw[0][k] = j00 * v[k] + j02 * v[8 + k];
+        jw[1][k] = j11 * v[4 + k] + j12 * v[8 + k];
+    }
+    for (int row = 0; row < 2; ++row)
+        for (int k = 0; k < 3; ++k)
+            a_rows[row][k] = (jw[row][0] * r[k] + jw[row][1] * r[3 + k] + jw[row][2] * r[6 + k]) *
+                             scale[k];
+    const double *a0v = a_rows[0], *a1v = a_rows[1];
+    const double a0 = a0v[0] * a0v[0] + a0v[1] * a0v[1] + a0v[2] * a0v[2];
+    const double b0 = a0v[0] * a1v[0] + a0v[1] * a1v[1] + a0v[2] * a1v[2];
+    const double c0 = a1v[0] * a1v[0] + a1v[1] * a1v[1] + a1v[2] * a1v[2];
     const double a = a0 + SC_DILATION, b = b0, c = c0 + SC_DILATION;
     const double det = a * c - b * b;
     if (!(det > 0.0) || !isfinite(det)) return 0;
