@@ -60,7 +60,11 @@ class Gaussians:
     @property
     def degree(self) -> int:
         """The SH degree the coefficients hold (0..3)."""
-        return SH_COUNTS[self.sh.shape[1]]
+        k = self.sh.shape[1] if self.sh.ndim == 3 else None
+        if k not in SH_COUNTS:
+            raise ValueError(f"Gaussians.sh must have shape (N, K, 3) with K in 1, 4, 9, 16; "
+                             f"got {self.sh.shape}")
+        return SH_COUNTS[k]
 
     def __len__(self) -> int:
         return len(self.means)
