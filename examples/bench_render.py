@@ -97,7 +97,7 @@ def speed_tables(scenes: dict[str, tuple[Gaussians, callable]], sizes: dict, rep
                 rows.append([name, size_name, threads, f"{ms:.1f}", f"{s['ms_project']:.1f}",
                              f"{s['ms_sort']:.1f}", f"{s['ms_bin']:.1f}",
                              f"{s['ms_composite']:.1f}", f"{s['tile_pairs'] / 1e6:.2f}",
-                             f"{s['evaluations'] / s['ms_composite'] / 1e6:.0f}"])
+                             f"{s['evaluations'] / s['ms_composite'] / 1e3:.0f}"])
                 print("  ".join(map(str, rows[-1])), flush=True, file=sys.stderr)
     print("Frame time (median ms) and stages (best run, ms); evals = Gaussian/pixel evaluations")
     table(rows, ["scene", "size", "threads", "ms", "project", "sort", "bin", "composite",

@@ -123,11 +123,11 @@ sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_option
  * payload of keys[i], on return the payloads are in key order. `scratch` holds 3*count values. */
 void sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
 
-/* Tile lists: for each tile t, list[offsets[t] .. offsets[t+1]) are splat indices in the order
- * of `order` (front to back). Allocates *offsets and *list (free with free()). */
-sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, const uint32_t *order,
-                 int64_t count, const sc_camera *cam, int threads, int64_t **offsets,
-                 uint32_t **list);
+/* Tile lists for `count` splats already in front-to-back order: for each tile t,
+ * list[offsets[t] .. offsets[t+1]) are indices into `splats`, ascending (so front to back).
+ * Allocates *offsets and *list (free with free()). */
+sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
+                 const sc_camera *cam, int threads, int64_t **offsets, uint32_t **list);
 
 /* Composite one tile front to back. Returns the number of Gaussian/pixel evaluations made. */
 int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,

@@ -1,6 +1,7 @@
 /* Binning: every drawn Gaussian into the 16x16 tiles its alpha >= 1/255 ellipse reaches, with
- * each tile's list in depth order. A counting sort over tiles keeps the depth order given by
- * the sort stage: count per (chunk, tile), prefix sums, scatter. No per-pair sort is needed.
+ * each tile's list in depth order. The input is already sorted front to back, and a counting
+ * sort over tiles keeps that order: count per (chunk, tile), prefix sums, scatter. No per-pair
+ * sort is needed, and the input is read sequentially.
  *
  * The tiles are exact for the ellipse, not its bounding box: for each tile row the ellipse's
  * x-extent over that row's pixel centres is computed in closed form, which removes the empty
@@ -52,7 +53,6 @@ static void row_tiles(const sc_footprint *f, const sc_splat *s, int ty, const sc
 typedef struct {
     const sc_footprint *fp;
     const sc_splat *splats;
-    const uint32_t *order;
     const sc_camera *cam;
     int64_t count, chunk_size;
     int tiles_x;
@@ -70,11 +70,10 @@ static void count_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
-            const uint32_t i = j->order[k];
-            const sc_footprint *f = &j->fp[i];
+            const sc_footprint *f = &j->fp[k];
             for (int ty = f->ty0; ty < f->ty1; ++ty) {
                 int32_t t0, t1;
-                row_tiles(f, &j->splats[i], ty, j->cam, &t0, &t1);
+                row_tiles(f, &j->splats[k], ty, j->cam, &t0, &t1);
                 for (int tx = t0; tx < t1; ++tx) counts[(int64_t)ty * j->tiles_x + tx]++;
             }
         }
@@ -89,12 +88,12 @@ static void scatter_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
-            const uint32_t i = j->order[k];
-            const sc_footprint *f = &j->fp[i];
+            const sc_footprint *f = &j->fp[k];
             for (int ty = f->ty0; ty < f->ty1; ++ty) {
                 int32_t t0, t1;
-                row_tiles(f, &j->splats[i], ty, j->cam, &t0, &t1);
-                for (int tx = t0; tx < t1; ++tx) j->list[cursor[(int64_t)ty * j->tiles_x + tx]++] = i;
+                row_tiles(f, &j->splats[k], ty, j->cam, &t0, &t1);
+                for (int tx = t0; tx < t1; ++tx)
+                    j->list[cursor[(int64_t)ty * j->tiles_x + tx]++] = (uint32_t)k;
             }
         }
     }
@@ -103,10 +102,9 @@ static void scatter_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
 /* At most this many Gaussian/tile pairs (4 GiB of list). */
 static const int64_t MAX_PAIRS = (int64_t)1 << 30;
 
-sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, const uint32_t *order,
-                 int64_t count, const sc_camera *cam, int threads, int64_t **offsets_out,
-                 uint32_t **list_out) {
-    job j = {.fp = fp, .splats = splats, .order = order, .cam = cam, .count = count};
+sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
+                 const sc_camera *cam, int threads, int64_t **offsets_out, uint32_t **list_out) {
+    job j = {.fp = fp, .splats = splats, .cam = cam, .count = count};
     j.tiles_x = (cam->width + SC_TILE - 1) / SC_TILE;
     const int tiles_y = (cam->height + SC_TILE - 1) / SC_TILE;
     j.ntiles = (int64_t)j.tiles_x * tiles_y;
