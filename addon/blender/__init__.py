@@ -1,9 +1,28 @@
-"""Everything that touches `bpy`: objects, operators, UI and render hooks."""
+"""Everything that touches `bpy`: objects, operators, UI and render hooks.
+
+Each module below has its own `register()` / `unregister()`; they run in this order (and in
+reverse on unregister). Importing them happens here, at register time, never at add-on import.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+MODULE_NAMES: list[str] = [
+    # one line per module, e.g. "splat_object", "io_operators"
+]
+
+
+def _modules() -> list[ModuleType]:
+    return [importlib.import_module(f"{__name__}.{name}") for name in MODULE_NAMES]
 
 
 def register() -> None:
-    pass
+    for module in _modules():
+        module.register()
 
 
 def unregister() -> None:
-    pass
+    for module in reversed(_modules()):
+        module.unregister()
