@@ -11,6 +11,7 @@ from types import ModuleType
 
 MODULE_NAMES: list[str] = [
     # one line per module, e.g. "splat_object", "io_operators"
+    "properties", "gather", "io_operators", "edit_operators",  # splat objects
 ]
 
 

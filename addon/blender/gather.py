@@ -1,0 +1,263 @@
+"""Gather the splats a depsgraph shows, in world space, ready for `addon.core.render.render`.
+
+`gather(depsgraph)` walks `depsgraph.object_instances` (so it sees exactly what Blender would
+render: visibility, modifiers, geometry nodes, instancing, parenting, constraints, drivers and
+animation at the depsgraph's frame are all already applied) and, for every evaluated Mesh or
+PointCloud that carries the splat attributes (see `splat_object`), reads them with
+`foreach_get`, drops vertices hidden in Edit Mode, limits the SH bands to the object's
+`sh_degree` option and transforms everything by the instance's world matrix with
+`addon.core.transform.transform_gaussians` (centres, rotations, scales and SH bands 1-3; a
+non-uniform scale re-decomposes each covariance exactly and rotates the SH by the polar
+rotation). Render options come from the splat object the geometry belongs to: the evaluated
+object itself when it is a splat object, else the instancer (`obj.splat`), else the defaults.
+
+`objects=[...]` limits the gather to those objects and to the instances they make (export).
+
+Cache: each instance's world-space Gaussians are kept, keyed by
+  - the instance identity: original object, instancer, `persistent_id`, geometry type;
+  - a geometry fingerprint: update counters of the original object, its data and the instancer,
+    bumped by a `depsgraph_update_post` handler for every ID the depsgraph reports with
+    `is_updated_geometry` (edits, modifiers, geometry nodes, Edit Mode changes, undo), plus the
+    addresses of the evaluated attribute arrays and the point count (these catch changes made
+    through a depsgraph whose updates run no handler, such as a render's own depsgraph);
+  - the world matrix (exact bytes) and the SH degree used.
+A moved object re-transforms; a changed geometry is read again; anything unchanged costs a
+dictionary lookup. The concatenation of all batches is cached the same way (a single batch is
+returned as is). Objects in Edit Mode are never cached (their evaluated data is a BMesh
+wrapper). `clear_cache()` empties everything; loading a file does it too. Returned arrays are
+shared with the cache: treat them as read-only.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+from bpy.app.handlers import persistent
+
+from ..core.gaussians import Gaussians
+from ..core.transform import transform_gaussians
+from . import splat_object
+
+_generations: dict[int, int] = {}
+_world_cache: dict[tuple, tuple[tuple, Gaussians]] = {}
+_combined_cache: dict[str, tuple[tuple, Gaussians]] = {}
+
+
+@dataclass
+class SplatBatch:
+    """One instance's splats, in world space."""
+
+    name: str                 # the original object's name
+    gaussians: Gaussians      # world space, SH limited to `sh_degree`
+    matrix_world: np.ndarray  # (4, 4) float64, what `gaussians` were transformed by
+    antialiased: bool
+    sh_degree: int
+    color_space: str
+    is_instance: bool
+    cached: bool
+
+
+@dataclass
+class GatherResult:
+    batches: list[SplatBatch]
+    gaussians: Gaussians      # every batch, concatenated (SH padded with zeros to the largest)
+    seconds: float
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def antialiased(self) -> bool:
+        """True when every batch asks for the antialiased mode (see `warnings` if they differ)."""
+        return bool(self.batches) and all(b.antialiased for b in self.batches)
+
+    @property
+    def cache_hits(self) -> int:
+        return sum(b.cached for b in self.batches)
+
+
+def _bump(uid: int) -> None:
+    _generations[uid] = _generations.get(uid, 0) + 1
+
+
+@persistent
+def _on_depsgraph_update(scene, depsgraph) -> None:
+    for update in depsgraph.updates:
+        if update.is_updated_geometry:
+            original = update.id.original
+            if original is not None:
+                _bump(original.session_uid)
+
+
+@persistent
+def _on_load(*_args) -> None:
+    clear_cache()
+
+
+def clear_cache() -> None:
+    _world_cache.clear()
+    _combined_cache.clear()
+    _generations.clear()
+
+
+def _generation(id_data) -> int:
+    return 0 if id_data is None else _generations.get(id_data.session_uid, 0)
+
+
+def _attribute_addresses(data, degree: int) -> tuple:
+    attributes = data.attributes
+    names = (splat_object.POSITION, splat_object.ROTATION, splat_object.LOG_SCALE,
+             splat_object.OPACITY_LOGIT, splat_object.HIDE) + splat_object.SH_NAMES[:(degree + 1) ** 2]
+    addresses = []
+    for name in names:
+        attribute = attributes.get(name)
+        addresses.append(attribute.data[0].as_pointer()
+                         if attribute is not None and len(attribute.data) else 0)
+    return tuple(addresses)
+
+
+def _edit_mode_hidden(mesh) -> np.ndarray | None:
+    import bmesh
+
+    try:
+        bm = bmesh.from_edit_mesh(mesh)
+    except (ValueError, RuntimeError):
+        return None
+    hide = np.fromiter((v.hide for v in bm.verts), bool, count=len(bm.verts))
+    return hide if hide.any() else None
+
+
+def _read_edit_mode(evaluated, depsgraph) -> Gaussians:
+    """An object in Edit Mode: its evaluated mesh is a wrapper around the edit BMesh; `to_mesh`
+    makes it real. Hidden flags live on the BMesh only."""
+    mesh = evaluated.to_mesh()  # (preserve_all_data_layers=True would re-evaluate the stale original)
+    try:
+        gaussians = splat_object.gaussians_from_data(mesh, drop_hidden=False)
+    finally:
+        evaluated.to_mesh_clear()
+    hide = _edit_mode_hidden(evaluated.original.data)
+    if hide is not None and len(hide) == len(gaussians):
+        gaussians = gaussians.subset(~hide)
+    return gaussians
+
+
+def _settings_for(evaluated, owner):
+    for candidate in (evaluated.original, owner):
+        if splat_object.is_splat_object(candidate):
+            return candidate.splat
+    return None
+
+
+def gather(depsgraph, *, objects=None, use_cache: bool = True,
+           all_sh_bands: bool = False) -> GatherResult:
+    """World-space splats of every visible splat geometry in `depsgraph` (or of `objects` and
+    the instances they make). See the module docstring for what is read and what is cached.
+    `all_sh_bands` keeps every SH band the data holds, ignoring the objects' `sh_degree`."""
+    start = time.perf_counter()
+    wanted = None if objects is None else {o.original.session_uid for o in objects}
+    batches: list[SplatBatch] = []
+    seen: set[tuple] = set()
+    local_this_call: dict[tuple, Gaussians] = {}  # one read per geometry, however often instanced
+    warnings: list[str] = []
+
+    for instance in depsgraph.object_instances:
+        evaluated = instance.object
+        if evaluated.type not in ("MESH", "POINTCLOUD"):
+            continue
+        owner = (instance.parent.original if instance.is_instance and instance.parent is not None
+                 else evaluated.original)
+        if wanted is not None and owner.session_uid not in wanted \
+                and evaluated.original.session_uid not in wanted:
+            continue
+        data = evaluated.data
+        degree = splat_object.data_sh_degree(data)
+        if degree is None:
+            continue
+        settings = _settings_for(evaluated, owner)
+        sh_degree = degree if settings is None or all_sh_bands else min(settings.sh_degree, degree)
+        antialiased = False if settings is None else settings.antialiased
+        color_space = "SRGB" if settings is None else settings.color_space
+        matrix = np.array(instance.matrix_world, dtype=np.float64)
+        identity = (evaluated.original.session_uid, owner.session_uid,
+                    tuple(instance.persistent_id) if instance.is_instance else None,
+                    evaluated.type)
+        edit_mode = evaluated.type == "MESH" and data.is_editmode
+        fingerprint = None
+        if not edit_mode:
+            fingerprint = (_generation(evaluated.original), _generation(evaluated.original.data),
+                           _generation(owner), data.as_pointer(), splat_object.point_count(data),
+                           _attribute_addresses(data, degree))
+        world_key = (matrix.tobytes(), sh_degree)
+
+        cached = None
+        if use_cache and fingerprint is not None:
+            entry = _world_cache.get(identity)
+            if entry is not None and entry[0] == (fingerprint, world_key):
+                cached = entry[1]
+        if cached is not None:
+            world = cached
+        else:
+            local_key = (fingerprint, sh_degree) if fingerprint is not None else None
+            local = local_this_call.get(local_key) if local_key is not None else None
+            if local is None:
+                if edit_mode:
+                    local = _read_edit_mode(evaluated, depsgraph)
+                else:
+                    local = splat_object.gaussians_from_data(data)
+                if sh_degree < local.degree:
+                    local = local.with_degree(sh_degree)
+                if local_key is not None:
+                    local_this_call[local_key] = local
+            world = transform_gaussians(local, matrix)
+            if use_cache and fingerprint is not None:
+                _world_cache[identity] = ((fingerprint, world_key), world)
+        seen.add(identity)
+        batches.append(SplatBatch(owner.name, world, matrix, antialiased, sh_degree, color_space,
+                                  instance.is_instance, cached is not None))
+
+    if use_cache and objects is None:
+        for identity in [k for k in _world_cache if k not in seen]:
+            del _world_cache[identity]
+    if len({b.antialiased for b in batches}) > 1:
+        warnings.append("splat objects disagree on the antialiased option: rendering "
+                        "without it")
+    combined = _combine(batches, use_cache, scope="all" if objects is None else "objects")
+    return GatherResult(batches, combined, time.perf_counter() - start, warnings)
+
+
+def _combine(batches: list[SplatBatch], use_cache: bool, scope: str) -> Gaussians:
+    if not batches:
+        return Gaussians.empty()
+    if len(batches) == 1:
+        return batches[0].gaussians
+    key = tuple(id(b.gaussians) for b in batches)
+    if use_cache and all(b.cached for b in batches):
+        entry = _combined_cache.get(scope)
+        if entry is not None and entry[0] == key:
+            return entry[1]
+    degree = max(b.gaussians.degree for b in batches)
+    parts = [b.gaussians if b.gaussians.degree == degree else b.gaussians.with_degree(degree)
+             for b in batches]
+    combined = Gaussians(*(np.concatenate([getattr(p, name) for p in parts])
+                           for name in ("means", "log_scales", "quats", "opacity_logits", "sh")))
+    if use_cache:
+        _combined_cache[scope] = (key, combined)
+    return combined
+
+
+def register() -> None:
+    handlers = bpy.app.handlers
+    if _on_depsgraph_update not in handlers.depsgraph_update_post:
+        handlers.depsgraph_update_post.append(_on_depsgraph_update)
+    if _on_load not in handlers.load_post:
+        handlers.load_post.append(_on_load)
+
+
+def unregister() -> None:
+    handlers = bpy.app.handlers
+    if _on_depsgraph_update in handlers.depsgraph_update_post:
+        handlers.depsgraph_update_post.remove(_on_depsgraph_update)
+    if _on_load in handlers.load_post:
+        handlers.load_post.remove(_on_load)
+    clear_cache()

@@ -1,0 +1,101 @@
+"""A splat object's render options: `Object.splat`, a PropertyGroup, and its panel.
+
+`obj.splat.is_splat` marks the objects this add-on made (import, or `create_splat_object`);
+operators act on those. The options travel with the object (saved in the .blend, copied with
+the object, kept by undo):
+
+- `antialiased`: render with the Mip-Splatting opacity compensation (use the mode the splats
+  were trained with; an .spz file records it);
+- `sh_degree`: the SH bands to evaluate, 0..3 (at most what the data holds);
+- `color_space`: what the SH colours mean. 'SRGB' (display sRGB, what splats trained on photos
+  hold: the reference look) or 'LINEAR' (scene-linear Rec.709). Conversion happens in the render
+  integration, not here.
+
+The panel sits in Properties > Object and shows the splat count and the SH degree the data holds.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, IntProperty, PointerProperty, StringProperty
+
+from .registration import register_classes, unregister_classes
+
+COLOR_SPACES = [
+    ("SRGB", "sRGB (display)", "Colours are display sRGB, as splats trained on photos are: the "
+                               "reference 3DGS look"),
+    ("LINEAR", "Linear", "Colours are scene-linear Rec.709"),
+]
+
+
+class SplatObjectSettings(bpy.types.PropertyGroup):
+    is_splat: BoolProperty(
+        name="Gaussian Splats",
+        description="This mesh holds Gaussian splats, one vertex per splat, with their "
+                    "parameters as point attributes",
+        default=False)
+    antialiased: BoolProperty(
+        name="Antialiased",
+        description="Render with the Mip-Splatting opacity compensation; use the mode the "
+                    "splats were trained with",
+        default=False)
+    sh_degree: IntProperty(
+        name="SH Degree",
+        description="Spherical-harmonics bands to evaluate (at most what the data holds); "
+                    "fewer is faster and less view-dependent",
+        default=3, min=0, max=3)
+    color_space: EnumProperty(
+        name="Colour Space", description="What the splats' colours mean", items=COLOR_SPACES,
+        default="SRGB")
+    source_path: StringProperty(
+        name="Source", description="The file the splats were imported from", subtype="FILE_PATH")
+
+
+class OBJECT_PT_splat(bpy.types.Panel):
+    bl_idname = "OBJECT_PT_splat"
+    bl_label = "Gaussian Splats"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "object"
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and obj.type == "MESH" and obj.splat.is_splat
+
+    def draw(self, context):
+        from . import splat_object
+
+        obj = context.object
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = obj.splat
+        mesh = obj.data
+        degree = splat_object.data_sh_degree(mesh)
+        col = layout.column()
+        col.label(text=f"{len(mesh.vertices):,} splats, SH degree "
+                       f"{'-' if degree is None else degree}")
+        if degree is None and not mesh.is_editmode:
+            col.label(text="Missing splat attributes: " +
+                      ", ".join(splat_object.missing_attributes(mesh)), icon="ERROR")
+        col.prop(settings, "antialiased")
+        col.prop(settings, "sh_degree")
+        col.prop(settings, "color_space")
+        if settings.source_path:
+            col.prop(settings, "source_path")
+
+
+CLASSES = (SplatObjectSettings, OBJECT_PT_splat)
+
+
+def register() -> None:
+    register_classes(CLASSES)
+    if "splat" not in bpy.types.Object.bl_rna.properties:
+        bpy.types.Object.splat = PointerProperty(type=SplatObjectSettings)
+
+
+def unregister() -> None:
+    if "splat" in bpy.types.Object.bl_rna.properties:
+        del bpy.types.Object.splat
+    unregister_classes(CLASSES)

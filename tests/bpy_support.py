@@ -1,0 +1,76 @@
+"""Shared set-up for the bpy-level splat tests: one bpy import, the add-on registered once, an
+empty scene per test, and small helpers (cameras from Blender objects, renders, comparisons)."""
+
+from __future__ import annotations
+
+import bpy  # slow to import: every bpy-level splat test module shares this one import
+import numpy as np
+
+import addon
+from addon.blender import gather, splat_object
+from addon.core.cameras import BlenderCameraParams, Camera, camera_from_blender
+from addon.core.gaussians import Gaussians
+from addon.core.render import render
+
+
+def ensure_registered() -> None:
+    if not hasattr(bpy.types, "SPLAT_OT_import_splats"):
+        addon.register()
+
+
+def reset_scene() -> None:
+    """An empty scene (factory settings), the add-on registered, the gather cache empty."""
+    ensure_registered()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    ensure_registered()  # registration survives this; checked again to be sure
+    gather.clear_cache()
+
+
+def scene_state() -> tuple:
+    """What a failed operator must leave unchanged."""
+    return (sorted(o.name for o in bpy.data.objects), sorted(m.name for m in bpy.data.meshes),
+            sorted(o.name for o in bpy.context.scene.objects))
+
+
+def gaussians_equal(a: Gaussians, b: Gaussians) -> bool:
+    return all(x.shape == y.shape and np.array_equal(x.view(np.uint32), y.view(np.uint32))
+               for x, y in zip(a.arrays().values(), b.arrays().values()))
+
+
+def add_camera(name: str = "Camera", *, location=(0.0, -6.0, 0.0), rotation=(np.pi / 2, 0, 0),
+               lens: float = 35.0, width: int = 64, height: int = 48):
+    camera = bpy.data.objects.new(name, bpy.data.cameras.new(name))
+    bpy.context.scene.collection.objects.link(camera)
+    camera.location = location
+    camera.rotation_euler = rotation
+    camera.data.lens = lens
+    scene = bpy.context.scene
+    scene.camera = camera
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    return camera
+
+
+def camera_of(camera_obj, depsgraph) -> Camera:
+    """The pinhole camera Blender renders for the evaluated camera object and the scene."""
+    evaluated = camera_obj.evaluated_get(depsgraph)
+    cam, r = evaluated.data, depsgraph.scene.render
+    return camera_from_blender(BlenderCameraParams(
+        matrix_world=np.array(evaluated.matrix_world, dtype=np.float64), lens=cam.lens,
+        sensor_width=cam.sensor_width, sensor_height=cam.sensor_height,
+        sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
+        resolution_x=r.resolution_x, resolution_y=r.resolution_y,
+        resolution_percentage=r.resolution_percentage, pixel_aspect_x=r.pixel_aspect_x,
+        pixel_aspect_y=r.pixel_aspect_y))
+
+
+def render_scene(camera_obj, *, near: float = 0.01, use_cache: bool = True):
+    """Gather the scene's splats and render them from `camera_obj` (threads=1: deterministic)."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    result = gather.gather(depsgraph, use_cache=use_cache)
+    camera = camera_of(camera_obj, depsgraph)
+    return render(result.gaussians, camera, near=near, antialiased=result.antialiased, threads=1)
+
+
+def mesh_gaussians(obj) -> Gaussians:
+    return splat_object.gaussians_from_data(obj.data, drop_hidden=False)
