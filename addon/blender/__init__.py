@@ -12,6 +12,7 @@ from types import ModuleType
 MODULE_NAMES: list[str] = [
     # one line per module, e.g. "splat_object", "io_operators"
     "properties", "gather", "io_operators", "edit_operators",  # splat objects
+    "colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
 ]
 
 

@@ -1,0 +1,442 @@
+"""COLMAP scenes into Blender: File > Import > COLMAP scene, and `import_colmap()` for scripts.
+
+    bpy.ops.splat.import_colmap(directory="/path/to/workspace", image_folder="images", align=True)
+
+    from addon.blender.colmap_import import import_colmap
+    collection = import_colmap("/path/to/workspace", image_folder="images_4", align=True)
+
+What it builds, in one new collection (named after the workspace) linked to the scene:
+
+- one camera object per registered image, named after the image, with exact intrinsics
+  (`cameras.camera_to_blender`: lens and a 36 mm sensor fitted horizontally, shifts for the
+  principal point, pixel aspect for fx != fy) and custom properties:
+  `colmap_image_name` (with subfolders), `colmap_image_id`, `colmap_camera_id`,
+  `colmap_resolution` (width, height), `colmap_resolution_percentage`,
+  `colmap_pixel_aspect` (x, y) and `colmap_photo` (the photo matching the camera; "" if
+  missing). Blender's render size is per scene, not per camera: `apply_camera_resolution()`
+  (or the "Set COLMAP camera" operator, or simply making the camera active in the UI: a
+  message-bus subscription does it) sets the scene's resolution and pixel aspect from them;
+- optionally the photos as camera background images (stretched over the camera frame, which
+  they fit exactly);
+- the sparse points as a point cloud object with attributes `color` (sRGB bytes), `error`,
+  `track_length` and `colmap_point_id`, and a material that shows the colour;
+- optionally a camera that follows the images in name order, one frame each (exact on every
+  frame when all images share one size; the scene takes the first image's resolution).
+
+The collection carries `colmap_transform` (16 floats, row-major 4x4 similarity from COLMAP's
+frame to Blender's world: identity unless aligned), `colmap_model_dir`, `colmap_image_dir`,
+`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment` and `colmap_missing`.
+
+Bad input (see `addon.core.colmap`) raises `ColmapError` before anything is created; a failure
+while building removes everything built so far. The operator reports either as an error.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
+
+from ..core import colmap
+from ..core.cameras import camera_to_blender
+from .registration import register_classes, unregister_classes
+
+SENSOR_WIDTH = 36.0
+_PROPS = ("colmap_resolution", "colmap_resolution_percentage", "colmap_pixel_aspect")
+
+
+# -- per-camera render settings ----------------------------------------------------------------
+
+def apply_camera_resolution(scene: bpy.types.Scene, camera_obj: bpy.types.Object | None = None) -> bool:
+    """Set the scene's resolution, percentage and pixel aspect from an imported camera
+    (`camera_obj`, default the scene camera). False (nothing changed) for other cameras."""
+    obj = camera_obj if camera_obj is not None else scene.camera
+    if obj is None or any(key not in obj for key in _PROPS):
+        return False
+    render = scene.render
+    width, height = (int(v) for v in obj["colmap_resolution"])
+    aspect_x, aspect_y = (float(v) for v in obj["colmap_pixel_aspect"])
+    if (render.resolution_x, render.resolution_y) != (width, height):
+        render.resolution_x, render.resolution_y = width, height
+    if render.resolution_percentage != int(obj["colmap_resolution_percentage"]):
+        render.resolution_percentage = int(obj["colmap_resolution_percentage"])
+    if (render.pixel_aspect_x, render.pixel_aspect_y) != (aspect_x, aspect_y):
+        render.pixel_aspect_x, render.pixel_aspect_y = aspect_x, aspect_y
+    return True
+
+
+_MSGBUS_OWNER = object()
+
+
+def _on_scene_camera_changed() -> None:
+    context = bpy.context
+    scene = getattr(context, "scene", None)
+    if scene is not None:
+        apply_camera_resolution(scene)
+
+
+def _subscribe() -> None:
+    bpy.msgbus.clear_by_owner(_MSGBUS_OWNER)
+    bpy.msgbus.subscribe_rna(key=(bpy.types.Scene, "camera"), owner=_MSGBUS_OWNER, args=(),
+                             notify=_on_scene_camera_changed)
+
+
+@bpy.app.handlers.persistent
+def _on_load_post(*_args) -> None:
+    _subscribe()
+
+
+# -- building ----------------------------------------------------------------------------------
+
+class _Built:
+    """Every datablock made so far, to remove them all if building fails."""
+
+    def __init__(self) -> None:
+        self.ids: list = []
+
+    def add(self, block):
+        self.ids.append(block)
+        return block
+
+    def remove_all(self) -> None:
+        collections = {
+            bpy.types.Object: bpy.data.objects, bpy.types.Camera: bpy.data.cameras,
+            bpy.types.Image: bpy.data.images, bpy.types.Mesh: bpy.data.meshes,
+            bpy.types.PointCloud: bpy.data.pointclouds, bpy.types.Material: bpy.data.materials,
+            bpy.types.Action: bpy.data.actions, bpy.types.Collection: bpy.data.collections,
+        }
+        for block in reversed(self.ids):
+            try:
+                name = block.name  # raises ReferenceError once removed
+            except ReferenceError:
+                continue
+            for kind, data in collections.items():
+                if isinstance(block, kind) and data.get(name) == block:
+                    data.remove(block)
+                    break
+
+
+def _matrix(m: np.ndarray):
+    import mathutils
+    return mathutils.Matrix([list(row) for row in np.asarray(m, np.float64)])
+
+
+def _set_camera_data(cam: bpy.types.Camera, params) -> None:
+    cam.type = "PERSP"
+    cam.sensor_fit = params.sensor_fit
+    cam.sensor_width = params.sensor_width
+    cam.sensor_height = params.sensor_height
+    cam.lens = params.lens
+    cam.shift_x = params.shift_x
+    cam.shift_y = params.shift_y
+
+
+def _store_render_props(obj: bpy.types.Object, params) -> None:
+    obj["colmap_resolution"] = (params.resolution_x, params.resolution_y)
+    obj["colmap_resolution_percentage"] = params.resolution_percentage
+    obj["colmap_pixel_aspect"] = (params.pixel_aspect_x, params.pixel_aspect_y)
+
+
+def _clip_range(scene_data: colmap.ColmapScene) -> tuple[float, float]:
+    """Clip distances that hold the scene: from the points' depths in the cameras."""
+    depths = []
+    for im in scene_data.images[:: max(1, len(scene_data.images) // 50)]:
+        rows = scene_data.points.positions_of(im.point3D_ids)
+        xyz = scene_data.points.xyz[rows[rows >= 0]]
+        if len(xyz):
+            w2c = im.camera.world_to_camera
+            depths.append(xyz @ w2c[2, :3] + w2c[2, 3])
+    if not depths:
+        return 0.1, 1000.0
+    z = np.concatenate(depths)
+    z = z[z > 0]
+    if not len(z):
+        return 0.1, 1000.0
+    return float(max(np.percentile(z, 1) * 0.02, 1e-6)), float(np.percentile(z, 99) * 50.0)
+
+
+def _points_object(name: str, points: colmap.ColmapPoints, radius: float, collection, scene,
+                   built: _Built) -> bpy.types.Object:
+    """A point cloud object (a vertex-only mesh converted by Blender; it stays a mesh where
+    the conversion is not available)."""
+    mesh = built.add(bpy.data.meshes.new(name))
+    n = len(points)
+    mesh.vertices.add(n)
+    mesh.vertices.foreach_set("co", points.xyz.astype(np.float32).ravel())
+    colour = mesh.attributes.new("color", "BYTE_COLOR", "POINT")
+    rgba = np.concatenate([points.rgb / 255.0, np.ones((n, 1))], axis=1).astype(np.float32)
+    colour.data.foreach_set("color_srgb", rgba.ravel())
+    mesh.attributes.new("error", "FLOAT", "POINT").data.foreach_set(
+        "value", points.error.astype(np.float32))
+    mesh.attributes.new("track_length", "INT", "POINT").data.foreach_set(
+        "value", points.track_length.astype(np.int32))
+    ids = np.clip(points.ids, -(2**31), 2**31 - 1).astype(np.int32)
+    mesh.attributes.new("colmap_point_id", "INT", "POINT").data.foreach_set("value", ids)
+    mesh.update()
+    obj = built.add(bpy.data.objects.new(name, mesh))
+    collection.objects.link(obj)
+    material = built.add(bpy.data.materials.new(name))
+    _colour_material(material)
+    try:
+        context = bpy.context
+        view_layer = context.view_layer if scene == context.scene else scene.view_layers[0]
+        with context.temp_override(scene=scene, view_layer=view_layer,
+                                   active_object=obj, object=obj, selected_objects=[obj],
+                                   selected_editable_objects=[obj]):
+            result = bpy.ops.object.convert(target="POINTCLOUD")
+    except (RuntimeError, TypeError, AttributeError):
+        result = {"CANCELLED"}
+    if "FINISHED" in result and obj.type == "POINTCLOUD":
+        cloud = built.add(obj.data)
+        if mesh.users == 0:
+            bpy.data.meshes.remove(mesh)
+        if ".select_vert" in cloud.attributes:
+            cloud.attributes.remove(cloud.attributes[".select_vert"])
+        cloud.attributes.new("radius", "FLOAT", "POINT").data.foreach_set(
+            "value", np.full(n, radius, np.float32))
+    obj.data.materials.append(material)
+    return obj
+
+
+def _colour_material(material: bpy.types.Material) -> None:
+    if material.node_tree is None:  # Blender before 5.0 makes node trees on request
+        material.use_nodes = True
+    nodes = material.node_tree.nodes
+    bsdf = next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None)
+    if bsdf is None:
+        return
+    attribute = nodes.new("ShaderNodeAttribute")
+    attribute.attribute_name = "color"
+    material.node_tree.links.new(attribute.outputs["Color"], bsdf.inputs["Base Color"])
+    material.diffuse_color = (0.8, 0.8, 0.8, 1.0)
+
+
+def _animated_camera(name: str, scene_data: colmap.ColmapScene, collection, scene, clip,
+                     built: _Built) -> bpy.types.Object:
+    """A camera keyed on frame scene.frame_start + i at image i (in name order)."""
+    import mathutils
+
+    cam = built.add(bpy.data.cameras.new(name))
+    obj = built.add(bpy.data.objects.new(name, cam))
+    collection.objects.link(obj)
+    cam.clip_start, cam.clip_end = clip
+    obj.rotation_mode = "QUATERNION"
+    first = camera_to_blender(scene_data.images[0].camera, SENSOR_WIDTH)
+    _store_render_props(obj, first)
+    previous = None
+    for i, im in enumerate(scene_data.images):
+        params = camera_to_blender(im.camera, SENSOR_WIDTH)
+        frame = scene.frame_start + i
+        loc, rot, _scale = _matrix(params.matrix_world).decompose()
+        if previous is not None and rot.dot(previous) < 0:
+            rot = mathutils.Quaternion([-v for v in rot])
+        previous = rot
+        obj.location, obj.rotation_quaternion = loc, rot
+        _set_camera_data(cam, params)
+        obj.keyframe_insert("location", frame=frame)
+        obj.keyframe_insert("rotation_quaternion", frame=frame)
+        for prop in ("lens", "shift_x", "shift_y", "sensor_width"):
+            cam.keyframe_insert(prop, frame=frame)
+    if obj.animation_data and obj.animation_data.action:
+        built.add(obj.animation_data.action)
+    if cam.animation_data and cam.animation_data.action:
+        built.add(cam.animation_data.action)
+    sizes = {(im.camera.width, im.camera.height) for im in scene_data.images}
+    obj["colmap_exact"] = len(sizes) == 1
+    return obj
+
+
+def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
+                  align: bool = True, up: str = "auto",
+                  scene_size: float = colmap.DEFAULT_SCENE_SIZE,
+                  cache_dir: str | os.PathLike | None = None, points: bool = True,
+                  backgrounds: bool = True, animated_camera: bool = False,
+                  set_scene_camera: bool = True, copy_photos: bool = True,
+                  scene: bpy.types.Scene | None = None, progress=None) -> bpy.types.Collection:
+    """Import a COLMAP model or workspace into `scene` (default: the context's); returns the
+    new collection. `progress(fraction, message)` is called as the work goes. See the module
+    docstring; the other arguments are those of `addon.core.colmap.read_colmap`."""
+    scene = scene if scene is not None else bpy.context.scene
+    report = progress or (lambda fraction, message: None)
+    data = colmap.read_colmap(directory, image_folder, cache_dir=cache_dir, align=align, up=up,
+                              scene_size=scene_size, copy_photos=copy_photos,
+                              progress=lambda f, m: report(0.8 * f, m))
+    built = _Built()
+    try:
+        collection = _build(data, scene, directory, points, backgrounds, animated_camera,
+                            set_scene_camera, built, lambda f, m: report(0.8 + 0.2 * f, m))
+    except BaseException:
+        built.remove_all()
+        raise
+    report(1.0, "done")
+    return collection
+
+
+def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds: bool,
+           animated: bool, set_scene_camera: bool, built: _Built, report) -> bpy.types.Collection:
+    root = Path(directory)
+    name = root.name or "COLMAP"
+    if name in ("0", "sparse") and root.parent.name:
+        name = root.parent.parent.name if root.parent.name == "sparse" else root.parent.name
+    collection = built.add(bpy.data.collections.new(name))
+    scene.collection.children.link(collection)
+    collection["colmap_transform"] = [float(v) for v in data.world_from_colmap.ravel()]
+    collection["colmap_model_dir"] = str(data.model_dir)
+    collection["colmap_image_dir"] = str(data.image_dir or "")
+    collection["colmap_image_folder"] = data.image_folder
+    collection["colmap_undistorted_dir"] = str(data.undistorted_dir or "")
+    collection["colmap_alignment"] = data.alignment_info.get("method", "none")
+    collection["colmap_missing"] = "\n".join(f"{k}: {v}" for k, v in data.missing.items())
+
+    clip = _clip_range(data)
+    objects = []
+    for k, im in enumerate(data.images):
+        params = camera_to_blender(im.camera, SENSOR_WIDTH)
+        cam = built.add(bpy.data.cameras.new(im.name))
+        _set_camera_data(cam, params)
+        cam.clip_start, cam.clip_end = clip
+        obj = built.add(bpy.data.objects.new(im.name, cam))
+        collection.objects.link(obj)
+        obj.matrix_world = _matrix(params.matrix_world)
+        obj["colmap_image_name"] = im.name
+        obj["colmap_image_id"] = im.image_id
+        obj["colmap_camera_id"] = im.camera_id
+        obj["colmap_photo"] = str(im.path or "")
+        _store_render_props(obj, params)
+        if backgrounds and im.path is not None:
+            before = len(bpy.data.images)
+            image = bpy.data.images.load(str(im.path), check_existing=True)
+            if len(bpy.data.images) > before:  # new, not the user's own
+                built.add(image)
+            cam.show_background_images = True
+            background = cam.background_images.new()
+            background.image = image
+            background.frame_method = "STRETCH"
+            background.alpha = 1.0
+        objects.append(obj)
+        if k % 16 == 0:
+            report(0.7 * (k + 1) / len(data.images), f"camera {im.name}")
+
+    if points and len(data.points):
+        size = np.median([np.linalg.norm(im.camera.centre - data.points.xyz.mean(axis=0))
+                          for im in data.images])
+        _points_object(f"{collection.name} points", data.points, 0.002 * float(size),
+                       collection, scene, built)
+    report(0.8, "points")
+    if animated:
+        _animated_camera(f"{collection.name} sequence", data, collection, scene, clip, built)
+    if set_scene_camera and objects:
+        scene.camera = objects[0]
+        apply_camera_resolution(scene, objects[0])
+    return collection
+
+
+# -- operators ---------------------------------------------------------------------------------
+
+class SPLAT_OT_import_colmap(bpy.types.Operator):
+    """Import a COLMAP (or GLOMAP) reconstruction: cameras, photos, sparse points"""
+
+    bl_idname = "splat.import_colmap"
+    bl_label = "Import COLMAP Scene"
+    bl_options = {"REGISTER", "UNDO"}
+
+    directory: StringProperty(name="Folder", subtype="DIR_PATH",
+                              description="COLMAP workspace (with sparse/0) or model folder")
+    filter_folder: BoolProperty(default=True, options={"HIDDEN"})
+    image_folder: StringProperty(
+        name="Image Folder", default="images",
+        description="Photos beside the model: images, images_2, images_4, images_8 (may hold "
+                    "only some photos), or an absolute path")
+    align: BoolProperty(name="Align", default=True,
+                        description="Stand the scene upright (Z up), centre and scale it")
+    up_axis: EnumProperty(
+        name="Up From", default="AUTO",
+        items=[("AUTO", "Cameras and Ground",
+                "Cameras' horizon, refined by the points' ground plane"),
+               ("CAMERAS", "Camera Up Vectors", "Mean of the cameras' up vectors")])
+    scene_size: FloatProperty(name="Scene Size", default=colmap.DEFAULT_SCENE_SIZE, min=0.001,
+                              description="Median camera distance from the centre after aligning")
+    points: BoolProperty(name="Sparse Points", default=True)
+    backgrounds: BoolProperty(name="Photo Backgrounds", default=True,
+                              description="Show each photo as its camera's background")
+    animated_camera: BoolProperty(name="Animated Camera", default=False,
+                                  description="A camera that follows the images, a frame each")
+    cache_dir: StringProperty(name="Cache Folder", subtype="DIR_PATH", default="",
+                              description="Where undistorted photos go (empty: beside the "
+                                          "input if writable, else a user cache folder)")
+
+    def invoke(self, context, event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        wm = context.window_manager
+        wm.progress_begin(0, 1000)
+        try:
+            collection = import_colmap(
+                self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
+                scene_size=self.scene_size, cache_dir=self.cache_dir or None,
+                points=self.points, backgrounds=self.backgrounds,
+                animated_camera=self.animated_camera, scene=context.scene,
+                progress=lambda f, m: wm.progress_update(int(1000 * f)))
+        except (colmap.ColmapError, OSError, ImportError) as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        finally:
+            wm.progress_end()
+        missing = collection["colmap_missing"].splitlines()
+        cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
+        if missing:
+            shown = ", ".join(line.split(":")[0] for line in missing[:5])
+            more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
+            self.report({"WARNING"},
+                        f"{len(missing)} of {cameras} photos missing or unusable in "
+                        f"{self.image_folder} ({shown}{more}): their cameras have no photo")
+        else:
+            self.report({"INFO"}, f"imported {cameras} cameras into '{collection.name}'")
+        return {"FINISHED"}
+
+
+class SPLAT_OT_colmap_set_camera(bpy.types.Operator):
+    """Make the active camera the scene camera, with its photo's resolution and pixel aspect"""
+
+    bl_idname = "splat.colmap_set_camera"
+    bl_label = "Set COLMAP Camera"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.active_object
+        return obj is not None and obj.type == "CAMERA"
+
+    def execute(self, context):
+        context.scene.camera = context.active_object
+        apply_camera_resolution(context.scene, context.active_object)
+        return {"FINISHED"}
+
+
+def _menu_import(self, context):
+    self.layout.operator(SPLAT_OT_import_colmap.bl_idname, text="COLMAP Scene (cameras, points)")
+
+
+_CLASSES = (SPLAT_OT_import_colmap, SPLAT_OT_colmap_set_camera)
+
+
+def register() -> None:
+    register_classes(_CLASSES)
+    bpy.types.TOPBAR_MT_file_import.remove(_menu_import)  # no-op unless registered before
+    bpy.types.TOPBAR_MT_file_import.append(_menu_import)
+    if _on_load_post not in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.append(_on_load_post)
+    _subscribe()
+
+
+def unregister() -> None:
+    bpy.msgbus.clear_by_owner(_MSGBUS_OWNER)
+    if _on_load_post in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_on_load_post)
+    bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
+    unregister_classes(_CLASSES)
