@@ -7,6 +7,8 @@ from setuptools import Extension, setup
 
 HERE = Path(__file__).parent
 SOURCES = sorted(str(p.relative_to(HERE)) for p in (HERE / "src").glob("*.c"))
+HEADERS = sorted(str(p.relative_to(HERE)) for p in [*(HERE / "include").glob("*.h"),
+                                                     *(HERE / "src").glob("*.h")])
 
 if sys.platform == "win32":
     FLAGS = ["/O2", "/W4", "/WX", "/std:c11", "/experimental:c11atomics"]
@@ -20,6 +22,7 @@ setup(
         Extension(
             "splatcore",
             sources=SOURCES,
+            depends=HEADERS,
             include_dirs=["include"],
             extra_compile_args=FLAGS,
             libraries=[] if sys.platform == "win32" else ["m", "pthread"],

@@ -27,7 +27,7 @@ if [ "$(cat .venv/.requirements-stamp 2>/dev/null)" != "$wanted" ]; then
     echo "$wanted" > .venv/.requirements-stamp
 fi
 
-wanted=$(stamp native/setup.py native/pyproject.toml native/include/*.h native/src/*.c)
+wanted=$(stamp native/setup.py native/pyproject.toml native/include/*.h native/src/*.h native/src/*.c)
 if [ "$(cat .venv/.native-stamp 2>/dev/null)" != "$wanted" ] || ! .venv/bin/python -c 'import splatcore' 2>/dev/null; then
     echo "bootstrap: building the native module"
     rm -rf native/build

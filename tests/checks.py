@@ -8,7 +8,7 @@ import numpy as np
 # Rendered images (DESIGN.md, "Rendering semantics"): the native float32 renderer matches the
 # float64 reference to 1e-4 absolute on colours and alpha, and expected depth to 1e-4 relative,
 # except at `ambiguous` pixels (a threshold within float32 rounding, see reference.render),
-# which must be rare: under 1% of the image (or 2 pixels in a tiny image). A float32 NumPy
+# which must be rare: under 1% of the image (or 4 pixels in a tiny image). A float32 NumPy
 # twin of the reference differs from it by about 2e-6.
 RGB_ATOL = 1e-4
 ALPHA_ATOL = 1e-4
@@ -41,7 +41,7 @@ def assert_images_match(got, want: dict, *, rgb_atol=RGB_ATOL, alpha_atol=ALPHA_
     assert np.all((alpha >= 0) & (alpha <= 1)), "alpha outside [0, 1]"
 
     ambiguous = want["ambiguous"]
-    allowed = max(max_ambiguous * ambiguous.size, 2)  # tiny images: a pixel or two
+    allowed = max(max_ambiguous * ambiguous.size, 4)  # tiny images: a few pixels
     assert ambiguous.sum() <= allowed, f"{ambiguous.mean():.4f} of the pixels are ambiguous"
     ok = ~ambiguous
 

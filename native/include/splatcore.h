@@ -10,9 +10,18 @@
  *   sh.c         spherical harmonics degree 0..3 (the reference constants)
  *   sort.c       stable radix sort of Gaussians by view depth
  *   binning.c    Gaussian -> 16x16 tile lists, depth-ordered, exact ellipse/tile overlap
- *   composite.c  per tile, front to back, with an optional mesh layer (colour + depth)
+ *   composite.c  per tile, front to back, with an optional mesh layer (colour + depth); and the
+ *                training variant that records what the backward pass needs
  *   render.c     the pipeline above, with timings
  *   threadpool.c a small persistent pool; output never depends on the thread count
+ *
+ * Training (backward passes, loss and optimizer):
+ *   composite_backward.c  per tile, back to front: gradients of the projected Gaussians
+ *   project_backward.c    per Gaussian: projected-Gaussian gradients -> parameter gradients
+ *   sh.c                  (also) the SH backward
+ *   train.c               the training forward (keeps an sc_train_state) and the backward
+ *   loss.c                L1 + SSIM loss and its gradient
+ *   adam.c                the Adam update
  */
 #ifndef SPLATCORE_H
 #define SPLATCORE_H
@@ -37,6 +46,8 @@ typedef enum {
     SC_ERR_NONFINITE, /* a Gaussian holds NaN or Inf; error_index says which */
     SC_ERR_MEMORY,    /* an allocation failed */
     SC_ERR_TOO_LARGE, /* more tile/Gaussian pairs than fit the index type */
+    SC_ERR_STALE,     /* backward: the Gaussians differ from those the state was rendered from;
+                         error_index says which */
 } sc_status;
 
 /* N Gaussians in the design's struct-of-arrays layout. */
@@ -125,13 +136,26 @@ void sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_
 
 /* Tile lists for `count` splats already in front-to-back order: for each tile t,
  * list[offsets[t] .. offsets[t+1]) are indices into `splats`, ascending (so front to back).
- * Allocates *offsets and *list (free with free()). */
+ * Allocates *offsets and *list (free with free()). With pair_offsets and pairs non-NULL, also
+ * the inverse, Gaussian-major index (for the backward pass's deterministic reduction): splat k's
+ * entries in `list` are at positions pairs[pair_offsets[k] .. pair_offsets[k+1]), in tile order;
+ * *pair_offsets has count + 1 entries. */
 sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
-                 const sc_camera *cam, int threads, int64_t **offsets, uint32_t **list);
+                 const sc_camera *cam, int threads, int64_t **offsets, uint32_t **list,
+                 int64_t **pair_offsets, uint32_t **pairs);
 
 /* Composite one tile front to back. Returns the number of Gaussian/pixel evaluations made. */
 int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
                           int tile_x, int tile_y, const sc_camera *cam, const sc_image *image);
+
+/* The training variant of sc_composite_tile: no mesh layer (image->mesh_rgba is ignored), the
+ * same rgb, alpha and depth bit for bit, and per pixel of the tile, into (H,W) arrays:
+ * final_t the transmittance left after the Gaussians (before the background), and n_contrib the
+ * number of tile-list entries up to and including the last Gaussian added at that pixel (0 if
+ * none), as the reference CUDA rasterizer's n_contrib. */
+int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, int64_t count,
+                                int tile_x, int tile_y, const sc_camera *cam, const sc_image *image,
+                                float *final_t, int32_t *n_contrib);
 
 /* Time `iterations` passes of the composite inner loop over one in-cache tile of `count`
  * Gaussians that all cover it (no early stop): the kernel's arithmetic limit. Returns seconds. */
@@ -144,6 +168,167 @@ void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ct
 int sc_cpu_count(void);
 
 double sc_now_ms(void);
+
+/* ================================================================ training
+ *
+ * Per step: sc_render_train (the forward, keeping an sc_train_state), the caller's loss on the
+ * image (sc_l1_ssim, or anything else giving dL/d(rgb, alpha, depth)), sc_backward (parameter
+ * gradients), sc_adam on each parameter array. Every result is identical for any thread count.
+ *
+ * Gradients are those of the forward exactly as defined ("Rendering semantics"), a piecewise
+ * smooth function; where a piece ends the one-sided pieces are used, as follows:
+ *  - a Gaussian skipped at a pixel (alpha < 1/255), stopped (transmittance) or culled gets no
+ *    gradient from that pixel; alpha clamped at 0.99 passes no gradient to opacity or shape;
+ *  - an SH colour channel clamped at 0 passes no gradient;
+ *  - in the EWA Jacobian, x/z (y/z) clamped to the guard band is a constant: the clamped ratio
+ *    gets no gradient, and J's remaining dependence on z is differentiated exactly (the
+ *    reference CUDA code instead treats the clamped x, not x/z, as the constant);
+ *  - the quaternion is normalised on use: its gradient is orthogonal to it and scaled by
+ *    1/|q|; an all-zero quaternion (the identity) gets gradient 0;
+ *  - the view direction's dependence on the mean is included (SH degree >= 1), as in 3DGS;
+ *  - antialiased mode: d sqrt(r)/dr uses max(sqrt(r), 1e-6) in the denominator (r = det ratio).
+ * The compositor recovers each Gaussian's transmittance back to front by division by 1 - alpha,
+ * which is >= 0.01 since alpha <= 0.99. */
+
+/* The front half of a frame: the drawn Gaussians in depth order and their tile lists. */
+typedef struct {
+    sc_splat *splats;       /* (drawn) projected Gaussians, front to back */
+    uint32_t *order;        /* (drawn) index of each in the input Gaussians */
+    int64_t drawn;
+    int64_t *offsets;       /* (ntiles + 1): tile t's entries are list[offsets[t] .. offsets[t+1]) */
+    uint32_t *list;         /* (pairs) indices into splats */
+    int64_t *pair_offsets;  /* optional (drawn + 1), see sc_bin */
+    uint32_t *pairs;        /* optional (pairs), see sc_bin */
+    int tiles_x;
+    int64_t ntiles;
+} sc_frame;
+
+/* Project, sort and bin (the first three stages of sc_render); with_pairs also builds the
+ * Gaussian-major pair index. Fills stats' project/sort/bin times, visible and tile_pairs.
+ * On success free with sc_frame_free; on failure nothing is left allocated. */
+sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                           int with_pairs, sc_frame *frame, sc_stats *stats);
+void sc_frame_free(sc_frame *frame);
+
+/* Everything the backward pass needs from a training forward. Owns its arrays. */
+typedef struct {
+    sc_frame frame;       /* with the pair index */
+    sc_camera camera;
+    sc_options options;   /* options.threads is the forward's; sc_backward takes its own */
+    int64_t count;        /* Gaussians rendered */
+    int sh_coeffs;        /* K of the Gaussians' sh array */
+    int has_background;
+    float background[3];
+    float *final_t;       /* (H,W) transmittance after the Gaussians */
+    int32_t *n_contrib;   /* (H,W) tile-list entries up to the last Gaussian added */
+    float *depth;         /* (H,W) the expected depth as rendered (inf where nothing was hit) */
+} sc_train_state;
+
+/* The forward for training: sc_render without a mesh layer (image->mesh_* must be NULL),
+ * returning the same images bit for bit, and filling *state (free it with
+ * sc_train_state_free, also after a failure). */
+sc_status sc_render_train(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                          const sc_image *image, sc_train_state *state, sc_stats *stats);
+void sc_train_state_free(sc_train_state *state);
+
+/* Gradients of a projected Gaussian (its sc_splat fields), as records of SC_DG_COUNT floats. */
+enum {
+    SC_DG_X, SC_DG_Y,                      /* projected mean, pixels */
+    SC_DG_CA, SC_DG_CB, SC_DG_CC,          /* conic; B counts once (power has -B dx dy) */
+    SC_DG_OPACITY,                         /* the opacity the compositor uses */
+    SC_DG_R, SC_DG_G, SC_DG_B,             /* clamped SH colour */
+    SC_DG_DEPTH,                           /* view-space z, through the expected-depth image */
+    SC_DG_ABS_X, SC_DG_ABS_Y,              /* sums over pixels of |per-pixel dL/dx|, |dL/dy| */
+    SC_DG_COUNT
+};
+
+/* Per-pixel inputs of the compositor's backward pass, all (H,W[,3]) like the images. */
+typedef struct {
+    const float *d_rgb;      /* dL/d rgb (H,W,3) */
+    const float *d_alpha;    /* dL/d alpha (H,W), or NULL */
+    const float *d_depth;    /* dL/d expected depth (H,W), or NULL; ignored where depth is inf */
+    const float *final_t;    /* from the training forward */
+    const int32_t *n_contrib;
+    const float *depth;
+    const float *background; /* (3), or NULL for black */
+} sc_image_grads;
+
+/* Backward of sc_composite_tile_train for one tile, back to front: writes `count` records
+ * (count, SC_DG_COUNT), one per tile-list entry (zero for entries no pixel used). Returns the
+ * number of Gaussian/pixel evaluations made. */
+int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list, int64_t count,
+                                   int tile_x, int tile_y, const sc_camera *cam,
+                                   const sc_image_grads *grads, float *records);
+
+/* Parameter gradients, in the Gaussians' layout (caller-owned, overwritten). */
+typedef struct {
+    float *means;          /* (N,3) */
+    float *log_scales;     /* (N,3) */
+    float *quats;          /* (N,4) */
+    float *opacity_logits; /* (N,) */
+    float *sh;             /* (N,K,3); bands above the rendered degree get 0 */
+    float *xy;             /* (N,2) dL/d projected mean in pixels, summed over pixels (the
+                            * compositor's part; 3DGS's viewspace gradient is xy * (W/2, H/2)) */
+    float *xy_abs;         /* (N,2) SC_DG_ABS_X, SC_DG_ABS_Y (gsplat's "absgrad") */
+} sc_gaussian_grads;
+
+/* Backward of the projection of Gaussian i (drawn as `s` by the forward): from its summed
+ * splat gradient `d` (SC_DG_COUNT) to its rows of `out` (xy and xy_abs copied from d). campos
+ * is the camera centre in world space; the colour clamp is read from s's colour (0 = clamped).
+ * Returns 0, or -1 if an input is non-finite, or -2 if Gaussian i no longer projects to `s` (it
+ * changed since the forward). Non-finite results (only in extreme overflow) are written as 0
+ * and counted in *flushed. */
+int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
+                                 const sc_options *opt, const double campos[3], int64_t i,
+                                 const sc_splat *s, const double *d, sc_gaussian_grads *out,
+                                 int64_t *flushed);
+
+/* Backward of sc_sh_colour: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
+ * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
+ * free vector; the caller applies the normalisation). */
+void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const double d_rgb[3],
+                    double *d_coeffs, double d_dir[3]);
+
+typedef struct {
+    double ms_composite, ms_project, ms_total;
+    int64_t evaluations;
+    int64_t flushed;     /* non-finite gradient values written as 0 (expected: 0) */
+    int64_t error_index; /* with SC_ERR_NONFINITE or SC_ERR_STALE */
+} sc_backward_stats;
+
+/* Gradients of a loss w.r.t. every Gaussian parameter, given dL/d(rgb) (H,W,3) and optionally
+ * dL/d(alpha) and dL/d(expected depth) (H,W) of the forward that filled `state` (which also
+ * supplies final_t, n_contrib, depth and background). `g` must hold the same Gaussians as that
+ * forward: a drawn Gaussian whose projection changed gives SC_ERR_STALE (SH changes are not
+ * detected), a non-finite one SC_ERR_NONFINITE, with stats->error_index; the outputs then hold
+ * partial results. Rows of Gaussians that were not drawn are 0. Deterministic: per tile, one
+ * record per tile-list entry; per Gaussian, its records summed in the fixed order of the pair
+ * index. Memory, during the call: SC_DG_COUNT floats per tile pair + ~110 bytes per Gaussian. */
+sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const float *d_rgb,
+                      const float *d_alpha, const float *d_depth, int threads,
+                      sc_gaussian_grads *out, sc_backward_stats *stats);
+
+/* The 3DGS photometric loss on (H,W,3) images in [0,1]:
+ *   loss = (1 - lambda) L1 + lambda (1 - SSIM),
+ * L1 the mean absolute difference, SSIM the mean of the SSIM map with an 11x11 Gaussian window
+ * (sigma 1.5), C1 = 0.01^2, C2 = 0.03^2, each channel filtered separately with zero padding of
+ * 5 pixels (the 3DGS training code's conv2d(padding = 5)), the map the same size as the image.
+ * Writes dL/d(image) (H,W,3) into grad when non-NULL (d|x|/dx at 0 is 0). Computed in double.
+ * Returns SC_ERR_MEMORY or SC_OK. */
+sc_status sc_l1_ssim(const float *image, const float *target, int width, int height,
+                     double lambda, int threads, float *grad, double *loss, double *l1,
+                     double *ssim);
+
+typedef struct {
+    double lr, beta1, beta2, eps;
+    int64_t step; /* 1 on the first update (bias correction) */
+} sc_adam_options;
+
+/* One Adam step over n float32 values in place, exactly torch.optim.Adam's (non-amsgrad,
+ * no weight decay) formula: m = b1 m + (1-b1) g; v = b2 v + (1-b2) g^2;
+ * p -= lr / (1 - b1^t) * m / (sqrt(v) / sqrt(1 - b2^t) + eps). */
+void sc_adam(float *param, const float *grad, float *m, float *v, int64_t n,
+             const sc_adam_options *o, int threads);
 
 #ifdef __cplusplus
 }

@@ -60,51 +60,80 @@ typedef struct {
     uint32_t *counts;  /* (chunks, ntiles): pairs, then each chunk's write cursor */
     int64_t *cursors;  /* (chunks, ntiles) during the scatter */
     uint32_t *list;
+    int64_t *pair_offsets; /* optional (count + 1): each Gaussian's pairs, counted then summed */
+    uint32_t *pairs;       /* optional: list positions of each Gaussian's pairs, tile order */
 } job;
 
-static void count_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    job *j = ctx;
+/* The passes are written once, with a constant `inverse` flag that the compiler folds, so the
+ * plain render pays nothing for the optional Gaussian -> pairs index. */
+static inline void count_pass(job *j, int64_t begin, int64_t end, const int inverse) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
         uint32_t *counts = j->counts + chunk * j->ntiles;
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
             const sc_footprint *f = &j->fp[k];
+            int64_t pairs = 0;
             for (int ty = f->ty0; ty < f->ty1; ++ty) {
                 int32_t t0, t1;
                 row_tiles(f, &j->splats[k], ty, j->cam, &t0, &t1);
                 for (int tx = t0; tx < t1; ++tx) counts[(int64_t)ty * j->tiles_x + tx]++;
+                pairs += t1 - t0;
             }
+            if (inverse) j->pair_offsets[k] = pairs;
         }
     }
 }
 
-static void scatter_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    job *j = ctx;
+static inline void scatter_pass(job *j, int64_t begin, int64_t end, const int inverse) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
         int64_t *cursor = j->cursors + chunk * j->ntiles;
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
             const sc_footprint *f = &j->fp[k];
+            uint32_t *mine = inverse ? j->pairs + j->pair_offsets[k] : NULL;
             for (int ty = f->ty0; ty < f->ty1; ++ty) {
                 int32_t t0, t1;
                 row_tiles(f, &j->splats[k], ty, j->cam, &t0, &t1);
-                for (int tx = t0; tx < t1; ++tx)
-                    j->list[cursor[(int64_t)ty * j->tiles_x + tx]++] = (uint32_t)k;
+                for (int tx = t0; tx < t1; ++tx) {
+                    const int64_t at = cursor[(int64_t)ty * j->tiles_x + tx]++;
+                    j->list[at] = (uint32_t)k;
+                    if (inverse) *mine++ = (uint32_t)at;
+                }
             }
         }
     }
+}
+
+static void count_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    count_pass(ctx, begin, end, 0);
+}
+
+static void count_chunk_inverse(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    count_pass(ctx, begin, end, 1);
+}
+
+static void scatter_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    scatter_pass(ctx, begin, end, 0);
+}
+
+static void scatter_chunk_inverse(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    scatter_pass(ctx, begin, end, 1);
 }
 
 /* At most this many Gaussian/tile pairs (4 GiB of list). */
 static const int64_t MAX_PAIRS = (int64_t)1 << 30;
 
 sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
-                 const sc_camera *cam, int threads, int64_t **offsets_out, uint32_t **list_out) {
+                 const sc_camera *cam, int threads, int64_t **offsets_out, uint32_t **list_out,
+                 int64_t **pair_offsets_out, uint32_t **pairs_out) {
     job j = {.fp = fp, .splats = splats, .cam = cam, .count = count};
+    const int inverse = pair_offsets_out != NULL;
     j.tiles_x = (cam->width + SC_TILE - 1) / SC_TILE;
     const int tiles_y = (cam->height + SC_TILE - 1) / SC_TILE;
     j.ntiles = (int64_t)j.tiles_x * tiles_y;
@@ -118,9 +147,10 @@ sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
     int64_t *offsets = malloc(sizeof(int64_t) * (size_t)(j.ntiles + 1));
     j.counts = calloc((size_t)(chunks * j.ntiles), sizeof(uint32_t));
     j.cursors = malloc(sizeof(int64_t) * (size_t)(chunks * j.ntiles));
-    if (!offsets || !j.counts || !j.cursors) goto out_of_memory;
+    if (inverse) j.pair_offsets = malloc(sizeof(int64_t) * (size_t)(count + 1));
+    if (!offsets || !j.counts || !j.cursors || (inverse && !j.pair_offsets)) goto out_of_memory;
 
-    sc_parallel_for(threads, chunks, 1, count_chunk, &j);
+    sc_parallel_for(threads, chunks, 1, inverse ? count_chunk_inverse : count_chunk, &j);
     int64_t total = 0;
     for (int64_t t = 0; t < j.ntiles; ++t) {
         offsets[t] = total;
@@ -135,19 +165,37 @@ sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
     if (total > MAX_PAIRS) {
         free(offsets);
         free(j.cursors);
+        free(j.pair_offsets);
         return SC_ERR_TOO_LARGE;
+    }
+    if (inverse) { /* per-Gaussian counts -> offsets; they add up to `total` */
+        int64_t sum = 0;
+        for (int64_t k = 0; k < count; ++k) {
+            const int64_t c = j.pair_offsets[k];
+            j.pair_offsets[k] = sum;
+            sum += c;
+        }
+        j.pair_offsets[count] = sum;
+        j.pairs = malloc(sizeof(uint32_t) * (size_t)(total ? total : 1));
+        if (!j.pairs) goto out_of_memory;
     }
     j.list = malloc(sizeof(uint32_t) * (size_t)(total ? total : 1));
     if (!j.list) goto out_of_memory;
-    sc_parallel_for(threads, chunks, 1, scatter_chunk, &j);
+    sc_parallel_for(threads, chunks, 1, inverse ? scatter_chunk_inverse : scatter_chunk, &j);
     free(j.cursors);
     *offsets_out = offsets;
     *list_out = j.list;
+    if (inverse) {
+        *pair_offsets_out = j.pair_offsets;
+        *pairs_out = j.pairs;
+    }
     return SC_OK;
 
 out_of_memory:
     free(offsets);
     free(j.counts);
     free(j.cursors);
+    free(j.pair_offsets);
+    free(j.pairs);
     return SC_ERR_MEMORY;
 }

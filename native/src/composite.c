@@ -1,75 +1,32 @@
 /* Compositing: one 16x16 tile, front to back, exactly the reference rasterizer's per-pixel rules
  * (skip power > 0 and alpha < 1/255, clamp alpha at 0.99, stop before T < 1e-4), with an
- * optional mesh layer slotted in at each pixel's mesh depth.
+ * optional mesh layer slotted in at each pixel's mesh depth; and the training variant (no mesh)
+ * that also records each pixel's final transmittance and n_contrib for the backward pass.
  *
  * Speed comes from three things, none of which changes a result:
  *  - only the pixel rows and 8-pixel half rows that a Gaussian's footprint reaches are
  *    evaluated (row0..row1, col0..col1);
  *  - each half row is branch-free, so the compiler vectorises it (AVX2/AVX-512 clones
  *    where the CPU has them, chosen at load time; SSE2 otherwise);
- *  - exp() is a polynomial with relative error below 4e-7, far inside the 1e-4 tolerance and
- *    the threshold margins the tests allow (checked against float64 in tests). */
+ *  - exp() is a polynomial (sc_fast_exp, internal.h) with relative error below 4e-7, far
+ *    inside the 1e-4 tolerance and the threshold margins the tests allow (checked against
+ *    float64 in tests). */
 #include <math.h>
 #include <string.h>
 
-#include "splatcore.h"
+#include "internal.h"
 
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__) && defined(__linux__)
-#define SC_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
-#else
-#define SC_CLONES
-#endif
-
-enum { PIXELS = SC_TILE * SC_TILE };
-
-/* e^x for x <= 0 (larger x is never drawn): 2^(x log2 e) split into an integer power of two and a
- * degree-6 polynomial on [-0.5, 0.5] (Cephes exp2f coefficients). Branch-free, vectorisable. */
-static inline float fast_exp(float x) {
-    x = x < -87.0f ? -87.0f : x;
-    x = x > 0.0f ? 0.0f : x;
-    const float t = x * 1.44269504088896341f;
-    const float n = (t + 12582912.0f) - 12582912.0f; /* round to nearest (1.5 * 2^23 trick) */
-    const float f = t - n;
-    float p = 1.535336188319500e-4f;
-    p = p * f + 1.339887440266574e-3f;
-    p = p * f + 9.618437357674640e-3f;
-    p = p * f + 5.550332471162809e-2f;
-    p = p * f + 2.402264791363012e-1f;
-    p = p * f + 6.931472028550421e-1f;
-    p = p * f + 1.0f;
-    const int32_t bits = ((int32_t)n + 127) << 23;
-    float scale;
-    memcpy(&scale, &bits, sizeof scale);
-    return p * scale;
-}
+enum { PIXELS = SC_PIXELS, BLOCK = SC_BLOCK };
 
 typedef struct {
     float T[PIXELS], r[PIXELS], g[PIXELS], b[PIXELS], depth[PIXELS], weight[PIXELS];
     float live[PIXELS]; /* 1 while the pixel takes Gaussians, 0 once stopped (or off-image) */
 } tile_state;
 
-/* What one Gaussian contributes along the tile's 16 columns, computed once for all its rows. */
-typedef struct {
-    float dx[SC_TILE];        /* projected mean minus pixel centre, x */
-    float power_x[SC_TILE];   /* -0.5 A dx^2 */
-    float half_cc, cb, y, opacity, r, g, b, depth;
-} columns;
-
-static inline void prepare_columns(columns *c, const sc_splat *s, float px0) {
-    for (int x = 0; x < SC_TILE; ++x) {
-        c->dx[x] = s->x - (px0 + (float)x);
-        c->power_x[x] = -0.5f * s->ca * c->dx[x] * c->dx[x];
-    }
-    c->half_cc = 0.5f * s->cc, c->cb = s->cb, c->y = s->y, c->opacity = s->opacity;
-    c->r = s->r, c->g = s->g, c->b = s->b, c->depth = s->depth;
-}
-
-enum { BLOCK = 8 }; /* pixels evaluated together: half a tile row */
-
 /* One Gaussian over the 8 pixels of a half row starting at `first`. The decisions are 0/1 float
  * masks rather than branches so that the loop vectorises. */
 static inline void blend_block(tile_state *st, int first, float power_y, float cb_dy,
-                               const columns *c) {
+                               const sc_columns *c) {
     const int col = first % SC_TILE;
     float *restrict T = st->T + first, *restrict live = st->live + first;
     float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
@@ -79,7 +36,7 @@ static inline void blend_block(tile_state *st, int first, float power_y, float c
     const float cr = c->r, cg = c->g, cbl = c->b, cz = c->depth;
     for (int x = 0; x < BLOCK; ++x) {
         const float power = power_x[x] + power_y - cb_dy * dx[x];
-        float alpha = opacity * fast_exp(power);
+        float alpha = opacity * sc_fast_exp(power);
         alpha = alpha < SC_ALPHA_MAX ? alpha : SC_ALPHA_MAX;
         const float t = T[x];
         const float next_t = t * (1.0f - alpha);
@@ -160,8 +117,8 @@ static int64_t composite(tile_state *st, mesh_state *ms, const sc_splat *splats,
         j1 = j1 > SC_TILE - 1 ? SC_TILE - 1 : j1;
         i0 = i0 < 0 ? 0 : i0 / BLOCK * BLOCK;
         i1 = i1 > SC_TILE - 1 ? SC_TILE : (i1 / BLOCK + 1) * BLOCK;
-        columns c;
-        prepare_columns(&c, s, px0);
+        sc_columns c;
+        sc_prepare_columns(&c, s, px0);
         for (int j = j0; j <= j1; ++j) {
             const float dy = c.y - ((float)(ms->y0 + j) + 0.5f);
             const float power_y = -(c.half_cc * dy * dy), cb_dy = c.cb * dy;
@@ -211,6 +168,100 @@ int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t 
             im->rgb[3 * pix + 2] = st.b[p] + (bg ? t * bg[2] : 0.0f);
             im->alpha[pix] = 1.0f - t;
             im->depth[pix] = st.weight[p] > 0.0f ? st.depth[p] / st.weight[p] : INFINITY;
+        }
+    return evaluations;
+}
+
+/* ---------------------------------------------------------------- training forward
+ * The same compositing without a mesh layer, also recording per pixel the number of tile-list
+ * entries up to and including the last Gaussian that was added (the reference CUDA code's
+ * n_contrib / last_contributor). blend_block_train is blend_block plus that record: the images
+ * are bit-identical to sc_composite_tile's with no mesh. */
+static inline void blend_block_train(tile_state *st, int32_t *restrict last_all, int first,
+                                     float power_y, float cb_dy, const sc_columns *c,
+                                     int32_t entry) {
+    const int col = first % SC_TILE;
+    float *restrict T = st->T + first, *restrict live = st->live + first;
+    float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
+                    *restrict depth = st->depth + first, *restrict weight = st->weight + first;
+    int32_t *restrict last = last_all + first;
+    const float *restrict dx = c->dx + col, *restrict power_x = c->power_x + col;
+    const float opacity = c->opacity;
+    const float cr = c->r, cg = c->g, cbl = c->b, cz = c->depth;
+    for (int x = 0; x < BLOCK; ++x) {
+        const float power = power_x[x] + power_y - cb_dy * dx[x];
+        float alpha = opacity * sc_fast_exp(power);
+        alpha = alpha < SC_ALPHA_MAX ? alpha : SC_ALPHA_MAX;
+        const float t = T[x];
+        const float next_t = t * (1.0f - alpha);
+        const float drawn = alpha >= SC_ALPHA_MIN ? live[x] : 0.0f;
+        const float visible = power <= 0.0f ? drawn : 0.0f;
+        const float stop = next_t < SC_T_MIN ? visible : 0.0f;
+        const float added = visible - stop;
+        const float w = added * alpha * t;
+        r[x] += w * cr;
+        g[x] += w * cg;
+        b[x] += w * cbl;
+        depth[x] += w * cz;
+        weight[x] += w;
+        T[x] = t - w;
+        live[x] -= stop;
+        last[x] = added != 0.0f ? entry : last[x];
+    }
+}
+
+SC_CLONES
+static int64_t composite_train(tile_state *st, int32_t *last, int x0, int y0,
+                               const sc_splat *splats, const uint32_t *list, int64_t count) {
+    const float px0 = (float)x0 + 0.5f;
+    int64_t evaluations = 0;
+    for (int64_t k = 0; k < count; ++k) {
+        if ((k & 31) == 31 && all_stopped(st)) break;
+        const sc_splat *s = &splats[list[k]];
+        int j0, j1, i0, i1;
+        sc_tile_span(s, x0, y0, &j0, &j1, &i0, &i1);
+        sc_columns c;
+        sc_prepare_columns(&c, s, px0);
+        for (int j = j0; j <= j1; ++j) {
+            const float dy = c.y - ((float)(y0 + j) + 0.5f);
+            const float power_y = -(c.half_cc * dy * dy), cb_dy = c.cb * dy;
+            for (int i = i0; i < i1; i += BLOCK)
+                blend_block_train(st, last, j * SC_TILE + i, power_y, cb_dy, &c, (int32_t)(k + 1));
+        }
+        evaluations += (int64_t)(j1 - j0 + 1) * (i1 - i0);
+    }
+    return evaluations;
+}
+
+int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, int64_t count,
+                                int tile_x, int tile_y, const sc_camera *cam, const sc_image *im,
+                                float *final_t, int32_t *n_contrib) {
+    tile_state st;
+    int32_t last[PIXELS];
+    const int x0 = tile_x * SC_TILE, y0 = tile_y * SC_TILE;
+    const int w = cam->width - x0 < SC_TILE ? cam->width - x0 : SC_TILE;
+    const int h = cam->height - y0 < SC_TILE ? cam->height - y0 : SC_TILE;
+    for (int p = 0; p < PIXELS; ++p) {
+        const int in_image = (p % SC_TILE) < w && (p / SC_TILE) < h;
+        st.T[p] = 1.0f;
+        st.r[p] = st.g[p] = st.b[p] = st.depth[p] = st.weight[p] = 0.0f;
+        st.live[p] = in_image ? 1.0f : 0.0f;
+        last[p] = 0;
+    }
+    const int64_t evaluations = composite_train(&st, last, x0, y0, splats, list, count);
+    const float *bg = im->background;
+    for (int j = 0; j < h; ++j)
+        for (int i = 0; i < w; ++i) {
+            const int p = j * SC_TILE + i;
+            const int64_t pix = (int64_t)(y0 + j) * cam->width + x0 + i;
+            const float t = st.T[p];
+            im->rgb[3 * pix + 0] = st.r[p] + (bg ? t * bg[0] : 0.0f);
+            im->rgb[3 * pix + 1] = st.g[p] + (bg ? t * bg[1] : 0.0f);
+            im->rgb[3 * pix + 2] = st.b[p] + (bg ? t * bg[2] : 0.0f);
+            im->alpha[pix] = 1.0f - t;
+            im->depth[pix] = st.weight[p] > 0.0f ? st.depth[p] / st.weight[p] : INFINITY;
+            final_t[pix] = t;
+            n_contrib[pix] = last[p];
         }
     return evaluations;
 }

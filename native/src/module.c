@@ -19,7 +19,7 @@ static const long long MAX_GAUSSIANS = 0x7fffffffLL;
 
 /* Which arrays a call holds, so every exit path can release them. */
 typedef struct {
-    Py_buffer views[16];
+    Py_buffer views[24];
     int count;
 } buffers;
 
@@ -28,15 +28,19 @@ static void release_all(buffers *b) {
     b->count = 0;
 }
 
+/* type: 'f' float32, 'd' float64, 'B' uint8, 'i' int32 (any 4-byte signed integer code). */
 static int format_is(const char *format, char type) {
     if (!format) return type == 'B';
     if (*format == '@' || *format == '=' || *format == '<') format++;
+    if (type == 'i' && (format[0] == 'l' || format[0] == 'i') && format[1] == '\0') return 1;
     return format[0] == type && format[1] == '\0';
 }
 
 static const char *type_name(char type) {
-    return type == 'f' ? "float32" : type == 'd' ? "float64" : "uint8";
+    return type == 'f' ? "float32" : type == 'd' ? "float64" : type == 'i' ? "int32" : "uint8";
 }
+
+static Py_ssize_t type_size(char type) { return type == 'd' ? 8 : type == 'f' || type == 'i' ? 4 : 1; }
 
 /* Get a C-contiguous buffer of `type` with shape `shape` (-1: any size) or raise. */
 static const void *get_array(buffers *b, PyObject *obj, const char *name, char type, int ndim,
@@ -57,7 +61,7 @@ static const void *get_array(buffers *b, PyObject *obj, const char *name, char t
         return NULL;
     }
     b->count++;
-    if (!format_is(view->format, type) || view->itemsize != (type == 'd' ? 8 : type == 'f' ? 4 : 1)) {
+    if (!format_is(view->format, type) || view->itemsize != type_size(type)) {
         PyErr_Format(PyExc_TypeError, "%s must have dtype %s, got format '%s'", name,
                      type_name(type), view->format ? view->format : "B");
         return NULL;
@@ -93,11 +97,9 @@ static int all_finite_d(const double *v, int n) {
     return 1;
 }
 
-/* Parse the arguments project() and render() share: Gaussians, camera, options. */
-static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int width, int height,
-                        double near, int antialiased, int threads, sc_gaussians *g, sc_camera *cam,
-                        sc_options *opt) {
-    const Py_ssize_t n3[] = {-1, 3}, n4[] = {-1, 4}, n1[] = {-1}, m44[] = {4, 4}, v4[] = {4};
+/* Parse the five Gaussian arrays objs[0..4] (shapes consistent, K in 1, 4, 9, 16). */
+static int parse_gaussians(buffers *b, PyObject *const *objs, sc_gaussians *g) {
+    const Py_ssize_t n3[] = {-1, 3};
     if (!(g->means = get_array(b, objs[0], "means", 'f', 2, n3, 0))) return -1;
     const Py_ssize_t n = b->views[b->count - 1].shape[0];
     if (n > MAX_GAUSSIANS) {
@@ -105,20 +107,27 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
         return -1;
     }
     const Py_ssize_t rows3[] = {n, 3}, rows4[] = {n, 4}, rows1[] = {n}, sh_shape[] = {n, -1, 3};
-    (void)n4, (void)n1;
     if (!(g->log_scales = get_array(b, objs[1], "log_scales", 'f', 2, rows3, 0))) return -1;
     if (!(g->quats = get_array(b, objs[2], "quats", 'f', 2, rows4, 0))) return -1;
     if (!(g->opacity_logits = get_array(b, objs[3], "opacity_logits", 'f', 1, rows1, 0))) return -1;
     if (!(g->sh = get_array(b, objs[4], "sh", 'f', 3, sh_shape, 0))) return -1;
     g->count = n;
     g->sh_coeffs = (int)b->views[b->count - 1].shape[1];
-    int data_degree = g->sh_coeffs == 1 ? 0 : g->sh_coeffs == 4 ? 1 : g->sh_coeffs == 9 ? 2
-                    : g->sh_coeffs == 16 ? 3 : -1;
-    if (data_degree < 0) {
+    if (g->sh_coeffs != 1 && g->sh_coeffs != 4 && g->sh_coeffs != 9 && g->sh_coeffs != 16) {
         PyErr_Format(PyExc_ValueError, "sh must have shape (N, K, 3) with K in 1, 4, 9, 16; got K=%d",
                      g->sh_coeffs);
         return -1;
     }
+    return 0;
+}
+
+/* Parse the arguments project(), render() and render_train() share: Gaussians, camera, options. */
+static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int width, int height,
+                        double near, int antialiased, int threads, sc_gaussians *g, sc_camera *cam,
+                        sc_options *opt) {
+    const Py_ssize_t m44[] = {4, 4}, v4[] = {4};
+    if (parse_gaussians(b, objs, g) != 0) return -1;
+    const int data_degree = g->sh_coeffs == 1 ? 0 : g->sh_coeffs == 4 ? 1 : g->sh_coeffs == 9 ? 2 : 3;
     if (sh_degree < 0 || sh_degree > data_degree) {
         PyErr_Format(PyExc_ValueError, "sh_degree must be in 0..%d for this data, got %d",
                      data_degree, sh_degree);
@@ -196,6 +205,11 @@ static PyObject *raise_status(sc_status status, const sc_gaussians *g, const sc_
                             "Gaussian %lld has a non-finite value (NaN or Inf) in %s",
                             (long long)i, what);
     }
+    if (status == SC_ERR_STALE)
+        return PyErr_Format(PyExc_ValueError,
+                            "Gaussian %lld differs from the one render_train drew: the Gaussians "
+                            "changed between the forward and the backward pass",
+                            (long long)stats->error_index);
     if (status == SC_ERR_TOO_LARGE)
         return PyErr_Format(PyExc_MemoryError,
                             "too many Gaussian/tile overlaps to render this image; "
@@ -352,6 +366,328 @@ fail:
     return NULL;
 }
 
+/* ---------------------------------------------------------------- training */
+
+static const char STATE_NAME[] = "splatcore.TrainState";
+
+static void state_destructor(PyObject *capsule) {
+    sc_train_state *state = PyCapsule_GetPointer(capsule, STATE_NAME);
+    if (!state) {
+        PyErr_Clear();
+        return;
+    }
+    sc_train_state_free(state);
+    free(state);
+}
+
+static sc_train_state *get_state(PyObject *obj) {
+    if (!PyCapsule_IsValid(obj, STATE_NAME)) {
+        PyErr_SetString(PyExc_TypeError,
+                        "state must be the training state that render_train returned");
+        return NULL;
+    }
+    return PyCapsule_GetPointer(obj, STATE_NAME);
+}
+
+static int check_finite_array(const float *v, int64_t n, const char *name) {
+    for (int64_t i = 0; i < n; ++i)
+        if (!isfinite(v[i])) {
+            PyErr_Format(PyExc_ValueError, "%s has a non-finite value (NaN or Inf) at flat index %lld",
+                         name, (long long)i);
+            return -1;
+        }
+    return 0;
+}
+
+static PyObject *py_render_train(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *objs[7], *background, *outs[6];
+    int sh_degree, width, height, antialiased, threads;
+    double near;
+    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpiOOOOOOO:render_train", &objs[0], &objs[1],
+                          &objs[2], &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width,
+                          &height, &near, &antialiased, &threads, &background, &outs[0],
+                          &outs[1], &outs[2], &outs[3], &outs[4], &outs[5]))
+        return NULL;
+    buffers b = {.count = 0};
+    sc_gaussians g;
+    sc_camera cam;
+    sc_options opt;
+    sc_image image = {0};
+    float *out_t = NULL;
+    int32_t *out_n = NULL;
+    uint8_t *out_visible = NULL;
+    if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
+                     &opt) != 0)
+        goto fail;
+    const Py_ssize_t img3[] = {height, width, 3}, img1[] = {height, width}, rgb3[] = {3};
+    if (background != Py_None) {
+        if (!(image.background = get_array(&b, background, "background", 'f', 1, rgb3, 0))) goto fail;
+        if (check_finite_array(image.background, 3, "background") != 0) goto fail;
+    }
+    if (!(image.rgb = (float *)get_array(&b, outs[0], "out_rgb", 'f', 3, img3, 1))) goto fail;
+    if (!(image.alpha = (float *)get_array(&b, outs[1], "out_alpha", 'f', 2, img1, 1))) goto fail;
+    if (!(image.depth = (float *)get_array(&b, outs[2], "out_depth", 'f', 2, img1, 1))) goto fail;
+    if (outs[3] != Py_None &&
+        !(out_t = (float *)get_array(&b, outs[3], "out_final_t", 'f', 2, img1, 1)))
+        goto fail;
+    if (outs[4] != Py_None &&
+        !(out_n = (int32_t *)get_array(&b, outs[4], "out_n_contrib", 'i', 2, img1, 1)))
+        goto fail;
+    const Py_ssize_t rows[] = {(Py_ssize_t)g.count};
+    if (outs[5] != Py_None &&
+        !(out_visible = (uint8_t *)get_array(&b, outs[5], "out_visible", 'B', 1, rows, 1)))
+        goto fail;
+
+    sc_train_state *state = calloc(1, sizeof *state);
+    if (!state) {
+        PyErr_NoMemory();
+        goto fail;
+    }
+    sc_stats stats = {0};
+    sc_status status;
+    const size_t pixels = (size_t)width * (size_t)height;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_render_train(&g, &cam, &opt, &image, state, &stats);
+    if (status == SC_OK && out_t) memcpy(out_t, state->final_t, sizeof(float) * pixels);
+    if (status == SC_OK && out_n) memcpy(out_n, state->n_contrib, sizeof(int32_t) * pixels);
+    if (status == SC_OK && out_visible) {
+        memset(out_visible, 0, (size_t)g.count);
+        for (int64_t k = 0; k < state->frame.drawn; ++k) out_visible[state->frame.order[k]] = 1;
+    }
+    Py_END_ALLOW_THREADS
+    if (status != SC_OK) {
+        sc_train_state_free(state);
+        free(state);
+        raise_status(status, &g, &stats);
+        goto fail;
+    }
+    release_all(&b);
+    PyObject *capsule = PyCapsule_New(state, STATE_NAME, state_destructor);
+    if (!capsule) {
+        sc_train_state_free(state);
+        free(state);
+        return NULL;
+    }
+    PyObject *d = stats_dict(&stats);
+    if (!d) {
+        Py_DECREF(capsule);
+        return NULL;
+    }
+    PyObject *result = PyTuple_Pack(2, d, capsule);
+    Py_DECREF(d);
+    Py_DECREF(capsule);
+    return result;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
+static PyObject *py_train_state_info(PyObject *self, PyObject *arg) {
+    (void)self;
+    const sc_train_state *st = get_state(arg);
+    if (!st) return NULL;
+    return Py_BuildValue("{s:i,s:i,s:L,s:i,s:i,s:O,s:d,s:L,s:L,s:O}", "width", st->camera.width,
+                         "height", st->camera.height, "count", (long long)st->count, "sh_coeffs",
+                         st->sh_coeffs, "sh_degree", st->options.sh_degree, "antialiased",
+                         st->options.antialiased ? Py_True : Py_False, "near", st->options.near,
+                         "drawn", (long long)st->frame.drawn, "tile_pairs",
+                         (long long)st->frame.offsets[st->frame.ntiles], "background",
+                         st->has_background ? Py_True : Py_False);
+}
+
+static PyObject *py_backward(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *state_obj, *objs[5], *d_objs[3], *outs[7];
+    int threads;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOiOOOOOOO:backward", &state_obj, &objs[0], &objs[1],
+                          &objs[2], &objs[3], &objs[4], &d_objs[0], &d_objs[1], &d_objs[2],
+                          &threads, &outs[0], &outs[1], &outs[2], &outs[3], &outs[4], &outs[5],
+                          &outs[6]))
+        return NULL;
+    const sc_train_state *state = get_state(state_obj);
+    if (!state) return NULL;
+    if (threads < 0) {
+        PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
+        return NULL;
+    }
+    buffers b = {.count = 0};
+    sc_gaussians g;
+    if (parse_gaussians(&b, objs, &g) != 0) goto fail;
+    if (g.count != state->count || g.sh_coeffs != state->sh_coeffs) {
+        PyErr_Format(PyExc_ValueError,
+                     "the Gaussians (N=%lld, K=%d) are not those render_train drew (N=%lld, K=%d)",
+                     (long long)g.count, g.sh_coeffs, (long long)state->count, state->sh_coeffs);
+        goto fail;
+    }
+    const int width = state->camera.width, height = state->camera.height;
+    const int64_t pixels = (int64_t)width * height;
+    const Py_ssize_t img3[] = {height, width, 3}, img1[] = {height, width};
+    const float *d_rgb = get_array(&b, d_objs[0], "d_rgb", 'f', 3, img3, 0), *d_alpha = NULL,
+                *d_depth = NULL;
+    if (!d_rgb || check_finite_array(d_rgb, 3 * pixels, "d_rgb") != 0) goto fail;
+    if (d_objs[1] != Py_None) {
+        if (!(d_alpha = get_array(&b, d_objs[1], "d_alpha", 'f', 2, img1, 0))) goto fail;
+        if (check_finite_array(d_alpha, pixels, "d_alpha") != 0) goto fail;
+    }
+    if (d_objs[2] != Py_None) {
+        if (!(d_depth = get_array(&b, d_objs[2], "d_depth", 'f', 2, img1, 0))) goto fail;
+        if (check_finite_array(d_depth, pixels, "d_depth") != 0) goto fail;
+    }
+    const Py_ssize_t n = (Py_ssize_t)g.count, n3[] = {n, 3}, n4[] = {n, 4}, n1[] = {n},
+                     n2[] = {n, 2}, nk3[] = {n, g.sh_coeffs, 3};
+    sc_gaussian_grads out;
+    if (!(out.means = (float *)get_array(&b, outs[0], "out_means", 'f', 2, n3, 1))) goto fail;
+    if (!(out.log_scales = (float *)get_array(&b, outs[1], "out_log_scales", 'f', 2, n3, 1)))
+        goto fail;
+    if (!(out.quats = (float *)get_array(&b, outs[2], "out_quats", 'f', 2, n4, 1))) goto fail;
+    if (!(out.opacity_logits =
+              (float *)get_array(&b, outs[3], "out_opacity_logits", 'f', 1, n1, 1)))
+        goto fail;
+    if (!(out.sh = (float *)get_array(&b, outs[4], "out_sh", 'f', 3, nk3, 1))) goto fail;
+    if (!(out.xy = (float *)get_array(&b, outs[5], "out_xy", 'f', 2, n2, 1))) goto fail;
+    if (!(out.xy_abs = (float *)get_array(&b, outs[6], "out_xy_abs", 'f', 2, n2, 1))) goto fail;
+
+    sc_backward_stats stats = {0};
+    sc_status status;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_backward(state, &g, d_rgb, d_alpha, d_depth, threads ? threads : sc_cpu_count(),
+                         &out, &stats);
+    Py_END_ALLOW_THREADS
+    if (status != SC_OK) {
+        sc_stats s = {.error_index = stats.error_index};
+        raise_status(status, &g, &s);
+        goto fail;
+    }
+    release_all(&b);
+    return Py_BuildValue("{s:d,s:d,s:d,s:L,s:L}", "ms_composite", stats.ms_composite,
+                         "ms_project", stats.ms_project, "ms_total", stats.ms_total,
+                         "evaluations", (long long)stats.evaluations, "flushed",
+                         (long long)stats.flushed);
+fail:
+    release_all(&b);
+    return NULL;
+}
+
+static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *image_obj, *target_obj, *grad_obj;
+    double lambda;
+    int threads;
+    if (!PyArg_ParseTuple(args, "OOdiO:l1_ssim", &image_obj, &target_obj, &lambda, &threads,
+                          &grad_obj))
+        return NULL;
+    if (!(lambda >= 0.0 && lambda <= 1.0)) {
+        PyErr_Format(PyExc_ValueError, "lambda_dssim must be in [0, 1], got %g", lambda);
+        return NULL;
+    }
+    if (threads < 0) {
+        PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
+        return NULL;
+    }
+    buffers b = {.count = 0};
+    const Py_ssize_t any3[] = {-1, -1, 3};
+    const float *image = get_array(&b, image_obj, "image", 'f', 3, any3, 0);
+    if (!image) goto fail;
+    const Py_ssize_t height = b.views[0].shape[0], width = b.views[0].shape[1];
+    if (height < 1 || width < 1 || height > MAX_SIDE || width > MAX_SIDE ||
+        (long long)width * height > MAX_PIXELS) {
+        PyErr_Format(PyExc_ValueError,
+                     "image size %zdx%zd is invalid: sides must be 1..%d and at most %lld pixels",
+                     width, height, (int)MAX_SIDE, MAX_PIXELS);
+        goto fail;
+    }
+    const Py_ssize_t shape[] = {height, width, 3};
+    const float *target = get_array(&b, target_obj, "target", 'f', 3, shape, 0);
+    if (!target) goto fail;
+    const int64_t values = 3 * (int64_t)width * height;
+    if (check_finite_array(image, values, "image") != 0 ||
+        check_finite_array(target, values, "target") != 0)
+        goto fail;
+    float *grad = NULL;
+    if (grad_obj != Py_None && !(grad = (float *)get_array(&b, grad_obj, "out_grad", 'f', 3, shape, 1)))
+        goto fail;
+    double loss = 0, l1 = 0, ssim = 0;
+    sc_status status;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_l1_ssim(image, target, (int)width, (int)height, lambda,
+                        threads ? threads : sc_cpu_count(), grad, &loss, &l1, &ssim);
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    if (status != SC_OK) return PyErr_NoMemory();
+    return Py_BuildValue("(ddd)", loss, l1, ssim);
+fail:
+    release_all(&b);
+    return NULL;
+}
+
+/* Any-shape float32 C-contiguous array; *size gets its element count. */
+static float *get_any_float(buffers *b, PyObject *obj, const char *name, int writable,
+                            const Py_buffer *like, int64_t *size) {
+    Py_buffer *view = &b->views[b->count];
+    Py_ssize_t shape[8];
+    int ndim = like ? like->ndim : -1;
+    if (like)
+        for (int i = 0; i < ndim && i < 8; ++i) shape[i] = like->shape[i];
+    if (!like) {
+        /* Learn the shape first, then validate like every other array. */
+        if (PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES) != 0) {
+            PyErr_Clear();
+            ndim = 1, shape[0] = -1;
+        } else {
+            ndim = view->ndim;
+            for (int i = 0; i < ndim && i < 8; ++i) shape[i] = view->shape[i];
+            PyBuffer_Release(view);
+        }
+        if (ndim > 8) {
+            PyErr_Format(PyExc_ValueError, "%s has too many dimensions", name);
+            return NULL;
+        }
+    }
+    float *data = (float *)get_array(b, obj, name, 'f', ndim, shape, writable);
+    if (data && size) *size = (int64_t)(b->views[b->count - 1].len / 4);
+    return data;
+}
+
+static PyObject *py_adam(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *objs[4];
+    sc_adam_options o;
+    long long step;
+    int threads;
+    if (!PyArg_ParseTuple(args, "OOOOddddLi:adam", &objs[0], &objs[1], &objs[2], &objs[3], &o.lr,
+                          &o.beta1, &o.beta2, &o.eps, &step, &threads))
+        return NULL;
+    o.step = step;
+    if (!isfinite(o.lr) || o.lr < 0) return PyErr_Format(PyExc_ValueError, "lr must be finite and >= 0, got %g", o.lr);
+    if (!(o.beta1 >= 0 && o.beta1 < 1) || !(o.beta2 >= 0 && o.beta2 < 1))
+        return PyErr_Format(PyExc_ValueError, "beta1 and beta2 must be in [0, 1), got %g, %g",
+                            o.beta1, o.beta2);
+    if (!(o.eps > 0) || !isfinite(o.eps))
+        return PyErr_Format(PyExc_ValueError, "eps must be finite and > 0, got %g", o.eps);
+    if (step < 1) return PyErr_Format(PyExc_ValueError, "step must be >= 1 (the first update is 1), got %lld", step);
+    if (threads < 0)
+        return PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
+    buffers b = {.count = 0};
+    int64_t n = 0;
+    float *param = get_any_float(&b, objs[0], "param", 1, NULL, &n);
+    if (!param) goto fail;
+    const Py_buffer *like = &b.views[0];
+    const float *grad = get_any_float(&b, objs[1], "grad", 0, like, NULL);
+    float *m = grad ? get_any_float(&b, objs[2], "exp_avg", 1, like, NULL) : NULL;
+    float *v = m ? get_any_float(&b, objs[3], "exp_avg_sq", 1, like, NULL) : NULL;
+    if (!v) goto fail;
+    if (check_finite_array(grad, n, "grad") != 0) goto fail;
+    Py_BEGIN_ALLOW_THREADS
+    sc_adam(param, grad, m, v, n, &o, threads ? threads : sc_cpu_count());
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    Py_RETURN_NONE;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     (void)self;
     int count, iterations;
@@ -382,6 +718,31 @@ static PyMethodDef methods[] = {
      "intrinsics, width, height, near, antialiased, threads, background, mesh_rgba, mesh_depth, "
      "out_rgb, out_alpha, out_depth) -> stats\n\nRender into the out_* arrays; returns timings "
      "(ms) and counts."},
+    {"render_train", py_render_train, METH_VARARGS,
+     "render_train(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
+     "intrinsics, width, height, near, antialiased, threads, background, out_rgb, out_alpha, "
+     "out_depth, out_final_t, out_n_contrib, out_visible) -> (stats, state)\n\nThe training "
+     "forward: render (no mesh layer) into the out_* arrays, bit-identical to render(); "
+     "out_final_t (float32) and out_n_contrib (int32), (H, W) or None, get the per-pixel final "
+     "transmittance and n_contrib; out_visible (uint8, (N,) or None) 1 for each Gaussian drawn "
+     "(its footprint reaches a pixel). `state` is an opaque handle holding what backward() "
+     "needs."},
+    {"train_state_info", py_train_state_info, METH_O,
+     "train_state_info(state) -> dict: the image size, Gaussian count, options and counts of a "
+     "training state."},
+    {"backward", py_backward, METH_VARARGS,
+     "backward(state, means, log_scales, quats, opacity_logits, sh, d_rgb, d_alpha, d_depth, "
+     "threads, out_means, out_log_scales, out_quats, out_opacity_logits, out_sh, out_xy, "
+     "out_xy_abs) -> stats\n\nGradients of a loss with dL/d(rgb) (H, W, 3), dL/d(alpha) and "
+     "dL/d(depth) (H, W) or None, w.r.t. the Gaussians render_train drew (the same arrays, "
+     "unchanged), into the out_* arrays (overwritten)."},
+    {"l1_ssim", py_l1_ssim, METH_VARARGS,
+     "l1_ssim(image, target, lambda_dssim, threads, out_grad) -> (loss, l1, ssim)\n\n"
+     "(1 - lambda) L1 + lambda (1 - SSIM) of (H, W, 3) float32 images; dL/d(image) into "
+     "out_grad when it is not None."},
+    {"adam", py_adam, METH_VARARGS,
+     "adam(param, grad, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, step, threads)\n\n"
+     "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape."},
     {"composite_microbench", py_composite_microbench, METH_VARARGS,
      "composite_microbench(count, iterations) -> seconds for the compositor's inner loop over "
      "one in-cache tile covered by `count` Gaussians."},

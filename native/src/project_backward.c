@@ -1,0 +1,225 @@
+/* Projection backward: one Gaussian's summed splat gradient (projected mean, conic, opacity,
+ * colour, depth) back to its parameters, in double, through exactly the forward's chain
+ * (project.c): conic = inverse of Sigma2 = A A^T + 0.3 I with the 2x3 factor A = J W R S,
+ * the guard-band clamp inside J, the quaternion normalisation, exp of the log scales, the
+ * opacity sigmoid (and the antialiasing compensation), the SH colour with its clamp and its
+ * view direction. The forward's intermediate values are recomputed here (O(1) per Gaussian),
+ * which also checks that the Gaussian still projects to what the forward drew. */
+#include <math.h>
+
+#include "splatcore.h"
+
+static int all_finite(const float *v, int n) {
+    for (int i = 0; i < n; ++i)
+        if (!isfinite(v[i])) return 0;
+    return 1;
+}
+
+/* Whether a recomputed value still rounds to (about) what the forward stored. */
+static int same(double value, float stored) {
+    return fabs(value - (double)stored) <= 1e-5 * (fabs(value) + 1.0);
+}
+
+static float finite_or_zero(double v, int64_t *flushed) {
+    const float f = (float)v;
+    if (isfinite(f)) return f;
+    ++*flushed;
+    return 0.0f;
+}
+
+int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
+                                 const sc_options *opt, const double campos[3], int64_t i,
+                                 const sc_splat *s, const double *d, sc_gaussian_grads *out,
+                                 int64_t *flushed) {
+    const float *mean = g->means + 3 * i, *ls = g->log_scales + 3 * i, *q = g->quats + 4 * i;
+    const float *sh = g->sh + (int64_t)3 * g->sh_coeffs * i;
+    if (!all_finite(mean, 3) || !all_finite(ls, 3) || !all_finite(q, 4) ||
+        !isfinite(g->opacity_logits[i]) || !all_finite(sh, 3 * g->sh_coeffs))
+        return -1;
+
+    /* ---- forward, as project.c */
+    const double *v = cam->world_to_camera;
+    double p[3];
+    for (int k = 0; k < 3; ++k)
+        p[k] = v[4 * k] * mean[0] + v[4 * k + 1] * mean[1] + v[4 * k + 2] * mean[2] + v[4 * k + 3];
+    const double z = p[2];
+    if (!(z >= opt->near)) return -2;
+    const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
+    const double tan_x = 0.5 * cam->width / fx, tan_y = 0.5 * cam->height / fy;
+    const double lo_x = -(cx / fx) - SC_GUARD * tan_x, hi_x = (cam->width - cx) / fx + SC_GUARD * tan_x;
+    const double lo_y = -(cy / fy) - SC_GUARD * tan_y, hi_y = (cam->height - cy) / fy + SC_GUARD * tan_y;
+    const double rx = p[0] / z, ry = p[1] / z;
+    const int clamped_x = rx < lo_x || rx > hi_x, clamped_y = ry < lo_y || ry > hi_y;
+    const double tx = rx < lo_x ? lo_x : (rx > hi_x ? hi_x : rx);
+    const double ty = ry < lo_y ? lo_y : (ry > hi_y ? hi_y : ry);
+    const double j00 = fx / z, j02 = -fx * tx / z, j11 = fy / z, j12 = -fy * ty / z;
+
+    /* Normalised quaternion and rotation (an all-zero quaternion is the identity). */
+    double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+    const double qn2 = qw * qw + qx * qx + qy * qy + qz * qz;
+    const double qnorm = sqrt(qn2);
+    if (qn2 > 0.0) {
+        const double inv = 1.0 / qnorm;
+        qw *= inv, qx *= inv, qy *= inv, qz *= inv;
+    } else {
+        qw = 1.0, qx = qy = qz = 0.0;
+    }
+    const double r[9] = {
+        1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz),     2 * (qx * qz + qw * qy),
+        2 * (qx * qy + qw * qz),     1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
+        2 * (qx * qz - qw * qy),     2 * (qy * qz + qw * qx),     1 - 2 * (qx * qx + qy * qy)};
+    const double scale[3] = {exp((double)ls[0]), exp((double)ls[1]), exp((double)ls[2])};
+    double m[2][3], mr[2][3], af[2][3]; /* M = J W, M R, A = M R S */
+    for (int k = 0; k < 3; ++k) {
+        m[0][k] = j00 * v[k] + j02 * v[8 + k];
+        m[1][k] = j11 * v[4 + k] + j12 * v[8 + k];
+    }
+    for (int row = 0; row < 2; ++row)
+        for (int k = 0; k < 3; ++k) {
+            mr[row][k] = m[row][0] * r[k] + m[row][1] * r[3 + k] + m[row][2] * r[6 + k];
+            af[row][k] = mr[row][k] * scale[k];
+        }
+    const double a0 = af[0][0] * af[0][0] + af[0][1] * af[0][1] + af[0][2] * af[0][2];
+    const double b0 = af[0][0] * af[1][0] + af[0][1] * af[1][1] + af[0][2] * af[1][2];
+    const double c0 = af[1][0] * af[1][0] + af[1][1] * af[1][1] + af[1][2] * af[1][2];
+    const double a = a0 + SC_DILATION, b = b0, c = c0 + SC_DILATION;
+    const double det = a * c - b * b;
+    if (!(det > 0.0) || !isfinite(det)) return -2;
+    const double sig = 1.0 / (1.0 + exp(-(double)g->opacity_logits[i]));
+
+    double dir[3];
+    for (int k = 0; k < 3; ++k) dir[k] = (double)mean[k] - campos[k];
+    const double len = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int k = 0; k < 3; ++k) dir[k] = len > 0.0 ? dir[k] / len : 0.0;
+
+    const double px = fx * p[0] / z + cx, py = fy * p[1] / z + cy;
+    if (!same(px, s->x) || !same(py, s->y) || !same(z, s->depth) || !same(c / det, s->ca) ||
+        !same(a / det, s->cc))
+        return -2;
+
+    /* ---- backward */
+    /* Conic (c, -b, a) / det -> dilated covariance a, b, c. */
+    const double d_ca = d[SC_DG_CA], d_cb = d[SC_DG_CB], d_cc = d[SC_DG_CC];
+    const double inv_det2 = 1.0 / (det * det);
+    double da0 = (-c * c * d_ca + b * c * d_cb - b * b * d_cc) * inv_det2;
+    double db0 = (2.0 * b * c * d_ca - (det + 2.0 * b * b) * d_cb + 2.0 * a * b * d_cc) * inv_det2;
+    double dc0 = (-b * b * d_ca + a * b * d_cb - a * a * d_cc) * inv_det2;
+
+    /* Opacity: sigmoid, times sqrt(det_raw / det) when antialiased. */
+    double d_logit;
+    const double d_opacity = d[SC_DG_OPACITY];
+    if (opt->antialiased) {
+        const double det_raw = a0 * c0 - b0 * b0, ratio = det_raw / det;
+        const double comp = sqrt(ratio > 0.0 ? ratio : 0.0);
+        d_logit = d_opacity * comp * sig * (1.0 - sig);
+        if (ratio > 0.0) {
+            const double d_ratio = d_opacity * sig * 0.5 / (comp > 1e-6 ? comp : 1e-6);
+            const double d_det_raw = d_ratio / det, d_det = -d_ratio * ratio / det;
+            da0 += d_det_raw * c0 + d_det * c;
+            dc0 += d_det_raw * a0 + d_det * a;
+            db0 += -2.0 * b0 * (d_det_raw + d_det);
+        }
+    } else {
+        d_logit = d_opacity * sig * (1.0 - sig);
+    }
+
+    /* Sigma2_raw = A A^T: a0 = |A0|^2, b0 = A0.A1, c0 = |A1|^2. */
+    double dA[2][3];
+    for (int k = 0; k < 3; ++k) {
+        dA[0][k] = 2.0 * da0 * af[0][k] + db0 * af[1][k];
+        dA[1][k] = db0 * af[0][k] + 2.0 * dc0 * af[1][k];
+    }
+    /* A = M R S: dM = dA S R^T, dR = M^T dA S, d log s_k = sum_row dA[row][k] A[row][k]. */
+    double dM[2][3] = {{0}}, dR[9] = {0}, d_ls[3];
+    for (int k = 0; k < 3; ++k) {
+        d_ls[k] = dA[0][k] * af[0][k] + dA[1][k] * af[1][k];
+        for (int row = 0; row < 2; ++row) {
+            const double ds = dA[row][k] * scale[k];
+            for (int n = 0; n < 3; ++n) {
+                dM[row][n] += ds * r[3 * n + k];
+                dR[3 * n + k] += m[row][n] * ds;
+            }
+        }
+    }
+    /* M = J W: rows j00 W0 + j02 W2 and j11 W1 + j12 W2. */
+    const double dj00 = dM[0][0] * v[0] + dM[0][1] * v[1] + dM[0][2] * v[2];
+    const double dj02 = dM[0][0] * v[8] + dM[0][1] * v[9] + dM[0][2] * v[10];
+    const double dj11 = dM[1][0] * v[4] + dM[1][1] * v[5] + dM[1][2] * v[6];
+    const double dj12 = dM[1][0] * v[8] + dM[1][1] * v[9] + dM[1][2] * v[10];
+    const double z2 = z * z;
+    double dp[3] = {0.0, 0.0, 0.0};
+    dp[2] -= dj00 * fx / z2 + dj11 * fy / z2;
+    if (clamped_x) {
+        dp[2] += dj02 * fx * tx / z2; /* j02 = -fx tx / z with tx constant */
+    } else {
+        dp[0] -= dj02 * fx / z2; /* j02 = -fx x / z^2 */
+        dp[2] += dj02 * 2.0 * fx * p[0] / (z2 * z);
+    }
+    if (clamped_y) {
+        dp[2] += dj12 * fy * ty / z2;
+    } else {
+        dp[1] -= dj12 * fy / z2;
+        dp[2] += dj12 * 2.0 * fy * p[1] / (z2 * z);
+    }
+    /* Projected mean and depth. */
+    const double d_x = d[SC_DG_X], d_y = d[SC_DG_Y];
+    dp[0] += d_x * fx / z;
+    dp[1] += d_y * fy / z;
+    dp[2] += -(d_x * fx * p[0] + d_y * fy * p[1]) / z2 + d[SC_DG_DEPTH];
+    double d_mean[3];
+    for (int k = 0; k < 3; ++k) d_mean[k] = v[k] * dp[0] + v[4 + k] * dp[1] + v[8 + k] * dp[2];
+
+    /* Colour: max(sh + 0.5, 0) (clamped where the forward's colour is 0), then the SH and
+     * its view direction. */
+    const double d_rgb[3] = {s->r > 0.0f ? d[SC_DG_R] : 0.0, s->g > 0.0f ? d[SC_DG_G] : 0.0,
+                             s->b > 0.0f ? d[SC_DG_B] : 0.0};
+    double d_sh[48], d_dir[3];
+    sc_sh_backward(opt->sh_degree, sh, dir, d_rgb, d_sh, d_dir);
+    if (len > 0.0) {
+        const double along = d_dir[0] * dir[0] + d_dir[1] * dir[1] + d_dir[2] * dir[2];
+        for (int k = 0; k < 3; ++k) d_mean[k] += (d_dir[k] - along * dir[k]) / len;
+    }
+
+    /* Rotation -> normalised quaternion -> quaternion. */
+    double dq[4] = {0.0, 0.0, 0.0, 0.0};
+    if (qn2 > 0.0) {
+        const double w = qw, x = qx, y = qy, zq = qz;
+        const double dqw = 2.0 * (-zq * dR[1] + y * dR[2] + zq * dR[3] - x * dR[5] - y * dR[6] +
+                                  x * dR[7]);
+        const double dqx = 2.0 * (y * dR[1] + zq * dR[2] + y * dR[3] - 2.0 * x * dR[4] -
+                                  w * dR[5] + zq * dR[6] + w * dR[7] - 2.0 * x * dR[8]);
+        const double dqy = 2.0 * (-2.0 * y * dR[0] + x * dR[1] + w * dR[2] + x * dR[3] +
+                                  zq * dR[5] - w * dR[6] + zq * dR[7] - 2.0 * y * dR[8]);
+        const double dqz = 2.0 * (-2.0 * zq * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] -
+                                  2.0 * zq * dR[4] + y * dR[5] + x * dR[6] + y * dR[7]);
+        const double along = dqw * w + dqx * x + dqy * y + dqz * zq;
+        dq[0] = (dqw - along * w) / qnorm;
+        dq[1] = (dqx - along * x) / qnorm;
+        dq[2] = (dqy - along * y) / qnorm;
+        dq[3] = (dqz - along * zq) / qnorm;
+    }
+
+    /* ---- write */
+    for (int k = 0; k < 3; ++k) {
+        out->means[3 * i + k] = finite_or_zero(d_mean[k], flushed);
+        out->log_scales[3 * i + k] = finite_or_zero(d_ls[k], flushed);
+    }
+    for (int k = 0; k < 4; ++k) out->quats[4 * i + k] = finite_or_zero(dq[k], flushed);
+    out->opacity_logits[i] = finite_or_zero(d_logit, flushed);
+    const int used = 3 * (opt->sh_degree + 1) * (opt->sh_degree + 1);
+    float *osh = out->sh + (int64_t)3 * g->sh_coeffs * i;
+    int64_t bad = 0;
+    for (int k = 0; k < used; ++k) { /* branch-free: this loop streams most of the bytes */
+        const float f = (float)d_sh[k];
+        const int ok = isfinite(f);
+        bad += !ok;
+        osh[k] = ok ? f : 0.0f;
+    }
+    *flushed += bad;
+    for (int k = used; k < 3 * g->sh_coeffs; ++k) osh[k] = 0.0f;
+    out->xy[2 * i] = finite_or_zero(d_x, flushed);
+    out->xy[2 * i + 1] = finite_or_zero(d_y, flushed);
+    out->xy_abs[2 * i] = finite_or_zero(d[SC_DG_ABS_X], flushed);
+    out->xy_abs[2 * i + 1] = finite_or_zero(d[SC_DG_ABS_Y], flushed);
+    return 0;
+}

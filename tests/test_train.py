@@ -1,0 +1,115 @@
+"""The training loop on the demo COLMAP scene (30 photos, used at 120x90): it learns, it is
+deterministic, it resumes exactly, it keeps to its budget, and compaction shrinks it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from addon.core.colmap import read_colmap
+from addon.core.dataset import ColmapDataset
+from addon.core.train import (Trainer, TrainConfig, compact, initial_gaussians,
+                              nearest_mean_sq_distance, position_lr)
+
+DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
+
+
+@pytest.fixture(scope="module")
+def dataset() -> ColmapDataset:
+    return ColmapDataset(read_colmap(DEMO), downscale=4)
+
+
+def short_config(**overrides) -> TrainConfig:
+    # Densify early and often so that a short run exercises clone, split and prune.
+    base = dict(steps=120, sh_degree=1, sh_degree_interval=40, densify_from=30,
+                densify_every=30, opacity_reset_every=1000, threads=2, seed=3)
+    return TrainConfig(**(base | overrides))
+
+
+def test_nearest_neighbour_distances_match_brute_force(rng) -> None:
+    points = rng.normal(size=(300, 3))
+    d2 = ((points[:, None] - points[None]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    want = np.sort(d2, axis=1)[:, :3].mean(1)
+    assert np.allclose(nearest_mean_sq_distance(points, chunk=64), want, rtol=1e-9, atol=1e-12)
+
+
+def test_initialisation_follows_the_points(rng) -> None:
+    xyz, rgb = rng.normal(size=(50, 3)), rng.integers(0, 256, (50, 3)).astype(np.uint8)
+    g = initial_gaussians(xyz, rgb, TrainConfig(sh_degree=2), rng)
+    assert len(g) == 50 and g.degree == 2
+    assert np.allclose(g.means, xyz, atol=1e-6)
+    colour = 0.5 + 0.28209479177387814 * g.sh[:, 0]
+    assert np.allclose(colour, rgb / 255.0, atol=1e-6)
+    assert np.allclose(1 / (1 + np.exp(-g.opacity_logits)), 0.1, atol=1e-6)
+    assert np.all(g.sh[:, 1:] == 0)
+
+
+def test_position_learning_rate_schedule() -> None:
+    config = TrainConfig()
+    assert position_lr(config, 0, 2.0) == pytest.approx(1.6e-4 * 2.0)
+    assert position_lr(config, 30_000, 2.0) == pytest.approx(1.6e-6 * 2.0)
+    assert position_lr(config, 15_000, 1.0) == pytest.approx(1.6e-5, rel=1e-9)
+
+
+def test_training_learns_and_densifies(dataset) -> None:
+    trainer = Trainer(dataset, short_config())
+    start = trainer.evaluate(dataset.train_indices[:6]).psnr
+    initial = len(trainer)
+    history = list(trainer.run())
+    end = trainer.evaluate(dataset.train_indices[:6]).psnr
+    assert end > start + 3.0, (start, end)
+    assert any(s["densified"] > 0 for s in history)
+    assert len(trainer) != initial
+    g = trainer.gaussians
+    assert g.non_finite() is None
+    assert [s["sh_degree"] for s in history][::40] == [0, 1, 1]
+
+
+def test_training_is_deterministic(dataset) -> None:
+    a, b = Trainer(dataset, short_config(steps=60)), Trainer(dataset, short_config(steps=60, threads=1))
+    list(a.run()), list(b.run())
+    for name in a.params:
+        assert np.array_equal(a.params[name], b.params[name]), name
+
+
+def test_resume_from_checkpoint_equals_a_continuous_run(dataset, tmp_path) -> None:
+    whole = Trainer(dataset, short_config(steps=70))
+    list(whole.run())
+    first = Trainer(dataset, short_config(steps=70))
+    list(first.run(35))
+    first.save_checkpoint(tmp_path / "state.npz")
+    resumed = Trainer.load_checkpoint(tmp_path / "state.npz", dataset)
+    list(resumed.run())
+    assert resumed.step == 70
+    for name in whole.params:
+        assert np.array_equal(whole.params[name], resumed.params[name]), name
+
+
+def test_opacity_reset(dataset) -> None:
+    trainer = Trainer(dataset, short_config(steps=20, opacity_reset_every=10))
+    list(trainer.run())
+    # Reset at step 10 and 20: every opacity is at most 0.01 right after the last one.
+    opacity = 1 / (1 + np.exp(-trainer.params["opacity_logits"].astype(np.float64)))
+    assert opacity.max() <= 0.01 + 1e-6
+    assert not trainer.moments["opacity_logits"][0].any()
+
+
+def test_budget_is_respected(dataset) -> None:
+    initial = len(Trainer(dataset, short_config()))
+    budget = initial + 150
+    trainer = Trainer(dataset, short_config(max_gaussians=budget, densify_grad_threshold=1e-6))
+    for _ in trainer.run():
+        assert len(trainer) <= budget
+
+
+def test_compaction_shrinks_and_reports(dataset) -> None:
+    trainer = Trainer(dataset, short_config(steps=80))
+    list(trainer.run())
+    report = compact(trainer, weight_fraction=0.01, max_psnr_loss_db=0.5, views=4)
+    assert report.after["gaussians"] < report.before["gaussians"]
+    assert report.after["bytes"] < report.before["bytes"]
+    assert report.after["psnr"] > report.before["psnr"] - 1.0
+    assert len(trainer) == report.after["gaussians"]

@@ -1,0 +1,196 @@
+"""The loss and optimizer kernels (`addon.core.train_kernels.l1_ssim_loss`, `adam_step`)
+against float64 NumPy references (tests/reference_backward.py).
+
+Tolerances: the loss is computed in double from float32 images, so loss, L1 and SSIM match the
+float64 reference to 1e-10 relative; its gradient is rounded to float32 once (1e-6 of the
+largest element). The reference's own analytic SSIM gradient is held against central finite
+differences (1e-6 relative). Adam works in float32 like torch: 1e-5 relative per step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from addon.core import train_kernels as tk
+from tests import reference_backward as rb
+
+SIZES = [(23, 17), (16, 16), (5, 3), (1, 1), (40, 9)]
+
+
+def _images(rng, height, width):
+    image = rng.uniform(0, 1, (height, width, 3)).astype(np.float32)
+    # A target related to the image (as in training), never exactly equal (the L1 kink).
+    target = np.clip(image + rng.normal(0, 0.1, image.shape), 0, 1).astype(np.float32)
+    target[target == image] += np.float32(1e-3)
+    return image, target
+
+
+def test_reference_ssim_gradient_matches_finite_differences(rng):
+    image, target = (a.astype(np.float64) for a in _images(rng, 9, 13))
+    _, _, _, grad = rb.l1_ssim_loss(image, target, lambda_dssim=1.0)
+    h = 1e-6
+    for index in zip(*(rng.integers(0, n, 25) for n in image.shape)):
+        up, down = image.copy(), image.copy()
+        up[index] += h
+        down[index] -= h
+        fd = (rb.l1_ssim_loss(up, target, 1.0)[0] - rb.l1_ssim_loss(down, target, 1.0)[0]) / (2 * h)
+        # Rounding floor of the difference quotient: ~1e-16 * loss / h.
+        assert abs(grad[index] - fd) <= 1e-6 * abs(fd) + 1e-9, (index, grad[index], fd)
+
+
+def test_reference_filter_is_torch_conv2d_with_zero_padding():
+    # A unit impulse in a corner gives back the window's visible quarter; the window sums to 1.
+    window = rb.gaussian_window()
+    assert abs(window.sum() - 1) < 1e-15
+    impulse = np.zeros((7, 8))
+    impulse[0, 0] = 1
+    want = np.zeros((7, 8))
+    want[:6, :6] = window[5:, 5:]
+    np.testing.assert_allclose(rb.filter2d(impulse, window), want, atol=1e-17)
+
+
+@pytest.mark.parametrize("size", SIZES)
+@pytest.mark.parametrize("lam", [0.0, 0.2, 1.0])
+def test_loss_and_gradient_match_reference(rng, size, lam):
+    image, target = _images(rng, *size)
+    got = tk.l1_ssim_loss(image, target, lambda_dssim=lam)
+    loss, l1, ssim, grad = rb.l1_ssim_loss(image, target, lam)
+    assert got.loss == pytest.approx(loss, rel=1e-10, abs=1e-14)
+    assert got.l1 == pytest.approx(l1, rel=1e-10)
+    assert got.ssim == pytest.approx(ssim, rel=1e-10)
+    assert got.grad.dtype == np.float32 and got.grad.shape == image.shape
+    err = np.abs(got.grad - grad)
+    assert np.all(err <= 1e-6 * np.abs(grad).max() + 1e-6 * np.abs(grad)), err.max()
+
+
+def test_loss_gradient_matches_finite_differences_of_reference(rng):
+    # End to end: native gradient against central differences of the float64 loss.
+    image, target = _images(rng, 11, 14)
+    got = tk.l1_ssim_loss(image, target, lambda_dssim=0.2)
+    base = image.astype(np.float64)
+    h = 1e-7
+    for index in zip(*(rng.integers(0, n, 30) for n in image.shape)):
+        up, down = base.copy(), base.copy()
+        up[index] += h
+        down[index] -= h
+        fd = (rb.l1_ssim_loss(up, target)[0] - rb.l1_ssim_loss(down, target)[0]) / (2 * h)
+        assert abs(got.grad[index] - fd) <= 1e-3 * abs(fd) + 1e-9, (index, got.grad[index], fd)
+
+
+def test_identical_images():
+    image = np.random.default_rng(0).uniform(0, 1, (12, 10, 3)).astype(np.float32)
+    got = tk.l1_ssim_loss(image, image.copy())
+    assert got.loss == pytest.approx(0, abs=1e-12) and got.ssim == pytest.approx(1, abs=1e-12)
+    assert np.abs(got.grad).max() < 1e-9  # both terms at their minimum
+
+
+def test_loss_identical_for_any_thread_count_and_reusable_output(rng):
+    image, target = _images(rng, 150, 200)
+    first = tk.l1_ssim_loss(image, target, threads=1)
+    out = np.full(image.shape, np.nan, np.float32)
+    for threads in (2, 3, 0):
+        other = tk.l1_ssim_loss(image, target, threads=threads, out_grad=out)
+        assert other.grad is out
+        assert (other.loss, other.l1, other.ssim) == (first.loss, first.l1, first.ssim)
+        assert np.array_equal(other.grad, first.grad)
+    no_grad = tk.l1_ssim_loss(image, target, need_grad=False)
+    assert no_grad.grad is None and no_grad.loss == first.loss
+
+
+def test_loss_rejects_bad_input(rng):
+    image, target = _images(rng, 8, 9)
+    with pytest.raises(ValueError, match="shape"):
+        tk.l1_ssim_loss(image[..., :2], target[..., :2])
+    with pytest.raises(ValueError, match="differs"):
+        tk.l1_ssim_loss(image, target[:-1])
+    with pytest.raises(ValueError, match="lambda"):
+        tk.l1_ssim_loss(image, target, lambda_dssim=1.5)
+    bad = image.copy()
+    bad[1, 2, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        tk.l1_ssim_loss(bad, target)
+    with pytest.raises(ValueError, match="size"):
+        tk.l1_ssim_loss(np.zeros((0, 4, 3), np.float32), np.zeros((0, 4, 3), np.float32))
+    import splatcore
+    for args, error, keyword in [
+        ((image, target, 0.2, 1, np.zeros((8, 9, 3))), TypeError, "float32"),
+        ((image, target, 0.2, 1, np.zeros((9, 8, 3), np.float32)), ValueError, "shape"),
+        ((image.astype(np.float64), target, 0.2, 1, None), TypeError, "float32"),
+        ((image, target, float("nan"), 1, None), ValueError, "lambda"),
+        ((image, target, 0.2, -1, None), ValueError, "threads"),
+    ]:
+        with pytest.raises(error, match=keyword):
+            splatcore.l1_ssim(*args)
+
+
+# ---------------------------------------------------------------- Adam
+
+
+def test_adam_matches_reference_over_steps(rng):
+    shape = (1000, 3)
+    param = rng.normal(size=shape).astype(np.float32)
+    m, v = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
+    for step in range(1, 8):
+        grad = (rng.normal(size=shape) * rng.choice([1e-8, 1e-3, 1.0, 1e3], size=shape)).astype(np.float32)
+        grad[::7] = 0  # not seen this step: moments decay, the parameter still moves
+        lr = 10.0 ** rng.uniform(-5, -1)
+        before = [a.astype(np.float64) for a in (param, m, v)]
+        tk.adam_step(param, grad, m, v, lr=lr, step=step)
+        want_p, want_m, want_v = rb.adam(before[0], grad, before[1], before[2], lr=lr, step=step)
+        # Moments: float32 rounding of m + 0.1 (g - m), which can cancel: relative to its terms.
+        assert np.all(np.abs(m - want_m) <= 1e-6 * (np.abs(before[1]) + np.abs(grad)))
+        assert np.all(np.abs(v - want_v) <= 1e-6 * np.abs(want_v))
+        # The update, given the moments the kernel computed: 1e-5 relative.
+        update = lr / (1 - 0.9 ** step) * m / (np.sqrt(v.astype(np.float64)) / np.sqrt(1 - 0.999 ** step) + 1e-15)
+        assert np.all(np.abs(param - (before[0] - update)) <= 1e-5 * np.abs(update) + 1e-7 * np.abs(before[0]))
+        assert np.abs(want_p - before[0]).max() <= 3.2 * lr  # Adam's step is bounded by ~lr
+    assert np.isfinite(param).all()
+
+
+def test_adam_zero_gradients_and_threads(rng):
+    n = 300_001
+    param = rng.normal(size=n).astype(np.float32)
+    results = []
+    for threads in (1, 2, 3):
+        p, m, v = param.copy(), np.zeros(n, np.float32), np.zeros(n, np.float32)
+        grad = rng.normal(size=n).astype(np.float32) if not results else results[0][3]
+        grad[:1000] = 0
+        tk.adam_step(p, grad, m, v, lr=0.01, step=1, threads=threads)
+        tk.adam_step(p, np.zeros(n, np.float32), m, v, lr=0.01, step=2, threads=threads)
+        assert np.isfinite(p).all() and np.array_equal(p[:1000], param[:1000])  # 0/(0+eps) = 0
+        results.append((p, m, v, grad))
+    for other in results[1:]:
+        for a, b in zip(results[0][:3], other[:3]):
+            assert np.array_equal(a, b)
+
+
+def test_adam_rejects_bad_input(rng):
+    p = np.zeros((10, 3), np.float32)
+    g, m, v = p.copy(), p.copy(), p.copy()
+    read_only = p.copy()
+    read_only.flags.writeable = False
+    bad_grad = g.copy()
+    bad_grad[3, 1] = np.inf
+    cases = [
+        (dict(grad=np.zeros((10, 4), np.float32)), ValueError, "shape"),
+        (dict(exp_avg=np.zeros(30, np.float32)), ValueError, "shape"),
+        (dict(param=p.astype(np.float64)), TypeError, "float32"),
+        (dict(exp_avg_sq=np.zeros((10, 3))), TypeError, "float32"),
+        (dict(param=read_only), ValueError, "writable"),
+        (dict(param=np.zeros((3, 10), np.float32).T), ValueError, "contiguous"),
+        (dict(grad=bad_grad), ValueError, "non-finite"),
+        (dict(step=0), ValueError, "step"),
+        (dict(lr=-1.0), ValueError, "lr"),
+        (dict(lr=float("nan")), ValueError, "lr"),
+        (dict(beta1=1.0), ValueError, "beta"),
+        (dict(eps=0.0), ValueError, "eps"),
+        (dict(threads=-1), ValueError, "threads"),
+        (dict(param=[0.0, 1.0]), TypeError, "array"),
+    ]
+    for change, error, keyword in cases:
+        args = dict(param=p, grad=g, exp_avg=m, exp_avg_sq=v) | change
+        kwargs = {k: args.pop(k) for k in ("step", "lr", "beta1", "eps", "threads") if k in args}
+        kwargs = dict(lr=0.1, step=1) | kwargs
+        with pytest.raises(error, match=keyword):
+            tk.adam_step(args["param"], args["grad"], args["exp_avg"], args["exp_avg_sq"], **kwargs)
+    assert not p.any()  # nothing was touched by a refused call
