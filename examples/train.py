@@ -50,6 +50,7 @@ def main(argv: list[str]) -> None:
     start = time.perf_counter()
     scene = read_colmap(args.colmap, image_folder=args.images, cache_dir=args.cache_dir)
     dataset = ColmapDataset(scene, downscale=args.downscale)
+    dataset.preload(threads=args.threads)
     config = TrainConfig(steps=args.steps, max_gaussians=args.max_gaussians,
                          sh_degree=args.sh_degree, seed=args.seed, threads=args.threads)
     trainer = (Trainer.load_checkpoint(args.resume, dataset) if args.resume
