@@ -24,13 +24,17 @@ typedef struct {
 } tile_state;
 
 /* One Gaussian over the 8 pixels of a half row starting at `first`. The decisions are 0/1 float
- * masks rather than branches so that the loop vectorises. */
+ * masks rather than branches so that the loop vectorises. With `record` (a constant at every
+ * call, so the compiler drops the branch) it also notes `entry` as the last Gaussian added at
+ * each pixel it was added to, for the backward pass. */
 static inline void blend_block(tile_state *st, int first, float power_y, float cb_dy,
-                               const sc_columns *c) {
+                               const sc_columns *c, const int record, int32_t *restrict last_all,
+                               int32_t entry) {
     const int col = first % SC_TILE;
     float *restrict T = st->T + first, *restrict live = st->live + first;
     float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
                     *restrict depth = st->depth + first, *restrict weight = st->weight + first;
+    int32_t *restrict last = record ? last_all + first : NULL;
     const float *restrict dx = c->dx + col, *restrict power_x = c->power_x + col;
     const float opacity = c->opacity;
     const float cr = c->r, cg = c->g, cbl = c->b, cz = c->depth;
@@ -43,7 +47,8 @@ static inline void blend_block(tile_state *st, int first, float power_y, float c
         const float drawn = alpha >= SC_ALPHA_MIN ? live[x] : 0.0f;
         const float visible = power <= 0.0f ? drawn : 0.0f;
         const float stop = next_t < SC_T_MIN ? visible : 0.0f;
-        const float w = (visible - stop) * alpha * t; /* alpha T when added, else 0 */
+        const float added = visible - stop;
+        const float w = added * alpha * t; /* alpha T when added, else 0 */
         r[x] += w * cr;
         g[x] += w * cg;
         b[x] += w * cbl;
@@ -51,6 +56,7 @@ static inline void blend_block(tile_state *st, int first, float power_y, float c
         weight[x] += w;
         T[x] = t - w; /* = t (1 - alpha) when added, up to rounding */
         live[x] -= stop;
+        if (record) last[x] = added != 0.0f ? entry : last[x];
     }
 }
 
@@ -99,10 +105,10 @@ static void flush_mesh(tile_state *st, mesh_state *ms, const sc_camera *cam, con
     ms->next_mesh_z = next;
 }
 
-SC_CLONES
-static int64_t composite(tile_state *st, mesh_state *ms, const sc_splat *splats,
-                         const uint32_t *list, int64_t count, const sc_camera *cam,
-                         const sc_image *im) {
+/* Every Gaussian of the tile's list, front to back. `record` as in blend_block. */
+static inline int64_t composite(tile_state *st, mesh_state *ms, const sc_splat *splats,
+                                const uint32_t *list, int64_t count, const sc_camera *cam,
+                                const sc_image *im, const int record, int32_t *last) {
     const int has_mesh = im->mesh_rgba != NULL;
     const float px0 = (float)ms->x0 + 0.5f;
     int64_t evaluations = 0;
@@ -111,28 +117,42 @@ static int64_t composite(tile_state *st, mesh_state *ms, const sc_splat *splats,
         if ((k & 31) == 31 && all_stopped(st)) break;
         const sc_splat *s = &splats[list[k]];
         if (has_mesh && s->depth >= ms->next_mesh_z) flush_mesh(st, ms, cam, im, s->depth);
-        int j0 = s->row0 - ms->y0, j1 = s->row1 - ms->y0;
-        int i0 = s->col0 - ms->x0, i1 = s->col1 - ms->x0;
-        j0 = j0 < 0 ? 0 : j0;
-        j1 = j1 > SC_TILE - 1 ? SC_TILE - 1 : j1;
-        i0 = i0 < 0 ? 0 : i0 / BLOCK * BLOCK;
-        i1 = i1 > SC_TILE - 1 ? SC_TILE : (i1 / BLOCK + 1) * BLOCK;
+        int j0, j1, i0, i1;
+        sc_tile_span(s, ms->x0, ms->y0, &j0, &j1, &i0, &i1);
         sc_columns c;
         sc_prepare_columns(&c, s, px0);
         for (int j = j0; j <= j1; ++j) {
             const float dy = c.y - ((float)(ms->y0 + j) + 0.5f);
             const float power_y = -(c.half_cc * dy * dy), cb_dy = c.cb * dy;
-            for (int i = i0; i < i1; i += BLOCK) blend_block(st, j * SC_TILE + i, power_y, cb_dy, &c);
+            for (int i = i0; i < i1; i += BLOCK)
+                blend_block(st, j * SC_TILE + i, power_y, cb_dy, &c, record, last, (int32_t)(k + 1));
         }
         evaluations += (int64_t)(j1 - j0 + 1) * (i1 - i0);
     }
     return evaluations;
 }
 
-int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
-                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *im) {
+SC_CLONES
+static int64_t composite_render(tile_state *st, mesh_state *ms, const sc_splat *splats,
+                                const uint32_t *list, int64_t count, const sc_camera *cam,
+                                const sc_image *im) {
+    return composite(st, ms, splats, list, count, cam, im, 0, NULL);
+}
+
+SC_CLONES
+static int64_t composite_record(tile_state *st, mesh_state *ms, const sc_splat *splats,
+                                const uint32_t *list, int64_t count, const sc_camera *cam,
+                                const sc_image *im, int32_t *last) {
+    return composite(st, ms, splats, list, count, cam, im, 1, last);
+}
+
+/* One tile: set up, composite, write out; with `final_t` and `n_contrib` the training record. */
+static int64_t composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
+                              int tile_x, int tile_y, const sc_camera *cam, const sc_image *im,
+                              float *final_t, int32_t *n_contrib) {
     tile_state st;
     mesh_state ms;
+    int32_t last[PIXELS];
     ms.x0 = tile_x * SC_TILE;
     ms.y0 = tile_y * SC_TILE;
     ms.w = cam->width - ms.x0 < SC_TILE ? cam->width - ms.x0 : SC_TILE;
@@ -144,6 +164,7 @@ int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t 
         st.r[p] = st.g[p] = st.b[p] = st.depth[p] = st.weight[p] = 0.0f;
         st.live[p] = in_image ? 1.0f : 0.0f;
         ms.mesh_z[p] = NAN;
+        last[p] = 0;
     }
     if (im->mesh_rgba) {
         for (int j = 0; j < ms.h; ++j)
@@ -154,7 +175,9 @@ int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t 
             }
     }
 
-    const int64_t evaluations = composite(&st, &ms, splats, list, count, cam, im);
+    const int64_t evaluations =
+        final_t ? composite_record(&st, &ms, splats, list, count, cam, im, last)
+                : composite_render(&st, &ms, splats, list, count, cam, im);
     if (im->mesh_rgba) flush_mesh(&st, &ms, cam, im, INFINITY);
 
     const float *bg = im->background;
@@ -168,102 +191,28 @@ int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t 
             im->rgb[3 * pix + 2] = st.b[p] + (bg ? t * bg[2] : 0.0f);
             im->alpha[pix] = 1.0f - t;
             im->depth[pix] = st.weight[p] > 0.0f ? st.depth[p] / st.weight[p] : INFINITY;
+            if (final_t) {
+                final_t[pix] = t;
+                n_contrib[pix] = last[p];
+            }
         }
     return evaluations;
 }
 
-/* ---------------------------------------------------------------- training forward
- * The same compositing without a mesh layer, also recording per pixel the number of tile-list
- * entries up to and including the last Gaussian that was added (the reference CUDA code's
- * n_contrib / last_contributor). blend_block_train is blend_block plus that record: the images
- * are bit-identical to sc_composite_tile's with no mesh. */
-static inline void blend_block_train(tile_state *st, int32_t *restrict last_all, int first,
-                                     float power_y, float cb_dy, const sc_columns *c,
-                                     int32_t entry) {
-    const int col = first % SC_TILE;
-    float *restrict T = st->T + first, *restrict live = st->live + first;
-    float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
-                    *restrict depth = st->depth + first, *restrict weight = st->weight + first;
-    int32_t *restrict last = last_all + first;
-    const float *restrict dx = c->dx + col, *restrict power_x = c->power_x + col;
-    const float opacity = c->opacity;
-    const float cr = c->r, cg = c->g, cbl = c->b, cz = c->depth;
-    for (int x = 0; x < BLOCK; ++x) {
-        const float power = power_x[x] + power_y - cb_dy * dx[x];
-        float alpha = opacity * sc_fast_exp(power);
-        alpha = alpha < SC_ALPHA_MAX ? alpha : SC_ALPHA_MAX;
-        const float t = T[x];
-        const float next_t = t * (1.0f - alpha);
-        const float drawn = alpha >= SC_ALPHA_MIN ? live[x] : 0.0f;
-        const float visible = power <= 0.0f ? drawn : 0.0f;
-        const float stop = next_t < SC_T_MIN ? visible : 0.0f;
-        const float added = visible - stop;
-        const float w = added * alpha * t;
-        r[x] += w * cr;
-        g[x] += w * cg;
-        b[x] += w * cbl;
-        depth[x] += w * cz;
-        weight[x] += w;
-        T[x] = t - w;
-        live[x] -= stop;
-        last[x] = added != 0.0f ? entry : last[x];
-    }
+int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
+                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *im) {
+    return composite_tile(splats, list, count, tile_x, tile_y, cam, im, NULL, NULL);
 }
 
-SC_CLONES
-static int64_t composite_train(tile_state *st, int32_t *last, int x0, int y0,
-                               const sc_splat *splats, const uint32_t *list, int64_t count) {
-    const float px0 = (float)x0 + 0.5f;
-    int64_t evaluations = 0;
-    for (int64_t k = 0; k < count; ++k) {
-        if ((k & 31) == 31 && all_stopped(st)) break;
-        const sc_splat *s = &splats[list[k]];
-        int j0, j1, i0, i1;
-        sc_tile_span(s, x0, y0, &j0, &j1, &i0, &i1);
-        sc_columns c;
-        sc_prepare_columns(&c, s, px0);
-        for (int j = j0; j <= j1; ++j) {
-            const float dy = c.y - ((float)(y0 + j) + 0.5f);
-            const float power_y = -(c.half_cc * dy * dy), cb_dy = c.cb * dy;
-            for (int i = i0; i < i1; i += BLOCK)
-                blend_block_train(st, last, j * SC_TILE + i, power_y, cb_dy, &c, (int32_t)(k + 1));
-        }
-        evaluations += (int64_t)(j1 - j0 + 1) * (i1 - i0);
-    }
-    return evaluations;
-}
-
+/* The training variant records, per pixel, the final transmittance and the number of tile-list
+ * entries up to and including the last Gaussian added (the reference CUDA code's n_contrib).
+ * Training renders have no mesh layer; the images are bit-identical to sc_composite_tile's. */
 int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, int64_t count,
                                 int tile_x, int tile_y, const sc_camera *cam, const sc_image *im,
                                 float *final_t, int32_t *n_contrib) {
-    tile_state st;
-    int32_t last[PIXELS];
-    const int x0 = tile_x * SC_TILE, y0 = tile_y * SC_TILE;
-    const int w = cam->width - x0 < SC_TILE ? cam->width - x0 : SC_TILE;
-    const int h = cam->height - y0 < SC_TILE ? cam->height - y0 : SC_TILE;
-    for (int p = 0; p < PIXELS; ++p) {
-        const int in_image = (p % SC_TILE) < w && (p / SC_TILE) < h;
-        st.T[p] = 1.0f;
-        st.r[p] = st.g[p] = st.b[p] = st.depth[p] = st.weight[p] = 0.0f;
-        st.live[p] = in_image ? 1.0f : 0.0f;
-        last[p] = 0;
-    }
-    const int64_t evaluations = composite_train(&st, last, x0, y0, splats, list, count);
-    const float *bg = im->background;
-    for (int j = 0; j < h; ++j)
-        for (int i = 0; i < w; ++i) {
-            const int p = j * SC_TILE + i;
-            const int64_t pix = (int64_t)(y0 + j) * cam->width + x0 + i;
-            const float t = st.T[p];
-            im->rgb[3 * pix + 0] = st.r[p] + (bg ? t * bg[0] : 0.0f);
-            im->rgb[3 * pix + 1] = st.g[p] + (bg ? t * bg[1] : 0.0f);
-            im->rgb[3 * pix + 2] = st.b[p] + (bg ? t * bg[2] : 0.0f);
-            im->alpha[pix] = 1.0f - t;
-            im->depth[pix] = st.weight[p] > 0.0f ? st.depth[p] / st.weight[p] : INFINITY;
-            final_t[pix] = t;
-            n_contrib[pix] = last[p];
-        }
-    return evaluations;
+    sc_image plain = *im;
+    plain.mesh_rgba = NULL, plain.mesh_depth = NULL;
+    return composite_tile(splats, list, count, tile_x, tile_y, cam, &plain, final_t, n_contrib);
 }
 
 double sc_composite_microbench(int count, int iterations) {
