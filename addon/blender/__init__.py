@@ -13,6 +13,8 @@ MODULE_NAMES: list[str] = [
     # one line per module, e.g. "splat_object", "io_operators"
     "properties", "gather", "io_operators", "edit_operators",  # splat objects
     "colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
+    "render_panel", "render_hooks", "viewport",  # rendering with meshes
+    "train_operator", "bake_operator",  # training: splat.train, splat.bake_to_splats
     "mesh_convert",  # splats to a textured mesh: splat.convert_to_mesh
 ]
 

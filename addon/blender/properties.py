@@ -49,6 +49,11 @@ class SplatObjectSettings(bpy.types.PropertyGroup):
         default="SRGB")
     source_path: StringProperty(
         name="Source", description="The file the splats were imported from", subtype="FILE_PATH")
+    show_in_viewport: BoolProperty(
+        name="Show in Viewport",
+        description="Draw these splats in the 3D viewport (Solid and Material Preview); final "
+                    "renders follow the object's render visibility",
+        default=True)
 
 
 class OBJECT_PT_splat(bpy.types.Panel):
@@ -82,6 +87,7 @@ class OBJECT_PT_splat(bpy.types.Panel):
         col.prop(settings, "antialiased")
         col.prop(settings, "sh_degree")
         col.prop(settings, "color_space")
+        col.prop(settings, "show_in_viewport")
         if settings.source_path:
             col.prop(settings, "source_path")
 

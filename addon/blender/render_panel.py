@@ -1,0 +1,200 @@
+"""Scene-level splat render options (`Scene.splat_render`) and their panel in Properties >
+Render > Gaussian Splats, with the "Render Splats Only" switch and the compositor bridge's state.
+
+Per-object options (antialiased, SH degree, colour space, shown in the viewport) stay on the
+object (`Object.splat`, Properties > Object > Gaussian Splats); the scene options here apply to
+every splat object of the scene:
+
+- `enabled`: compose the splats into final renders (F12, animation, command line);
+- `antialiased`: 'OBJECT' (what the splat objects say), 'ON' or 'OFF' for all;
+- `sh_degree`: the most SH bands to evaluate (each object's own limit applies too);
+- `near`: the near plane in scene units (splats closer to the camera are culled);
+- `threads`: native threads, 0 for every core;
+- `splat_passes`: add the splat layer to multilayer EXR files;
+- `viewport`, `viewport_coarse_pixels`, `viewport_resolution`: the viewport drawing
+  (see `viewport`).
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, \
+    StringProperty
+
+from . import compositor_bridge as bridge
+from .registration import register_classes, unregister_classes
+
+
+class SplatRenderSettings(bpy.types.PropertyGroup):
+    enabled: BoolProperty(
+        name="Composite Splats",
+        description="Compose the scene's splat objects with the meshes in final renders (F12, "
+                    "animation, command-line renders), through the compositor",
+        default=True)
+    antialiased: EnumProperty(
+        name="Antialiased",
+        description="Mip-Splatting opacity compensation",
+        items=[("OBJECT", "From Objects", "Use the splat objects' own setting (off when they "
+                                          "disagree)"),
+               ("ON", "On", "Antialiased for every splat object"),
+               ("OFF", "Off", "Not antialiased, whatever the objects say")],
+        default="OBJECT")
+    sh_degree: IntProperty(
+        name="Max SH Degree",
+        description="Evaluate at most this many spherical-harmonics bands (each object's own "
+                    "limit applies too); fewer is faster and less view-dependent",
+        default=3, min=0, max=3)
+    near: FloatProperty(
+        name="Near Plane", description="Splats closer to the camera than this are not drawn",
+        default=0.01, min=1e-6, soft_max=1.0, precision=4, subtype="DISTANCE")
+    threads: IntProperty(
+        name="Threads", description="Threads for the splat renderer (0: every core)",
+        default=0, min=0, max=1024)
+    splat_passes: BoolProperty(
+        name="Splat Passes",
+        description="Multilayer EXR output also holds the splats' own colour, alpha and depth "
+                    "(layer \"Splats\")",
+        default=True)
+    viewport: BoolProperty(
+        name="Show in Viewport",
+        description="Draw splat objects in the 3D viewport (Solid and Material Preview)",
+        default=True)
+    viewport_coarse_pixels: IntProperty(
+        name="Pixels While Moving",
+        description="While the view moves, splats are drawn at a resolution of about this many "
+                    "pixels; full resolution follows when the view rests",
+        default=150_000, min=10_000, max=8_000_000)
+    viewport_resolution: FloatProperty(
+        name="Viewport Resolution",
+        description="Resolution of the resting viewport image, relative to the viewport",
+        default=1.0, min=0.1, max=1.0, subtype="FACTOR")
+    previous_engine: StringProperty(
+        name="Previous Engine", description="The engine \"Render Splats Only\" switched from",
+        default="")
+
+
+class SPLAT_OT_render_splats_only(bpy.types.Operator):
+    """Render only the splats (no mesh render) for quick looks, or switch back to the engine
+    used before"""
+
+    bl_idname = "splat.render_splats_only"
+    bl_label = "Render Splats Only"
+    bl_options = {"REGISTER", "UNDO"}
+
+    enable: BoolProperty(name="Enable", default=True)
+
+    def execute(self, context):
+        set_splats_only(context.scene, self.enable)
+        return {"FINISHED"}
+
+
+def set_splats_only(scene, enable: bool) -> None:
+    """Switch the scene's render engine to the splats-only engine, or back."""
+    settings = scene.splat_render
+    if enable and scene.render.engine != bridge.ENGINE_ID:
+        settings.previous_engine = scene.render.engine
+        scene.render.engine = bridge.ENGINE_ID
+    elif not enable and scene.render.engine == bridge.ENGINE_ID:
+        scene.render.engine = settings.previous_engine or "CYCLES"
+
+
+class SPLAT_OT_compositor_bridge(bpy.types.Operator):
+    """Set up (or remove) the compositor nodes that bring the splats into final renders"""
+
+    bl_idname = "splat.compositor_bridge"
+    bl_label = "Splat Compositor Bridge"
+    bl_options = {"REGISTER", "UNDO"}
+
+    remove: BoolProperty(name="Remove", default=False)
+
+    def execute(self, context):
+        scene = context.scene
+        if self.remove:
+            bridge.remove_bridge(scene)
+        else:
+            bridge.ensure_bridge(scene)
+        return {"FINISHED"}
+
+
+class RENDER_PT_splats(bpy.types.Panel):
+    bl_idname = "RENDER_PT_splats"
+    bl_label = "Gaussian Splats"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and not bridge.is_helper(context.scene)
+
+    def draw(self, context):
+        from . import render_hooks
+
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        scene = context.scene
+        settings = scene.splat_render
+        splats_only = scene.render.engine == bridge.ENGINE_ID
+        row = layout.row()
+        row.operator(SPLAT_OT_render_splats_only.bl_idname,
+                     text="Back to " + (settings.previous_engine or "Cycles").title()
+                     if splats_only else "Render Splats Only",
+                     icon="LOOP_BACK" if splats_only else "OUTLINER_OB_POINTCLOUD",
+                     depress=splats_only).enable = not splats_only
+        col = layout.column()
+        col.prop(settings, "antialiased")
+        col.prop(settings, "sh_degree")
+        col.prop(settings, "near")
+        col.prop(settings, "threads")
+        if not splats_only:
+            col = layout.column(heading="Final Render")
+            col.prop(settings, "enabled")
+            sub = col.column()
+            sub.active = settings.enabled
+            sub.prop(settings, "splat_passes")
+            if settings.enabled:
+                found = bridge.problems(scene)
+                if found and bridge.bridge_node(scene) is None:
+                    box = layout.box()
+                    box.label(text="Set up when a scene with splats renders", icon="INFO")
+                    box.operator(SPLAT_OT_compositor_bridge.bl_idname, text="Set Up Now").remove = False
+                elif found:
+                    box = layout.box()
+                    for problem in found:
+                        box.label(text=problem, icon="ERROR")
+                    box.operator(SPLAT_OT_compositor_bridge.bl_idname, text="Repair").remove = False
+                else:
+                    row = layout.row()
+                    row.label(text=f"Composed with view layer \"{bridge.bridge_view_layer(scene)}\"",
+                              icon="NODE_COMPOSITING")
+                    row.operator(SPLAT_OT_compositor_bridge.bl_idname, text="",
+                                 icon="X").remove = True
+        col = layout.column(heading="Viewport")
+        col.prop(settings, "viewport")
+        sub = col.column()
+        sub.active = settings.viewport
+        sub.prop(settings, "viewport_resolution")
+        sub.prop(settings, "viewport_coarse_pixels")
+        stats = render_hooks.last_stats
+        if stats.get("total_ms"):
+            box = layout.box()
+            box.label(text=f"Last frame: {int(stats.get('gaussians', 0)):,} splats, "
+                           f"{int(stats['width'])}x{int(stats['height'])}, "
+                           f"{stats['total_ms']:.0f} ms")
+
+
+CLASSES = (SplatRenderSettings, SPLAT_OT_render_splats_only, SPLAT_OT_compositor_bridge,
+           RENDER_PT_splats)
+
+
+def register() -> None:
+    register_classes(CLASSES)
+    if "splat_render" not in bpy.types.Scene.bl_rna.properties:
+        bpy.types.Scene.splat_render = PointerProperty(type=SplatRenderSettings)
+
+
+def unregister() -> None:
+    if "splat_render" in bpy.types.Scene.bl_rna.properties:
+        del bpy.types.Scene.splat_render
+    unregister_classes(CLASSES)

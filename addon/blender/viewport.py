@@ -1,0 +1,460 @@
+"""Splats in the 3D viewport: a draw handler over Solid and Material Preview shading.
+
+For each 3D view, the native renderer draws the splats as the view's camera sees them (colour
+and expected depth), in a background thread; the draw handler (POST_VIEW) draws that image over
+the viewport with a depth test against the viewport's own depth buffer, so meshes in front hide
+the splats and splats in front hide meshes (per pixel, at the splats' expected depth: the exact
+soft composite is what final renders do).
+
+Progressive: when the view (or the scene) changes, a coarse image (about
+`Scene.splat_render.viewport_coarse_pixels` pixels) is requested first; once the view has
+rested for `REST_SECONDS`, the full-resolution one (`viewport_resolution`). Rendering never
+runs in the draw callback: until a new image is ready the last one is drawn, so a large scene
+never blocks the UI for a render (gathering the splats of an edited object does run on the main
+thread, as reading Blender data must: about 0.2 s per million splats).
+
+Switches: `Scene.splat_render.viewport` (all splats of the scene) and
+`Object.splat.show_in_viewport` (one object). Orthographic views are not drawn (the renderer
+is a pinhole camera model). The viewport shows the reference look (display sRGB, as "Standard"
+shows it), whatever the scene's view transform.
+
+The pieces are usable without a 3D view (tests draw into a `gpu.types.GPUOffScreen`):
+`camera_from_view`, `render_view` (no GPU) and `draw_image` (GPU).
+"""
+
+from __future__ import annotations
+
+import atexit
+import threading
+import time
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from ..core import colour
+from ..core.cameras import Camera
+from ..core.gaussians import Gaussians
+from ..core.render import render
+from . import gather
+
+REST_SECONDS = 0.15
+_FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+# --------------------------------------------------------------------- cameras and images
+
+def camera_from_view(view_matrix, window_matrix, width: int, height: int,
+                     scale: float = 1.0) -> Camera | None:
+    """The pinhole camera of a 3D view (OpenGL view and projection matrices, region size in
+    pixels), for an image `scale` times the region's size; None for orthographic views.
+
+    With P the projection, a view-space point (x, y, z), z < 0, lands at
+    u = (P00 x/(-z) - P02 + 1) W/2 and v = (1 - P11 y/(-z) + P12) H/2, so in OpenCV terms
+    fx = P00 W/2, cx = (1 - P02) W/2, fy = P11 H/2, cy = (1 + P12) H/2.
+    """
+    p = np.asarray(window_matrix, np.float64)
+    if abs(p[3, 3]) > 1e-9 or abs(p[3, 2] + 1.0) > 1e-9:
+        return None
+    w = max(1, int(round(width * scale)))
+    h = max(1, int(round(height * scale)))
+    world_to_camera = _FLIP_YZ @ np.asarray(view_matrix, np.float64)
+    return Camera(world_to_camera, p[0, 0] * w / 2, p[1, 1] * h / 2, (1 - p[0, 2]) * w / 2,
+                  (1 + p[1, 2]) * h / 2, w, h)
+
+
+def window_depth(depth: np.ndarray, window_matrix) -> np.ndarray:
+    """Planar depth (positive, along the view) -> the depth buffer value OpenGL stores for it
+    under `window_matrix` (default depth range [0, 1]); 1 where nothing is (inf)."""
+    p = np.asarray(window_matrix, np.float64)
+    z = np.asarray(depth, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ndc = (p[2, 2] * -z + p[2, 3]) / z
+    out = np.where(np.isfinite(ndc), 0.5 * ndc + 0.5, 1.0)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+@dataclass
+class ViewportImage:
+    """A rendered view, ready to draw: rows bottom to top (OpenGL's texture order)."""
+
+    key: tuple
+    rgba: np.ndarray          # (h, w, 4) float32 premultiplied display sRGB
+    depth: np.ndarray         # (h, w) float32 depth-buffer values (1: nothing)
+    coarse: bool
+    seconds: float
+
+
+def render_view(gaussians: Gaussians, camera: Camera, window_matrix, *, key: tuple = (),
+                coarse: bool = False, color_space: str = "SRGB", antialiased: bool = False,
+                near: float = 0.01, sh_degree: int | None = None, threads: int = 0) -> ViewportImage:
+    """Render the splats for a view (no GPU, no bpy: runs in a worker thread)."""
+    start = time.perf_counter()
+    result = render(gaussians, camera, antialiased=antialiased, near=near, sh_degree=sh_degree,
+                    threads=threads)
+    rgba = np.empty((camera.height, camera.width, 4), np.float32)
+    rgba[..., :3] = result.rgb
+    rgba[..., 3] = result.alpha
+    if color_space == "LINEAR":
+        rgba = colour.display_from_linear(rgba)
+    depth = window_depth(result.depth, window_matrix)
+    return ViewportImage(key, np.ascontiguousarray(rgba[::-1]), np.ascontiguousarray(depth[::-1]),
+                         coarse, time.perf_counter() - start)
+
+
+# ---------------------------------------------------------------------------- GPU drawing
+
+_shader_cache: dict[str, object] = {}
+atexit.register(_shader_cache.clear)  # GPU objects go before Blender checks for leaks
+
+_VERTEX = """
+void main()
+{
+  uv = pos * 0.5 + 0.5;
+  gl_Position = vec4(pos, 0.0, 1.0);
+}
+"""
+
+_FRAGMENT = """
+float srgb_to_linear(float c)
+{
+  return c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4);
+}
+
+void main()
+{
+  vec4 c = texture(colour_tex, uv);
+  if (c.a < 1.0 / 255.0) {
+    discard;
+  }
+  gl_FragDepth = texture(depth_tex, uv).r;
+  if (srgbTarget) {
+    /* An sRGB framebuffer encodes on write: hand it linear (display-referred) colour. */
+    vec3 straight = max(c.rgb / c.a, vec3(0.0));
+    c.rgb = vec3(srgb_to_linear(straight.r), srgb_to_linear(straight.g),
+                 srgb_to_linear(straight.b)) * c.a;
+  }
+  frag = c;
+}
+"""
+
+
+def _shader():
+    shader = _shader_cache.get("image")
+    if shader is None:
+        import gpu
+
+        interface = gpu.types.GPUStageInterfaceInfo("splat_viewport_interface")
+        interface.smooth("VEC2", "uv")
+        info = gpu.types.GPUShaderCreateInfo()
+        info.push_constant("BOOL", "srgbTarget")   # set by Blender for sRGB framebuffers
+        info.sampler(0, "FLOAT_2D", "colour_tex")
+        info.sampler(1, "FLOAT_2D", "depth_tex")
+        info.vertex_in(0, "VEC2", "pos")
+        info.vertex_out(interface)
+        info.fragment_out(0, "VEC4", "frag")
+        info.depth_write("ANY")
+        info.vertex_source(_VERTEX)
+        info.fragment_source(_FRAGMENT)
+        shader = gpu.shader.create_from_info(info)
+        _shader_cache["image"] = shader
+    return shader
+
+
+# GPU textures of the image last drawn in each view. GPU objects are made and freed only here,
+# in the drawing (main) thread: the worker thread never holds one.
+_texture_cache: dict[object, tuple[ViewportImage, tuple]] = {}
+atexit.register(_texture_cache.clear)
+
+
+def _textures(image: ViewportImage, cache_key=None):
+    cached = _texture_cache.get(cache_key) if cache_key is not None else None
+    if cached is not None and cached[0] is image:
+        return cached[1]
+    import gpu
+
+    h, w = image.depth.shape
+    textures = (
+        gpu.types.GPUTexture((w, h), format="RGBA32F", data=gpu.types.Buffer(
+            "FLOAT", w * h * 4, image.rgba.reshape(-1))),
+        gpu.types.GPUTexture((w, h), format="R32F", data=gpu.types.Buffer(
+            "FLOAT", w * h, image.depth.reshape(-1))))
+    if cache_key is not None:
+        _texture_cache[cache_key] = (image, textures)
+    return textures
+
+
+def draw_image(image: ViewportImage, cache_key=None) -> None:
+    """Draw `image` over the bound framebuffer, covering it, with a depth test against its
+    depth buffer (which is left unchanged). With a `cache_key` (a view), the textures are kept
+    for the next draw of the same image."""
+    import gpu
+    from gpu_extras.batch import batch_for_shader
+
+    shader = _shader()
+    colour_tex, depth_tex = _textures(image, cache_key)
+    quad = _shader_cache.get("quad")
+    if quad is None:
+        quad = batch_for_shader(shader, "TRI_STRIP",
+                                {"pos": [(-1, -1), (1, -1), (-1, 1), (1, 1)]})
+        _shader_cache["quad"] = quad
+    gpu.state.depth_test_set("LESS_EQUAL")
+    gpu.state.depth_mask_set(False)
+    gpu.state.blend_set("ALPHA_PREMULT")
+    try:
+        shader.bind()
+        shader.uniform_sampler("colour_tex", colour_tex)
+        shader.uniform_sampler("depth_tex", depth_tex)
+        quad.draw(shader)
+    finally:
+        gpu.state.blend_set("NONE")
+        gpu.state.depth_test_set("NONE")
+
+
+# ------------------------------------------------------------------------ background renders
+
+@dataclass
+class _Job:
+    region: int
+    key: tuple
+    gaussians: Gaussians
+    camera: Camera
+    window_matrix: np.ndarray
+    coarse: bool
+    options: dict
+
+
+class ViewportRenderer:
+    """One worker thread rendering the latest job of each view; results are picked up by the
+    draw handler. Newer jobs replace older waiting ones; coarse jobs go first."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Condition()
+        self._jobs: dict[int, _Job] = {}
+        self._results: dict[int, ViewportImage] = {}
+        self._fresh = False
+        self._thread: threading.Thread | None = None
+        self._stop = False
+        self._running = False
+        self.errors: list[str] = []
+
+    def submit(self, job: _Job) -> None:
+        with self._lock:
+            self._jobs[job.region] = job
+            if self._thread is None or not self._thread.is_alive():
+                self._stop = False
+                self._thread = threading.Thread(target=self._run, name="splat-viewport",
+                                                daemon=True)
+                self._thread.start()
+            self._lock.notify()
+
+    def result(self, region: int) -> ViewportImage | None:
+        with self._lock:
+            return self._results.get(region)
+
+    def take_fresh(self) -> bool:
+        """True once after new results arrived (the caller redraws)."""
+        with self._lock:
+            fresh, self._fresh = self._fresh, False
+            return fresh
+
+    def busy(self) -> bool:
+        with self._lock:
+            return bool(self._jobs)
+
+    def forget(self, region: int) -> None:
+        with self._lock:
+            self._jobs.pop(region, None)
+            self._results.pop(region, None)
+
+    def wait(self, timeout: float = 30.0) -> bool:
+        """Wait until no job is waiting or running (tests)."""
+        deadline = time.monotonic() + timeout
+        with self._lock:
+            while self._jobs or self._running:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._lock.wait(remaining)
+        return True
+
+    def stop(self) -> None:
+        with self._lock:
+            self._stop = True
+            self._jobs.clear()
+            self._results.clear()
+            self._lock.notify_all()
+
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                while not self._jobs and not self._stop:
+                    self._lock.wait()
+                if self._stop:
+                    return
+                region = min(self._jobs, key=lambda r: not self._jobs[r].coarse)
+                job = self._jobs.pop(region)
+                self._running = True
+            try:
+                image = render_view(job.gaussians, job.camera, job.window_matrix, key=job.key,
+                                    coarse=job.coarse, **job.options)
+            except Exception as error:  # a bad frame must not kill the worker
+                image = None
+                self.errors.append(str(error))
+            with self._lock:
+                self._running = False
+                if image is not None:
+                    old = self._results.get(region)
+                    # A coarse image never replaces a full one of the same view.
+                    if old is None or not (image.coarse and not old.coarse and old.key == image.key):
+                        self._results[region] = image
+                        self._fresh = True
+                self._lock.notify_all()
+            image = job = None  # hold no image (nor its GPU textures) while waiting
+
+
+renderer = ViewportRenderer()
+
+
+# --------------------------------------------------------------------------- draw handler
+
+@dataclass
+class _ViewState:
+    key: tuple = ()
+    changed_at: float = 0.0
+    full_requested: bool = False
+    job: _Job | None = None          # the full-resolution job to send once the view rests
+
+
+_views: dict[int, _ViewState] = {}
+_combined: dict[tuple, Gaussians] = {}
+
+
+def _shown(batch) -> bool:
+    obj = bpy.data.objects.get(batch.name)
+    settings = getattr(obj, "splat", None) if obj is not None else None
+    return settings is None or getattr(settings, "show_in_viewport", True)
+
+
+def viewport_splats(depsgraph, scene) -> tuple[Gaussians, dict] | None:
+    """The splats a viewport shows (per-object switches applied) and the render options."""
+    result = gather.gather(depsgraph)
+    batches = [b for b in result.batches if _shown(b)]
+    if not batches:
+        return None
+    if len(batches) == len(result.batches):
+        gaussians = result.gaussians
+    else:
+        key = tuple(id(b.gaussians) for b in batches)
+        gaussians = _combined.get(key)
+        if gaussians is None:
+            degree = max(b.gaussians.degree for b in batches)
+            parts = [b.gaussians.with_degree(degree) if b.gaussians.degree != degree
+                     else b.gaussians for b in batches]
+            gaussians = Gaussians(*(np.concatenate([getattr(p, n) for p in parts]) for n in (
+                "means", "log_scales", "quats", "opacity_logits", "sh")))
+            _combined.clear()
+            _combined[key] = gaussians
+    settings = scene.splat_render
+    antialiased = {"OBJECT": all(b.antialiased for b in batches), "ON": True,
+                   "OFF": False}[settings.antialiased]
+    spaces = {b.color_space for b in batches}
+    options = dict(color_space="LINEAR" if spaces == {"LINEAR"} else "SRGB",
+                   antialiased=antialiased, near=settings.near,
+                   sh_degree=min(settings.sh_degree, gaussians.degree), threads=settings.threads)
+    return gaussians, options
+
+
+def _draw() -> None:
+    draw_view(bpy.context)
+
+
+def draw_view(context) -> None:
+    """The draw handler's work for one 3D view (`context`: scene, space_data, region,
+    region_data and evaluated_depsgraph_get, as a draw callback's context has them)."""
+    scene, space, region, rv3d = context.scene, context.space_data, context.region, \
+        context.region_data
+    if scene is None or rv3d is None or space is None or space.type != "VIEW_3D":
+        return
+    settings = getattr(scene, "splat_render", None)
+    region_id = region.as_pointer()
+    if settings is None or not settings.viewport or space.shading.type not in ("SOLID", "MATERIAL"):
+        return
+    found = viewport_splats(context.evaluated_depsgraph_get(), scene)
+    view, window = np.array(rv3d.view_matrix), np.array(rv3d.window_matrix)
+    if found is None or camera_from_view(view, window, region.width, region.height) is None:
+        renderer.forget(region_id)
+        _views.pop(region_id, None)
+        _texture_cache.pop(region_id, None)
+        return
+    gaussians, options = found
+    key = (view.tobytes(), window.tobytes(), region.width, region.height, id(gaussians),
+           tuple(sorted(options.items())), settings.viewport_resolution)
+    state = _views.setdefault(region_id, _ViewState())
+    if key != state.key:
+        pixels = region.width * region.height
+        coarse_scale = min(1.0, float(np.sqrt(settings.viewport_coarse_pixels / max(pixels, 1))))
+        full_scale = settings.viewport_resolution
+        state.key, state.changed_at, state.full_requested = key, time.monotonic(), False
+        state.job = _Job(region_id, key, gaussians,
+                         camera_from_view(view, window, region.width, region.height, full_scale),
+                         window, False, options)
+        if coarse_scale < full_scale:
+            renderer.submit(_Job(region_id, key, gaussians, camera_from_view(
+                view, window, region.width, region.height, coarse_scale), window, True, options))
+        else:
+            renderer.submit(state.job)
+            state.full_requested = True
+        _ensure_timer()
+    image = renderer.result(region_id)
+    if image is not None:
+        draw_image(image, cache_key=region_id)
+
+
+def _redraw_views() -> None:
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+
+
+def _tick():
+    """Timer: ask for full resolution once a view rests; redraw when images arrive."""
+    now = time.monotonic()
+    for state in _views.values():
+        if not state.full_requested and state.job is not None and \
+                now - state.changed_at >= REST_SECONDS:
+            renderer.submit(state.job)
+            state.full_requested = True
+    if renderer.take_fresh():
+        _redraw_views()
+    waiting = renderer.busy() or any(not s.full_requested for s in _views.values())
+    return 0.05 if waiting else None
+
+
+def _ensure_timer() -> None:
+    if not bpy.app.timers.is_registered(_tick):
+        bpy.app.timers.register(_tick, first_interval=0.05)
+
+
+_handle = None
+
+
+def register() -> None:
+    global _handle
+    if _handle is None:
+        _handle = bpy.types.SpaceView3D.draw_handler_add(_draw, (), "WINDOW", "POST_VIEW")
+
+
+def unregister() -> None:
+    global _handle
+    if _handle is not None:
+        bpy.types.SpaceView3D.draw_handler_remove(_handle, "WINDOW")
+        _handle = None
+    if bpy.app.timers.is_registered(_tick):
+        bpy.app.timers.unregister(_tick)
+    renderer.stop()
+    _views.clear()
+    _combined.clear()
+    _texture_cache.clear()
+    _shader_cache.clear()

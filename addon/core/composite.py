@@ -1,0 +1,182 @@
+"""Splats composed with a mesh render, in Blender's colour conventions (no bpy).
+
+`compose()` takes what Blender rendered (premultiplied scene-linear RGBA and planar depth, rows
+top to bottom) and returns the exact composite of DESIGN.md "Compositing with meshes", again as
+premultiplied scene-linear RGBA: per pixel, the Gaussians in front of the mesh surface, the
+mesh weighted by the transmittance left, then the Gaussians behind it (`addon.core.render`).
+
+Colour (see `addon.core.colour`): splats whose colours are display sRGB (`color_space="SRGB"`,
+what photos train) are blended in display sRGB, as the reference rasterizer blends them: the
+mesh layer is encoded to display sRGB, composed, and the result decoded back to scene-linear.
+Under Blender's "Standard" view transform, splat-only pixels are then the reference render
+(over the world colour, or over transparency) and mesh-only pixels are unchanged. Splats marked
+`"LINEAR"` are composed with the scene-linear mesh layer as they are.
+
+`render_region()` reproduces which pixels Blender renders for a render border (with or without
+"Crop to Render Region"). A border is composed by rendering the whole frame and keeping the
+region (`embed` puts a cropped mesh layer back into the frame): a camera cropped to the region
+would not give the same pixels, because the reference projection clamps the Jacobian to a guard
+band that depends on the image's extent.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import colour
+from .cameras import Camera
+from .gaussians import Gaussians
+from .render import render
+
+# Blender's "nothing here" depth (Cycles, Workbench and EEVEE write 1e10 where no surface is).
+FAR = 1e10
+COLOR_SPACES = ("SRGB", "LINEAR")
+
+
+@dataclass
+class CompositeResult:
+    rgba: np.ndarray       # (H, W, 4) float32 premultiplied scene-linear composite
+    depth: np.ndarray      # (H, W) float32 expected planar depth (FAR where nothing was hit)
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class SplatLayer:
+    rgba: np.ndarray       # (H, W, 4) float32 premultiplied scene-linear, the splats alone
+    depth: np.ndarray      # (H, W) float32 expected planar depth (FAR where no splat)
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+def _check_space(color_space: str) -> None:
+    if color_space not in COLOR_SPACES:
+        raise ValueError(f"color_space must be one of {COLOR_SPACES}, got {color_space!r}")
+
+
+def _finite_depth(depth: np.ndarray) -> np.ndarray:
+    depth = np.asarray(depth, np.float32)
+    if np.isfinite(depth).all():
+        return np.ascontiguousarray(depth)
+    return np.nan_to_num(depth, nan=FAR, posinf=FAR, neginf=0.0)
+
+
+def _changed_pixels(new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """(H, W) mask: colour bits differ, or alpha by more than rounding."""
+    bits = new.view(np.uint32) ^ old.view(np.uint32)
+    changed = (bits[..., 0] | bits[..., 1] | bits[..., 2]) != 0
+    alpha_only = (bits[..., 3] != 0) & ~changed
+    if alpha_only.any():
+        changed[alpha_only] = np.abs(new[..., 3][alpha_only] - old[..., 3][alpha_only]) > 1e-6
+    return changed
+
+
+def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_depth: np.ndarray,
+            *, color_space: str = "SRGB", antialiased: bool = False, near: float = 0.01,
+            sh_degree: int | None = None, threads: int = 0) -> CompositeResult:
+    """The exact composite of `gaussians` with a mesh render seen by `camera`.
+
+    mesh_rgba: (H, W, 4) premultiplied scene-linear colour, rows top to bottom.
+    mesh_depth: (H, W) planar camera depth (Blender's Depth pass); non-finite values mean
+        "nothing here" and become FAR.
+    Returns premultiplied scene-linear RGBA and the composite's expected depth.
+    """
+    _check_space(color_space)
+    start = time.perf_counter()
+    mesh_rgba = np.asarray(mesh_rgba, np.float32)
+    if mesh_rgba.shape != (camera.height, camera.width, 4):
+        raise ValueError(f"mesh_rgba must have shape {(camera.height, camera.width, 4)}, "
+                         f"got {mesh_rgba.shape}")
+    layer = colour.display_from_linear(mesh_rgba) if color_space == "SRGB" else mesh_rgba
+    if not np.isfinite(layer).all():
+        layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
+    convert_in = time.perf_counter() - start
+    result = render(gaussians, camera, mesh_rgba=layer, mesh_depth=_finite_depth(mesh_depth),
+                    antialiased=antialiased, near=near, sh_degree=sh_degree, threads=threads)
+    start = time.perf_counter()
+    out = np.empty((camera.height, camera.width, 4), np.float32)
+    out[..., :3] = result.rgb
+    out[..., 3] = result.alpha
+    if color_space == "SRGB":
+        # Only pixels the splats changed go back through the conversion; the others keep the
+        # mesh layer's own values, bit for bit.
+        # (Bit-exact colour and alpha within rounding: the native compositor's alpha,
+        # 1 - (1 - a), may differ from a in the last bit where no splat is.)
+        changed = _changed_pixels(out, np.ascontiguousarray(layer, np.float32))
+        decoded = colour.linear_from_display(out[changed])
+        out = np.array(mesh_rgba, np.float32)
+        out[changed] = decoded
+    depth = np.where(np.isfinite(result.depth), result.depth, np.float32(FAR)).astype(np.float32)
+    stats = dict(result.stats)
+    stats["colour_ms"] = 1000 * (convert_in + time.perf_counter() - start)
+    return CompositeResult(out, depth, stats)
+
+
+def splat_layer(gaussians: Gaussians, camera: Camera, *, color_space: str = "SRGB",
+                antialiased: bool = False, near: float = 0.01, sh_degree: int | None = None,
+                threads: int = 0, background: np.ndarray | None = None) -> SplatLayer:
+    """The splats alone, as premultiplied scene-linear RGBA (their own colour, alpha and depth).
+
+    background: an optional scene-linear RGB colour behind the splats; the result is then
+    opaque (alpha 1), the splats composed over it in the splats' colour space.
+    """
+    _check_space(color_space)
+    bg = None
+    if background is not None:
+        bg = np.asarray(background, np.float32).reshape(3)
+        if color_space == "SRGB":
+            bg = colour.srgb_encode(bg).astype(np.float32)
+    result = render(gaussians, camera, background=bg, antialiased=antialiased, near=near,
+                    sh_degree=sh_degree, threads=threads)
+    start = time.perf_counter()
+    out = np.empty((camera.height, camera.width, 4), np.float32)
+    out[..., :3] = result.rgb
+    out[..., 3] = 1.0 if bg is not None else result.alpha
+    if color_space == "SRGB":
+        out = colour.linear_from_display(out)
+    depth = np.where(np.isfinite(result.depth), result.depth, np.float32(FAR)).astype(np.float32)
+    stats = dict(result.stats)
+    stats["colour_ms"] = 1000 * (time.perf_counter() - start)
+    return SplatLayer(out, depth, stats)
+
+
+@dataclass(frozen=True)
+class Region:
+    """Pixels of the full frame (rows top to bottom) that a render covers."""
+
+    x: int         # first column
+    y: int         # first row, from the top
+    width: int
+    height: int
+
+    def slices(self) -> tuple[slice, slice]:
+        return slice(self.y, self.y + self.height), slice(self.x, self.x + self.width)
+
+
+def render_region(width: int, height: int, border: tuple[float, float, float, float] | None
+                  ) -> Region:
+    """The part of a `width` x `height` frame Blender renders for a render border
+    `(min_x, max_x, min_y, max_y)` (fractions, y up), or the whole frame for None.
+
+    Blender (`render_init_from_main`) truncates `border * size` to integers in float32
+    arithmetic: `xmin = int(min_x * W)` and so on, y counted from the bottom.
+    """
+    if border is None:
+        return Region(0, 0, width, height)
+    f32 = np.float32
+    min_x, max_x, min_y, max_y = (f32(v) for v in border)
+    xmin, xmax = int(min_x * f32(width)), int(max_x * f32(width))
+    ymin, ymax = int(min_y * f32(height)), int(max_y * f32(height))
+    return Region(xmin, height - ymax, xmax - xmin, ymax - ymin)
+
+
+def embed(rgba: np.ndarray, depth: np.ndarray, region: Region, width: int, height: int
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """A full-frame mesh layer holding `rgba`, `depth` (which cover `region`); empty (alpha 0,
+    depth FAR) elsewhere."""
+    full_rgba = np.zeros((height, width, 4), np.float32)
+    full_depth = np.full((height, width), FAR, np.float32)
+    full_rgba[region.slices()] = rgba
+    full_depth[region.slices()] = depth
+    return full_rgba, full_depth

@@ -1,0 +1,320 @@
+"""Training as a job: a `Trainer` on a worker thread (or the calling thread), with progress,
+cancelling, snapshots of the Gaussians and checkpoints. Blender-free: the Blender operators
+(`addon/blender/train_operator.py`, `bake_operator.py`) poll a job from a timer.
+
+    job = TrainingJob(lambda job: Trainer(dataset, config), checkpoint="state.npz",
+                      checkpoint_every=1000, snapshot_every=200)
+    job.start()                      # a worker thread: the native kernels release the GIL
+    while not job.done:
+        p = job.progress()           # a consistent copy: step, loss, PSNR, Gaussians, ETA
+        snap = job.take_snapshot()   # (step, Gaussians) every `snapshot_every` steps, else None
+    job.cancel(); job.join()         # stops after the current step; the checkpoint is saved
+
+    job.run()                        # the same work on the calling thread (scripts, background)
+
+Thread safety: only the worker touches the `Trainer` while the job runs. Everything the job
+publishes (progress, snapshots) is copied between two steps, under a lock, so a reader never sees
+a half-updated or half-densified state. After `done`, `job.trainer` belongs to the caller again.
+
+Progress numbers: `loss` and `psnr` are means over the last `window` training steps (a single
+step's values depend on which view it drew); `eta` is the mean wall time of those steps times
+the steps left (steps get slower as densification adds Gaussians, so early estimates are low).
+Held-out PSNR/SSIM (`Trainer.evaluate`) is computed once, at the end, unless cancelled.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections import deque
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+from .gaussians import Gaussians
+from .train import CompactionReport, Evaluation, Trainer, compact
+
+PHASES = ("waiting", "loading", "training", "compacting", "evaluating", "saving", "done",
+          "cancelled", "failed")
+
+
+@dataclass
+class Progress:
+    phase: str = "waiting"  # one of PHASES
+    message: str = ""
+    step: int = 0  # the trainer's step (counts from the checkpoint when resumed)
+    start_step: int = 0  # the step this job began at
+    total: int = 0  # the step training stops at
+    loss: float = float("nan")  # mean over the last `window` steps
+    psnr: float = float("nan")  # training-view PSNR, mean over the last `window` steps
+    gaussians: int = 0
+    sh_degree: int = 0
+    elapsed: float = 0.0  # seconds since training (not loading) began
+    seconds_per_step: float = float("nan")  # mean wall time of the last `window` steps
+    eta: float | None = None  # seconds left, None until a few steps have run
+    evaluation: Evaluation | None = None  # held-out PSNR/SSIM at the end
+    prepared: float = 0.0  # while loading: the fraction prepared
+
+    @property
+    def fraction(self) -> float:
+        """Of the preparation while loading, else of the steps this job runs."""
+        if self.phase in ("waiting", "loading"):
+            return self.prepared
+        span = self.total - self.start_step
+        return 1.0 if span <= 0 else min(max((self.step - self.start_step) / span, 0.0), 1.0)
+
+    @property
+    def finished(self) -> bool:
+        return self.phase in ("done", "cancelled", "failed")
+
+
+def format_duration(seconds: float | None) -> str:
+    """'1:02:03', '4:05' or '0:09'; '--' when unknown."""
+    if seconds is None or not seconds == seconds or seconds < 0:
+        return "--"
+    s = int(round(seconds))
+    h, rest = divmod(s, 3600)
+    m, s = divmod(rest, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+def status_line(p: Progress, title: str = "Training") -> str:
+    """The one-line status shown in Blender's status bar (and printed in background mode)."""
+    if p.phase == "failed":
+        return f"{title} failed at step {p.step:,}: {p.message}"
+    if p.phase in ("waiting", "loading"):
+        return f"{title}: {p.message or 'loading photos'}..."
+    if p.phase == "cancelled" and not p.total:
+        return f"{title}: {p.message or 'cancelled'}"
+    if p.phase in ("compacting", "evaluating", "saving"):
+        return f"{title}: {p.message or p.phase}..."
+    parts = [f"{title} {p.step:,}/{p.total:,} ({100 * p.fraction:.0f} %)"]
+    if p.loss == p.loss:
+        parts.append(f"loss {p.loss:.4f}")
+    if p.psnr == p.psnr:
+        parts.append(f"PSNR {p.psnr:.2f} dB")
+    parts.append(f"{p.gaussians:,} Gaussians")
+    if p.seconds_per_step == p.seconds_per_step:
+        parts.append(f"{1000 * p.seconds_per_step:.0f} ms/step")
+    if p.phase == "training":
+        parts.append(f"ETA {format_duration(p.eta)}")
+    elif p.phase == "cancelled":
+        parts.append("cancelled")
+    if p.evaluation is not None and p.evaluation.views:
+        parts.append(f"held-out PSNR {p.evaluation.psnr:.2f} dB, SSIM {p.evaluation.ssim:.3f}")
+    return " | ".join(parts)
+
+
+class JobCancelled(Exception):
+    """Raised by `TrainingJob.loading` when the job was cancelled while it prepared."""
+
+
+class TrainingJob:
+    """Runs a `Trainer` to `steps` total steps. `trainer` is a Trainer or a callable
+    `make(job) -> Trainer`, called on the worker (so loading photos does not block the caller
+    either); it may call `job.loading(fraction, message)` to report, which raises
+    `JobCancelled` once the job is cancelled (the job then ends "cancelled", with no trainer).
+
+    steps: the step to stop at (None: the trainer's config.steps); it is written into the
+        trainer's config. checkpoint: a path; saved every `checkpoint_every` steps (0: never
+        in between) and at the end, also when cancelled after some steps (not when failed, nor
+        when cancelled before the first step: an earlier checkpoint stays as it was).
+    snapshot_every: publish a copy of the Gaussians every so many steps (0: only at the end).
+    before_step(trainer): called on the worker before every step (e.g. a random background).
+    after_training(trainer): called on the worker once training stops (cancelled or not),
+        before compaction, evaluation and the checkpoint.
+    on_progress(progress): called on the worker after every step and at each phase change.
+    compact_after: run `train.compact` after training (not when cancelled).
+    evaluate: compute held-out PSNR/SSIM at the end (not when cancelled) if there are test views.
+    loading_message: what the progress says while `trainer` (a callable) makes the trainer.
+    """
+
+    def __init__(self, trainer: Trainer | Callable[["TrainingJob"], Trainer], *,
+                 steps: int | None = None,
+                 checkpoint: str | Path | None = None, checkpoint_every: int = 0,
+                 snapshot_every: int = 0, window: int = 50,
+                 before_step: Callable[[Trainer], None] | None = None,
+                 after_training: Callable[[Trainer], None] | None = None,
+                 on_progress: Callable[[Progress], None] | None = None,
+                 compact_after: bool = False, evaluate: bool = True,
+                 loading_message: str = "loading photos") -> None:
+        self._make = trainer if callable(trainer) and not isinstance(trainer, Trainer) else None
+        self.trainer: Trainer | None = None if self._make else trainer
+        self.steps = steps
+        self.checkpoint = Path(checkpoint) if checkpoint else None
+        self.checkpoint_every = int(checkpoint_every)
+        self.snapshot_every = int(snapshot_every)
+        self.before_step = before_step
+        self.after_training = after_training
+        self.on_progress = on_progress
+        self.compact_after = compact_after
+        self.evaluate = evaluate
+        self.loading_message = loading_message
+        self.compaction: CompactionReport | None = None
+        self.error: BaseException | None = None
+        self.error_traceback = ""
+        self.checkpoint_saved = False
+        self.final: tuple[int, Gaussians] | None = None  # (step, Gaussians) once done
+        self._lock = threading.Lock()
+        self._cancel = threading.Event()
+        self._done = threading.Event()
+        self._progress = Progress()
+        self._snapshot: tuple[int, Gaussians] | None = None
+        self._window = deque(maxlen=max(1, int(window)))
+        self._thread: threading.Thread | None = None
+
+    # -- control ----------------------------------------------------------------------------
+    def start(self) -> "TrainingJob":
+        """Run on a daemon worker thread; returns at once."""
+        if self._thread is not None:
+            raise RuntimeError("the job has already been started")
+        self._thread = threading.Thread(target=self._work, name="splat-training", daemon=True)
+        self._thread.start()
+        return self
+
+    def run(self, *, raise_errors: bool = True) -> "TrainingJob":
+        """Run on the calling thread until done. The worker's error, if any, is re-raised
+        (`raise_errors`) or left in `error` for the caller to report."""
+        if self._thread is not None or self._done.is_set():
+            raise RuntimeError("the job has already been started")
+        self._work()
+        if self.error is not None and raise_errors:
+            raise self.error
+        return self
+
+    def cancel(self) -> None:
+        """Ask the worker to stop after the current step (it then saves the checkpoint)."""
+        self._cancel.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._cancel.is_set()
+
+    def join(self, timeout: float | None = None) -> bool:
+        """Wait for the worker; True once it has finished."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+        return self._done.is_set()
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and not self._done.is_set()
+
+    def loading(self, fraction: float, message: str) -> None:
+        """For `make(job)`: report preparation progress; raises JobCancelled if cancelled."""
+        if self._cancel.is_set():
+            raise JobCancelled()
+        self._set(phase="loading", message=message,
+                  prepared=min(max(float(fraction), 0.0), 1.0))
+
+    # -- what the caller reads ---------------------------------------------------------------
+    def progress(self) -> Progress:
+        with self._lock:
+            return replace(self._progress)
+
+    def take_snapshot(self) -> tuple[int, Gaussians] | None:
+        """The newest published (step, Gaussians), once; None if nothing new since last time.
+        The last state stays in `final` once the job is done (also after a failure, when the
+        trainer's state was consistent enough to copy)."""
+        with self._lock:
+            snapshot, self._snapshot = self._snapshot, None
+        return snapshot
+
+    # -- the worker ----------------------------------------------------------------------------
+    def _set(self, **changes) -> None:
+        with self._lock:
+            self._progress = replace(self._progress, **changes)
+            progress = replace(self._progress)
+        if self.on_progress is not None:
+            self.on_progress(progress)
+
+    def _publish(self, trainer: Trainer, *, final: bool = False) -> None:
+        snapshot = (trainer.step, trainer.gaussians.copy())
+        with self._lock:
+            self._snapshot = snapshot
+            if final:
+                self.final = snapshot
+
+    def _save_checkpoint(self, trainer: Trainer) -> None:
+        if self.checkpoint is not None:
+            self.checkpoint.parent.mkdir(parents=True, exist_ok=True)
+            trainer.save_checkpoint(self.checkpoint)
+            self.checkpoint_saved = True
+
+    def _work(self) -> None:
+        trainer = self.trainer
+        try:
+            if trainer is None:
+                self._set(phase="loading", message=self.loading_message)
+                trainer = self.trainer = self._make(self)
+            if self.steps is not None:
+                trainer.config.steps = int(self.steps)
+            total = trainer.config.steps
+            start = trainer.step
+            self._set(phase="training", message="", step=start, start_step=start, total=total,
+                      gaussians=len(trainer), elapsed=0.0)
+            self._train(trainer, total)
+            if self.after_training is not None:
+                self.after_training(trainer)
+            finished = trainer.step >= total
+            evaluation = None
+            if finished and self.compact_after:
+                self._set(phase="compacting", message="compacting")
+                self.compaction = compact(trainer)
+                self._set(gaussians=len(trainer), sh_degree=trainer.config.sh_degree)
+            if finished and self.evaluate and trainer.dataset.test_indices:
+                self._set(phase="evaluating", message="evaluating the held-out views")
+                evaluation = trainer.evaluate()
+            if self.checkpoint is not None and (finished or trainer.step != start):
+                self._set(phase="saving", message="saving the checkpoint")
+                self._save_checkpoint(trainer)
+            self._publish(trainer, final=True)
+            self._set(phase="done" if finished else "cancelled", message="",
+                      evaluation=evaluation, eta=0.0 if finished else None)
+        except JobCancelled:
+            self._set(phase="cancelled", message="cancelled while preparing")
+        except BaseException as error:  # reported to the caller, never lost on the thread
+            self.error = error
+            self.error_traceback = traceback.format_exc()
+            if trainer is not None:
+                try:
+                    self._publish(trainer, final=True)
+                except Exception:  # an inconsistent state: publish nothing
+                    pass
+            self._set(phase="failed", message=f"{type(error).__name__}: {error}")
+        finally:
+            self._done.set()
+
+    def _train(self, trainer: Trainer, total: int) -> None:
+        losses: deque = deque(maxlen=self._window.maxlen)
+        psnrs: deque = deque(maxlen=self._window.maxlen)
+        started = last = time.perf_counter()
+        steps = trainer.run(total)
+        while not self._cancel.is_set():
+            if self.before_step is not None:
+                self.before_step(trainer)
+            try:
+                stats = next(steps)
+            except StopIteration:
+                break
+            now = time.perf_counter()
+            self._window.append(now - last)
+            last = now
+            losses.append(stats["loss"])
+            psnrs.append(stats["psnr"])
+            step = stats["step"]
+            per_step = sum(self._window) / len(self._window)
+            if self.snapshot_every and step % self.snapshot_every == 0 and step < total:
+                self._publish(trainer)
+            if (self.checkpoint is not None and self.checkpoint_every
+                    and step % self.checkpoint_every == 0 and step < total):
+                self._save_checkpoint(trainer)
+            self._set(step=step, loss=sum(losses) / len(losses), psnr=sum(psnrs) / len(psnrs),
+                      gaussians=stats["gaussians"], sh_degree=stats["sh_degree"],
+                      elapsed=now - started, seconds_per_step=per_step,
+                      eta=per_step * (total - step) if len(self._window) >= 3 else None)

@@ -1,0 +1,219 @@
+"""Viewport drawing of splats (bpy + gpu, headless): offscreen, the way the draw handler draws.
+
+Headless Blender has no GPU context until something starts one: a tiny Workbench render does
+(through software OpenGL). The viewport's meshes are stood in for by drawing the scene's meshes
+into a `GPUOffScreen` with Blender's camera matrices (colour and depth); then the splat image
+is drawn over them with `viewport.draw_image`, exactly as the POST_VIEW handler does.
+"""
+
+from __future__ import annotations
+
+import math
+
+import bpy_support as bs
+from bpy_support import bpy  # the shared bpy import
+import numpy as np
+import pytest
+
+from addon.blender import splat_object, viewport
+from scenes import random_gaussians
+
+W, H = 48, 36
+
+
+@pytest.fixture(scope="module", autouse=True)
+def gpu_context():
+    bs.reset_scene()
+    scene = bpy.context.scene
+    bs.add_camera(width=8, height=8)
+    scene.render.engine = "BLENDER_WORKBENCH"
+    bpy.ops.render.render()  # brings up the (software) GPU context
+    yield
+
+
+def view_matrices(camera_obj):
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    view = np.array(camera_obj.matrix_world.inverted())
+    window = np.array(camera_obj.calc_matrix_camera(depsgraph, x=W, y=H))
+    return view, window
+
+
+def draw_meshes(objects, view, window, colour):
+    """The viewport's part: meshes drawn with a depth test into the bound framebuffer."""
+    import gpu
+    import mathutils
+    from gpu_extras.batch import batch_for_shader
+
+    shader = gpu.shader.from_builtin("UNIFORM_COLOR")
+    gpu.state.depth_test_set("LESS_EQUAL")
+    gpu.state.depth_mask_set(True)
+    with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
+        gpu.matrix.load_matrix(mathutils.Matrix(view.tolist()))
+        gpu.matrix.load_projection_matrix(mathutils.Matrix(window.tolist()))
+        for obj in objects:
+            mesh = obj.data
+            mesh.calc_loop_triangles()
+            world = np.array(obj.matrix_world)
+            co = np.array([world[:3, :3] @ v.co + world[:3, 3] for v in mesh.vertices])
+            tris = [co[list(t.vertices)] for t in mesh.loop_triangles]
+            batch = batch_for_shader(shader, "TRIS", {"pos": np.concatenate(tris).tolist()})
+            shader.uniform_float("color", colour)
+            batch.draw(shader)
+    gpu.state.depth_mask_set(False)
+    gpu.state.depth_test_set("NONE")
+
+
+def offscreen_draw(meshes, view, window, image=None):
+    import gpu
+
+    offscreen = gpu.types.GPUOffScreen(W, H, format="RGBA8")
+    with offscreen.bind():
+        framebuffer = gpu.state.active_framebuffer_get()
+        framebuffer.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+        draw_meshes(meshes, view, window, (0.0, 1.0, 0.0, 1.0))
+        if image is not None:
+            viewport.draw_image(image)
+        pixels = np.array(framebuffer.read_color(0, 0, W, H, 4, 0, "UBYTE").to_list(), np.int32)
+    offscreen.free()
+    return pixels[::-1]  # rows top to bottom
+
+
+def test_camera_from_view_is_blenders_camera(rng):
+    camera = bs.add_camera(location=(0.3, -5.0, 0.4), rotation=(1.4, 0.1, 0.2), lens=28,
+                           width=W, height=H)
+    camera.data.shift_x = 0.05
+    view, window = view_matrices(camera)
+    ours = viewport.camera_from_view(view, window, W, H)
+    blender = bs.camera_of(camera, bpy.context.evaluated_depsgraph_get())
+    for name in ("fx", "fy", "cx", "cy"):
+        assert getattr(ours, name) == pytest.approx(getattr(blender, name), rel=1e-5)
+    assert np.allclose(ours.world_to_camera, blender.world_to_camera, atol=1e-5)
+    ortho = window.copy()
+    ortho[3] = (0, 0, 0, 1)
+    assert viewport.camera_from_view(view, ortho, W, H) is None
+    half = viewport.camera_from_view(view, window, W, H, scale=0.5)
+    assert (half.width, half.height) == (W // 2, H // 2)
+    assert half.fx == pytest.approx(ours.fx / 2)
+
+
+def test_drawn_splats_are_occluded_by_a_mesh_in_front(rng):
+    bs.reset_scene()
+    g = random_gaussians(rng, 500, 1, radius=1.0, stray=0.0)
+    g.opacity_logits[:] = np.abs(g.opacity_logits) + 2.0  # mostly opaque: a clear test
+    splats = splat_object.create_splat_object(g, "Splats")
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.4, -2.5, 0.0))
+    cube = bpy.context.active_object
+    bpy.ops.mesh.primitive_plane_add(size=40, location=(0, 3.0, 0), rotation=(math.pi / 2, 0, 0))
+    plane = bpy.context.active_object
+    camera = bs.add_camera(location=(0, -6, 0), rotation=(math.pi / 2, 0, 0), lens=35,
+                           width=W, height=H)
+    view, window = view_matrices(camera)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    gaussians, options = viewport.viewport_splats(depsgraph, bpy.context.scene)
+    image = viewport.render_view(gaussians, viewport.camera_from_view(view, window, W, H),
+                                 window, **options)
+
+    cube_only = offscreen_draw([cube], view, window)
+    meshes = offscreen_draw([cube, plane], view, window)
+    drawn = offscreen_draw([cube, plane], view, window, image)
+    on_cube = cube_only[..., 3] == 255
+    splat_rgba = np.round(np.clip(image.rgba[::-1], 0, 1) * 255)
+    opaque = image.rgba[::-1, :, 3] > 0.97
+    assert on_cube.sum() > 20 and (opaque & on_cube).sum() > 5
+    # The cube hides the splats behind it...
+    assert np.array_equal(drawn[on_cube], meshes[on_cube])
+    # ...and the splats hide the plane behind them (premultiplied "over").
+    behind = opaque & ~on_cube
+    assert behind.sum() > 20
+    expected = splat_rgba[behind][:, :3] + (1 - image.rgba[::-1][behind][:, 3:]) * meshes[behind][:, :3]
+    assert np.abs(drawn[behind][:, :3] - expected).max() <= 2
+    # Where nothing is drawn, the framebuffer is untouched.
+    empty = image.rgba[::-1, :, 3] < 1 / 255
+    assert np.array_equal(drawn[empty], meshes[empty])
+
+
+def test_background_renderer_and_switches(rng):
+    bs.reset_scene()
+    a = splat_object.create_splat_object(random_gaussians(rng, 200, 1), "A")
+    b = splat_object.create_splat_object(random_gaussians(rng, 100, 0), "B")
+    scene = bpy.context.scene
+    gaussians, _ = viewport.viewport_splats(bpy.context.evaluated_depsgraph_get(), scene)
+    assert len(gaussians) == 300
+    b.splat.show_in_viewport = False
+    gaussians, options = viewport.viewport_splats(bpy.context.evaluated_depsgraph_get(), scene)
+    assert len(gaussians) == 200
+    a.splat.show_in_viewport = False
+    assert viewport.viewport_splats(bpy.context.evaluated_depsgraph_get(), scene) is None
+
+    camera = bs.add_camera(width=W, height=H)
+    view, window = view_matrices(camera)
+    cam = viewport.camera_from_view(view, window, W, H)
+    worker = viewport.ViewportRenderer()
+    try:
+        worker.submit(viewport._Job(1, ("coarse",), gaussians, viewport.camera_from_view(
+            view, window, W, H, 0.25), window, True, options))
+        worker.submit(viewport._Job(2, ("full",), gaussians, cam, window, False, options))
+        assert worker.wait(30)
+        assert worker.take_fresh() and not worker.take_fresh()
+        direct = viewport.render_view(gaussians, cam, window, **options)
+        assert np.array_equal(worker.result(2).rgba, direct.rgba)
+        assert worker.result(1).rgba.shape[:2] == (round(H * 0.25), round(W * 0.25))
+    finally:
+        worker.stop()
+
+
+def test_draw_handler_is_progressive(rng):
+    """The handler's logic with a stand-in for the 3D view's context: a coarse image first,
+    full resolution once the view rests, drawn offscreen."""
+    import gpu
+    import mathutils
+
+    bs.reset_scene()
+    splat_object.create_splat_object(random_gaussians(rng, 300, 1, radius=1.0), "Splats")
+    camera = bs.add_camera(width=W, height=H)
+    scene = bpy.context.scene
+    scene.splat_render.viewport_coarse_pixels = 10_000
+    view, window = view_matrices(camera)
+    width, height = 160, 120
+    window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
+                                                x=width, y=height))
+
+    class Region:
+        def __init__(self):
+            self.width, self.height = width, height
+
+        def as_pointer(self):
+            return 4242
+
+    context = type("Context", (), dict(
+        scene=scene, region=Region(),
+        space_data=type("Space", (), dict(type="VIEW_3D", shading=type("S", (), dict(type="SOLID"))()))(),
+        region_data=type("RV3D", (), dict(view_matrix=mathutils.Matrix(view.tolist()),
+                                          window_matrix=mathutils.Matrix(window.tolist())))(),
+        evaluated_depsgraph_get=staticmethod(bpy.context.evaluated_depsgraph_get)))()
+    offscreen = gpu.types.GPUOffScreen(width, height, format="RGBA8")
+    try:
+        with offscreen.bind():
+            viewport.draw_view(context)           # the view is new: a coarse render starts
+            assert viewport.renderer.wait(30)
+            coarse = viewport.renderer.result(4242)
+            assert coarse.coarse and coarse.rgba.shape[0] < height
+            viewport._views[4242].changed_at -= 1.0   # the view has rested
+            viewport._tick()                       # the timer asks for full resolution
+            assert viewport.renderer.wait(30)
+            full = viewport.renderer.result(4242)
+            assert not full.coarse and full.rgba.shape[:2] == (height, width)
+            framebuffer = gpu.state.active_framebuffer_get()
+            framebuffer.clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+            viewport.draw_view(context)           # same view: draws the full image, no new job
+            assert not viewport.renderer.busy()
+            pixels = np.array(framebuffer.read_color(0, 0, width, height, 4, 0, "UBYTE").to_list())
+        expected = np.round(np.clip(full.rgba, 0, 1) * 255)
+        assert np.abs(pixels - expected)[full.rgba[..., 3] > 1 / 255].max() <= 2
+        scene.splat_render.viewport = False       # the scene switch: nothing drawn
+        viewport.draw_view(context)
+    finally:
+        offscreen.free()
+        viewport.renderer.forget(4242)
+        viewport._views.clear()
+        viewport._texture_cache.clear()
