@@ -129,6 +129,25 @@ def _tree(scene, create: bool, layer_name: str | None = None):
     return tree
 
 
+def has_shadow_catchers(scene) -> bool:
+    """Whether the scene holds Cycles shadow catchers (splat proxies, `mesh_convert.make_proxy`,
+    or the user's own)."""
+    return any(getattr(obj, "is_shadow_catcher", False) for obj in scene.objects)
+
+
+def needs_shadow_pass(scene, layer) -> bool:
+    """Whether the view layer should get Cycles' "Shadow Catcher" pass and does not have it.
+    With it, Cycles leaves the catchers out of the Combined pass and the splats are composed
+    without them; their shadows are then multiplied over the composite
+    (`addon.core.composite.apply_shadow_catcher`). Without it a catcher at the depth of the
+    splat floor it stands for would hide about half of its shadow behind the floor's own
+    Gaussians (those whose centres are nearer than the catcher), and with opaque film it would
+    cover the splats behind it with the world colour."""
+    cycles = getattr(layer, "cycles", None)  # None until the Cycles add-on is registered
+    return (cycles is not None and hasattr(cycles, "use_pass_shadow_catcher")
+            and not cycles.use_pass_shadow_catcher and has_shadow_catchers(scene))
+
+
 def bridge_node(scene):
     tree = _tree(scene, create=False)
     if tree is None:
@@ -171,6 +190,9 @@ def ensure_bridge(scene, view_layer: str | None = None) -> bool:
     layer = scene.view_layers[layer_name]
     if not layer.use_pass_z:
         layer.use_pass_z = True
+        changed = True
+    if needs_shadow_pass(scene, layer):
+        layer.cycles.use_pass_shadow_catcher = True
         changed = True
     if not scene.render.use_compositing:
         scene.render.use_compositing = True
@@ -280,6 +302,8 @@ def problems(scene) -> list[str]:
         found.append(f"view layer {layer!r} is gone")
     elif not scene.view_layers[layer].use_pass_z:
         found.append(f"view layer {layer!r} has no Depth pass")
+    elif scene.render.engine == "CYCLES" and needs_shadow_pass(scene, scene.view_layers[layer]):
+        found.append(f"view layer {layer!r} has shadow catchers but no Shadow Catcher pass")
     if scene.render.use_sequencer and scene.sequence_editor is not None and \
             len(getattr(scene.sequence_editor, "strips", getattr(scene.sequence_editor, "sequences", []))):
         found.append("the sequencer is on and has strips: Blender skips the compositor")

@@ -16,9 +16,11 @@ Pipeline (the numpy parts are in `addon.core.surface` and `addon.core.texture_ba
 
 Proxy (`proxy=True`), for composing meshes with a captured scene:
   - Cycles shadow catcher (`is_shadow_catcher`): the proxy itself renders transparent, only the
-    shadows modelled objects cast onto it show (use Film > Transparent, as the splat
-    composite does). It stays visible to camera rays, because Cycles shows caught shadows only
-    on camera-visible catchers; it is hidden from glossy and transmission rays (so it never
+    shadows modelled objects cast onto it show. In final renders the compositor bridge turns
+    on Cycles' Shadow Catcher pass and multiplies the caught shadow over the splat composite
+    (`compositor_bridge.needs_shadow_pass`, `addon.core.composite.apply_shadow_catcher`).
+    It stays visible to camera rays, because Cycles shows caught shadows only on camera-visible
+    catchers; it is hidden from glossy and transmission rays (so it never
     appears in reflections) but casts shadows (`visible_shadow`) and is diffusely lit;
   - a Collision modifier (physics: cloth, particles, soft bodies collide with it);
   - `display_type = 'WIRE'` in the viewport, and the custom property `splat_proxy_of` (the splat

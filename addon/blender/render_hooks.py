@@ -47,7 +47,8 @@ from bpy.app.handlers import persistent
 
 from ..core import exr
 from ..core.cameras import BlenderCameraParams, Camera, camera_from_blender
-from ..core.composite import FAR, Region, compose, embed, render_region, splat_layer
+from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed,
+                              render_region, splat_layer)
 from ..core.gaussians import Gaussians
 from . import compositor_bridge as bridge
 from . import gather
@@ -256,6 +257,9 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     else:
         depth = depth[..., 0]
     timings["layer"] = layer
+    # Cycles' "Shadow Catcher" pass (on when the scene has shadow catchers, e.g. splat proxies:
+    # `compositor_bridge.ensure_bridge`): the factor the composite is darkened by.
+    timings["shadow"] = exr.find_pass(channels, layer, "Shadow Catcher", "RGB")
     return np.ascontiguousarray(rgba), np.ascontiguousarray(depth), timings
 
 
@@ -355,6 +359,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         layer_name = bridge.bridge_view_layer(main) or main.view_layers[0].name
         mesh_rgba, mesh_depth, timings = read_render_layer(main, layer_name)
         layer_name = timings.pop("layer")
+        shadow = timings.pop("shadow")
         full = frame_size(main.render)
         region = render_region(*full, render_border(main.render))
         height, width = mesh_depth.shape
@@ -385,6 +390,10 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             if _wants_splat_passes(main):
                 _state.pending_passes[main.name] = (
                     main.frame_current, _splat_passes(frame, main, full, region))
+        if shadow is not None and shadow.shape[:2] == rgba.shape[:2]:
+            # Proxies (shadow catchers) are left out of the mesh layer; their shadows darken
+            # the composite, splats included (README, "Splats to meshes").
+            rgba = apply_shadow_catcher(rgba, shadow)
         before_write = time.perf_counter()
         _write_result(self, rgba, depth, origin, full, region)
         stats["result_ms"] = 1000 * (time.perf_counter() - before_write)

@@ -180,3 +180,30 @@ def embed(rgba: np.ndarray, depth: np.ndarray, region: Region, width: int, heigh
     full_rgba[region.slices()] = rgba
     full_depth[region.slices()] = depth
     return full_rgba, full_depth
+
+
+def apply_shadow_catcher(rgba: np.ndarray, shadow: np.ndarray) -> np.ndarray:
+    """Darken a composite by Cycles' "Shadow Catcher" pass (README, "Splats to meshes").
+
+    With that pass on, Cycles leaves shadow catchers (the proxies of splat objects) out of the
+    Combined pass: they are transparent there, so the splats they stand for are composed as if
+    the catcher were not rendered at all, and the caught shadow is only in the pass, as a factor
+    to multiply by (1: no shadow). The shadow is then laid over the finished composite as a
+    black layer of opacity 1 - factor: premultiplied colour times the factor (per channel,
+    clipped to [0, 1]: a catcher only darkens), alpha `a * s + (1 - s)` with `s` the channels'
+    mean, so over transparent film the shadow stays visible as it does in Cycles' own
+    transparent-film output. Pixels where the pass is 1 (no catcher, or a mesh in front of it)
+    are returned unchanged, bit for bit.
+
+    rgba: (H, W, 4) premultiplied; shadow: (H, W, 3) or (H, W, 4) (its alpha is ignored).
+    """
+    rgba = np.asarray(rgba, np.float32)
+    factor = np.clip(np.nan_to_num(np.asarray(shadow, np.float32)[..., :3], nan=1.0), 0.0, 1.0)
+    shaded = factor.min(axis=-1) < 1.0
+    out = rgba.copy()
+    if shaded.any():
+        f = factor[shaded]
+        s = f.mean(axis=-1)
+        out[shaded, :3] = rgba[shaded, :3] * f
+        out[shaded, 3] = rgba[shaded, 3] * s + (1.0 - s)
+    return out
