@@ -19,31 +19,19 @@ def unpremultiply(rgb: np.ndarray, alpha: np.ndarray) -> np.ndarray:
 
 
 def write_image(path: str | os.PathLike, rgb: np.ndarray, alpha: np.ndarray | None = None) -> None:
-    """Write premultiplied `rgb` (H, W, 3) and optional `alpha` (H, W) to `path`.
+    """Write premultiplied `rgb` (H, W, 3) and optional `alpha` (H, W) to `path`, atomically.
 
     The format follows from the extension. Integer formats (PNG, JPEG, TIFF) get straight alpha
-    and values clamped to [0, 1]; float formats (EXR) keep premultiplied floats as they are.
+    and 8-bit values clamped to [0, 1]; float formats (EXR, HDR) keep premultiplied floats.
     """
-    import OpenImageIO as oiio
+    from .photos import write_pixels
 
     path = Path(path)
-    channels = rgb if alpha is None else np.concatenate([rgb, alpha[..., None]], axis=2)
-    float_format = path.suffix.lower() in (".exr", ".hdr")
-    if not float_format:
-        if alpha is not None:
-            channels = np.concatenate([unpremultiply(rgb, alpha), alpha[..., None]], axis=2)
-        channels = np.clip(channels, 0.0, 1.0)
-    height, width, count = channels.shape
-    spec = oiio.ImageSpec(width, height, count, "float" if float_format else "uint8")
-    if count == 4:
-        spec.alpha_channel = 3
-    tmp = path.with_name(f".{path.name}.tmp{path.suffix}")
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None or not out.open(str(tmp), spec):
-        raise OSError(f"{path}: cannot write image: {oiio.geterror()}")
-    try:
-        if not out.write_image(np.ascontiguousarray(channels, dtype=np.float32)):
-            raise OSError(f"{path}: cannot write image: {out.geterror()}")
-    finally:
-        out.close()
-    os.replace(tmp, path)
+    if path.suffix.lower() in (".exr", ".hdr"):
+        channels = rgb if alpha is None else np.concatenate([rgb, alpha[..., None]], axis=2)
+        write_pixels(path, np.ascontiguousarray(channels, dtype=np.float32))
+        return
+    colour = rgb if alpha is None else unpremultiply(rgb, alpha)
+    channels = colour if alpha is None else np.concatenate([colour, alpha[..., None]], axis=2)
+    write_pixels(path, (np.clip(channels, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8),
+                 straight_alpha=alpha is not None)

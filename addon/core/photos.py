@@ -124,10 +124,13 @@ def rgb_alpha(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     return pixels[:, :, :3], alpha
 
 
-def write_pixels(path: str | os.PathLike, pixels: np.ndarray, *, jpeg_quality: int = 95) -> None:
+def write_pixels(path: str | os.PathLike, pixels: np.ndarray, *, jpeg_quality: int = 95,
+                 straight_alpha: bool = False) -> None:
     """Write (H, W, C) pixels in their own type, atomically (a temporary file, then a rename).
 
-    The format follows the extension; JPEG gets `jpeg_quality`.
+    The format follows the extension; JPEG gets `jpeg_quality`. Colour with an alpha channel is
+    taken as premultiplied (OpenImageIO's convention, as `read_pixels` returns it) unless
+    `straight_alpha`, which stores it as given in formats with straight alpha (PNG).
     """
     oiio = _oiio()
     path = Path(path)
@@ -141,6 +144,8 @@ def write_pixels(path: str | os.PathLike, pixels: np.ndarray, *, jpeg_quality: i
     spec = oiio.ImageSpec(width, height, channels, type_name)
     if channels in (2, 4):
         spec.alpha_channel = channels - 1
+        if straight_alpha:
+            spec.attribute("oiio:UnassociatedAlpha", 1)
     if path.suffix.lower() in (".jpg", ".jpeg"):
         spec.attribute("Compression", f"jpeg:{int(jpeg_quality)}")
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -244,13 +244,3 @@ def bake_texture(vertices: np.ndarray, faces: np.ndarray, views: Sequence[View],
     image = fill_texture(image.reshape(size, size, 3), known.reshape(size, size), dilate=dilate)
     return BakedTexture(np.clip(image, 0.0, 1.0).astype(np.float32), coverage,
                         np.asarray(corner_uvs))
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(c: np.ndarray) -> np.ndarray:
-    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
-    return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)

@@ -1,9 +1,10 @@
-/* Private helpers shared by the compositor's forward and backward passes (not public API).
+/* Private helpers shared by the forward and backward passes (not public API).
  * Both passes must make the same per-pixel decisions (power > 0, alpha < 1/255), so they use
  * the same exp() and the same expressions, from here. */
 #ifndef SPLATCORE_INTERNAL_H
 #define SPLATCORE_INTERNAL_H
 
+#include <math.h>
 #include <string.h>
 
 #include "splatcore.h"
@@ -20,6 +21,24 @@
 #else
 #define SC_ALWAYS_INLINE inline
 #endif
+
+/* Whether every input value of Gaussian i is finite (projection forward and backward). */
+static inline int sc_gaussian_finite(const sc_gaussians *g, int64_t i) {
+    const float *rows[4] = {g->means + 3 * i, g->log_scales + 3 * i, g->quats + 4 * i,
+                            g->sh + (int64_t)3 * g->sh_coeffs * i};
+    const int counts[4] = {3, 3, 4, 3 * g->sh_coeffs};
+    for (int r = 0; r < 4; ++r)
+        for (int k = 0; k < counts[r]; ++k)
+            if (!isfinite(rows[r][k])) return 0;
+    return isfinite(g->opacity_logits[i]);
+}
+
+/* A world point in the camera frame: p = R mean + t, in double. */
+static inline void sc_to_camera(const double *world_to_camera, const float *mean, double p[3]) {
+    const double *v = world_to_camera;
+    for (int k = 0; k < 3; ++k)
+        p[k] = v[4 * k] * mean[0] + v[4 * k + 1] * mean[1] + v[4 * k + 2] * mean[2] + v[4 * k + 3];
+}
 
 enum { SC_PIXELS = SC_TILE * SC_TILE, SC_BLOCK = 8 /* pixels evaluated together: half a row */ };
 

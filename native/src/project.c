@@ -6,7 +6,7 @@
 #include <stdatomic.h>
 #include <string.h>
 
-#include "splatcore.h"
+#include "internal.h"
 
 typedef struct {
     const sc_gaussians *g;
@@ -16,12 +16,6 @@ typedef struct {
     double campos[3];
     atomic_llong first_bad; /* smallest index holding a non-finite value, or count */
 } job;
-
-static int all_finite(const float *v, int n) {
-    for (int i = 0; i < n; ++i)
-        if (!isfinite(v[i])) return 0;
-    return 1;
-}
 
 static double clampd(double v, double lo, double hi) { return v < lo ? lo : (v > hi ? hi : v); }
 
@@ -54,14 +48,11 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
     const sc_camera *cam = j->cam;
     const float *mean = g->means + 3 * i, *ls = g->log_scales + 3 * i, *q = g->quats + 4 * i;
     const float *sh = g->sh + (int64_t)3 * g->sh_coeffs * i;
-    if (!all_finite(mean, 3) || !all_finite(ls, 3) || !all_finite(q, 4) ||
-        !isfinite(g->opacity_logits[i]) || !all_finite(sh, 3 * g->sh_coeffs))
-        return -1;
+    if (!sc_gaussian_finite(g, i)) return -1;
 
     const double *v = cam->world_to_camera;
     double p[3];
-    for (int k = 0; k < 3; ++k)
-        p[k] = v[4 * k] * mean[0] + v[4 * k + 1] * mean[1] + v[4 * k + 2] * mean[2] + v[4 * k + 3];
+    sc_to_camera(v, mean, p);
     const double z = p[2];
     if (!(z >= j->opt->near)) return 0;
 

@@ -7,13 +7,7 @@
  * which also checks that the Gaussian still projects to what the forward drew. */
 #include <math.h>
 
-#include "splatcore.h"
-
-static int all_finite(const float *v, int n) {
-    for (int i = 0; i < n; ++i)
-        if (!isfinite(v[i])) return 0;
-    return 1;
-}
+#include "internal.h"
 
 /* Whether a recomputed value still rounds to (about) what the forward stored. */
 static int same(double value, float stored) {
@@ -33,15 +27,12 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
                                  int64_t *flushed) {
     const float *mean = g->means + 3 * i, *ls = g->log_scales + 3 * i, *q = g->quats + 4 * i;
     const float *sh = g->sh + (int64_t)3 * g->sh_coeffs * i;
-    if (!all_finite(mean, 3) || !all_finite(ls, 3) || !all_finite(q, 4) ||
-        !isfinite(g->opacity_logits[i]) || !all_finite(sh, 3 * g->sh_coeffs))
-        return -1;
+    if (!sc_gaussian_finite(g, i)) return -1;
 
     /* ---- forward, as project.c */
     const double *v = cam->world_to_camera;
     double p[3];
-    for (int k = 0; k < 3; ++k)
-        p[k] = v[4 * k] * mean[0] + v[4 * k + 1] * mean[1] + v[4 * k + 2] * mean[2] + v[4 * k + 3];
+    sc_to_camera(v, mean, p);
     const double z = p[2];
     if (!(z >= opt->near)) return -2;
     const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
