@@ -265,9 +265,16 @@ def test_scene_far_from_the_origin(rng, monkeypatch):
     width, height = 96, 80
     offset = np.array([1.0e5, -0.7e5, 1.3e5])
     n = 40
-    g = random_gaussians(rng, n, 1, radius=500.0, stray=0.0)
-    g.log_scales[:] = rng.uniform(np.log(120), np.log(300), (n, 3))
     cam = random_camera(rng, width, height, distance=2000.0)
+    # The quantisation also moves depths by up to ~0.007 units, which can swap two Gaussians
+    # whose depths are closer than that: keep every pair of depths 0.05 apart, so the depth
+    # order is the same in both scenes (otherwise a swap changes a pixel by up to ~0.01).
+    while True:
+        g = random_gaussians(rng, n, 1, radius=500.0, stray=0.0)
+        depths = g.means.astype(np.float64) @ cam.world_to_camera[2, :3] + cam.world_to_camera[2, 3]
+        if np.diff(np.sort(depths)).min() > 0.05:
+            break
+    g.log_scales[:] = rng.uniform(np.log(120), np.log(300), (n, 3))
     far_g = g.copy()
     far_g.means = (g.means.astype(np.float64) + offset).astype(np.float32)
     w2c = cam.world_to_camera.copy()
