@@ -18,7 +18,7 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender import compositor_bridge, render_hooks, splat_object
+from addon.blender import camera_adapter, compositor_bridge, render_hooks, splat_object
 from addon.core import exr
 from addon.core.render import render
 from scenes import random_gaussians
@@ -290,7 +290,7 @@ def test_border_percentage_shift_and_pixel_aspect(rng, tmp_path):
     scene.render.use_border = True
     scene.render.border_min_x, scene.render.border_max_x = 0.2, 0.7
     scene.render.border_min_y, scene.render.border_max_y = 0.35, 0.9
-    region = render_hooks.render_region(*render_hooks.frame_size(scene.render),
+    region = render_hooks.render_region(*camera_adapter.frame_size(scene.render),
                                         render_hooks.render_border(scene.render))
     scene.render.use_crop_to_border = True
     cropped = read_png(render_still(scene, tmp_path / "crop"))

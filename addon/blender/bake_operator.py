@@ -60,6 +60,7 @@ from ..core.colour import display_from_linear, srgb_encode
 from ..core.jobs import TrainingJob
 from ..core.train import Trainer, TrainConfig
 from . import splat_object
+from .camera_adapter import set_camera
 from .registration import register_classes, unregister_classes
 from .train_operator import (RUNNING, JobModal, Running, _make_active, _printer, compaction_note,
                              menu_parent)
@@ -223,7 +224,6 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
                  hide: list = (), progress=None) -> list[np.ndarray]:
     """Render `scene` with Cycles (CPU) from each camera; premultiplied display-sRGB RGBA
     targets. Every setting touched is restored, the temporary camera removed, also on error."""
-    import mathutils
 
     if not hasattr(scene, "cycles"):
         raise BakeError("Cycles is not available in this Blender (enable the Cycles add-on)")
@@ -271,14 +271,8 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
             saved.set(obj, "hide_render", True)
         for i, camera in enumerate(cameras):
             params = camera_to_blender(camera)
-            data.type = "PERSP"
-            data.sensor_fit = params.sensor_fit
-            data.sensor_width = params.sensor_width
-            data.sensor_height = params.sensor_height
-            data.lens = params.lens
-            data.shift_x, data.shift_y = params.shift_x, params.shift_y
+            set_camera(cam_obj, params)
             data.clip_start, data.clip_end = _clip_range(camera, scene)
-            cam_obj.matrix_world = mathutils.Matrix([list(r) for r in params.matrix_world])
             path = folder / f"view_{i:03d}.exr"
             render.filepath = str(path)
             bpy.ops.render.render(write_still=True, scene=scene.name)

@@ -44,11 +44,12 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty
 
-from ..core.cameras import BlenderCameraParams, Camera, camera_from_blender
+from ..core.cameras import Camera
 from ..core.gaussians import Gaussians
 from ..core import surface, texture_bake
 from ..core.surface import Cancelled
 from . import gather, splat_object
+from .camera_adapter import camera_of
 from .registration import register_classes, unregister_classes
 
 CAMERA_MODES = ("AUTO", "COLMAP", "SPHERE")
@@ -79,19 +80,7 @@ def colmap_camera_objects(obj) -> list:
 def camera_of_object(camera_obj, scene, max_size: int) -> Camera:
     """The pinhole camera of a Blender camera object (its COLMAP resolution when imported,
     else the scene's), scaled down to at most `max_size` pixels a side."""
-    r = scene.render
-    res = tuple(camera_obj["colmap_resolution"]) if "colmap_resolution" in camera_obj else \
-        (r.resolution_x, r.resolution_y)
-    pct = int(camera_obj.get("colmap_resolution_percentage", r.resolution_percentage))
-    aspect = tuple(camera_obj["colmap_pixel_aspect"]) if "colmap_pixel_aspect" in camera_obj \
-        else (r.pixel_aspect_x, r.pixel_aspect_y)
-    cam = camera_obj.data
-    full = camera_from_blender(BlenderCameraParams(
-        matrix_world=np.array(camera_obj.matrix_world, dtype=np.float64), lens=cam.lens,
-        sensor_width=cam.sensor_width, sensor_height=cam.sensor_height,
-        sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
-        resolution_x=int(res[0]), resolution_y=int(res[1]), resolution_percentage=pct,
-        pixel_aspect_x=float(aspect[0]), pixel_aspect_y=float(aspect[1])))
+    full = camera_of(camera_obj, scene.render, use_recorded=True)
     s = min(1.0, max_size / max(full.width, full.height))
     w, h = max(1, round(full.width * s)), max(1, round(full.height * s))
     sx, sy = w / full.width, h / full.height

@@ -46,12 +46,13 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from ..core import exr
-from ..core.cameras import BlenderCameraParams, Camera, camera_from_blender
+from ..core.cameras import Camera
 from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed,
                               render_region, splat_layer)
 from ..core.gaussians import Gaussians
 from . import compositor_bridge as bridge
 from . import gather
+from .camera_adapter import camera_of, frame_size
 from .compositor_bridge import ENGINE_ID
 
 
@@ -99,24 +100,6 @@ def settings_of(scene):
     return scene.splat_render
 
 
-def blender_camera(camera_obj, render) -> Camera:
-    """The pinhole camera Blender renders for an evaluated perspective camera object."""
-    cam = camera_obj.data
-    return camera_from_blender(BlenderCameraParams(
-        matrix_world=np.array(camera_obj.matrix_world, dtype=np.float64), lens=cam.lens,
-        sensor_width=cam.sensor_width, sensor_height=cam.sensor_height,
-        sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
-        resolution_x=render.resolution_x, resolution_y=render.resolution_y,
-        resolution_percentage=render.resolution_percentage,
-        pixel_aspect_x=render.pixel_aspect_x, pixel_aspect_y=render.pixel_aspect_y))
-
-
-def frame_size(render) -> tuple[int, int]:
-    """The full frame in pixels (resolution x percentage, truncated as Blender does)."""
-    return (render.resolution_x * render.resolution_percentage // 100,
-            render.resolution_y * render.resolution_percentage // 100)
-
-
 def render_border(render) -> tuple[float, float, float, float] | None:
     if not render.use_border:
         return None
@@ -139,7 +122,7 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
             warnings.append("splats render through perspective cameras only: "
                             f"{camera_obj.name!r} is not one, so no splats are drawn")
         else:
-            camera = blender_camera(camera_obj, depsgraph.scene_eval.render)
+            camera = camera_of(camera_obj, depsgraph.scene_eval.render)
     antialiased = {"OBJECT": result.antialiased, "ON": True, "OFF": False}[settings.antialiased]
     spaces = {b.color_space for b in result.batches}
     if len(spaces) > 1:

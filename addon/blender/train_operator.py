@@ -67,17 +67,18 @@ import numpy as np
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
 from ..core import colmap
+from ..core.cameras import CAMERA_AXIS_FLIP
 from ..core.dataset import ColmapDataset
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, TrainingJob, status_line
 from ..core.train import Trainer, TrainConfig
 from . import splat_object
+from .camera_adapter import to_matrix
 from .registration import register_classes, unregister_classes
 
 COLMAP_KEY = "colmap_transform"
 OBJECT_KEY = "splat_object"
 CHECKPOINT_KEY = "splat_checkpoint"
-_FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 # -- the COLMAP collection ------------------------------------------------------------------------
@@ -218,7 +219,7 @@ def rig_transform(collection, dataset) -> tuple[np.ndarray, str | None]:
             i = index.get(obj.get("colmap_image_name")) if obj.type == "CAMERA" else None
             if i is None:
                 continue
-            e = dataset.cameras[i].camera_to_world @ _FLIP_YZ
+            e = dataset.cameras[i].camera_to_world @ CAMERA_AXIS_FLIP
             m = np.array(obj.matrix_world, np.float64)
             lengths = np.linalg.norm(m[:3, :3], axis=0)
             if not (lengths > 0).all():
@@ -249,11 +250,6 @@ def rig_transform(collection, dataset) -> tuple[np.ndarray, str | None]:
     if np.abs(fit - np.eye(4)).max() <= 1e-5 * max(1.0, size):
         return np.eye(4), None
     return fit, None
-
-
-def _matrix(m: np.ndarray):
-    import mathutils
-    return mathutils.Matrix([list(row) for row in np.asarray(m, np.float64)])
 
 
 def replace_gaussians(obj, gaussians: Gaussians) -> None:
@@ -295,7 +291,7 @@ def write_splats(collection_name: str, gaussians: Gaussians, *, dataset=None,
             sh_degree=gaussians.degree)
         if dataset is not None:
             world, warning = rig_transform(collection, dataset)
-            obj.matrix_world = _matrix(world)
+            obj.matrix_world = to_matrix(world)
         if collection is not None:
             collection[OBJECT_KEY] = obj
     if step is not None:
