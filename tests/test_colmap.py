@@ -172,7 +172,7 @@ def test_undistorted_photo_agrees_with_pycolmap(shared_data, tmp_path):
     assert (their_cam.width, their_cam.height) == (im.camera.width, im.camera.height)
     np.testing.assert_allclose(their_cam.params, [im.camera.fx, im.camera.fy, im.camera.cx,
                                                   im.camera.cy], rtol=1e-12)
-    intr = colmap._pinhole_of(cam, pycolmap.UndistortCameraOptions())
+    intr = colmap.pinhole_of(cam, pycolmap.UndistortCameraOptions())
     x, y = colmap.undistortion_map(intr, im.camera, (720, 1280))
     ours = photos.remap_bilinear(photos.read_pixels(im.source_path), x, y)
     diff = np.abs(ours.astype(float) - theirs.to_array().astype(float))

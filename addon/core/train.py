@@ -40,8 +40,8 @@ from . import train_kernels as tk
 from .cameras import Camera
 from .gaussians import Gaussians, sh_count
 from .render import render
+from .sh import SH_C0
 
-SH_C0 = 0.28209479177387814
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 
 
