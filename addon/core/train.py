@@ -121,7 +121,8 @@ class Trainer:
         self.strategy = strategy or make_strategy(config, self.extent, self.rng)
         if gaussians is None:
             points = dataset.points
-            gaussians = initial_gaussians(points.xyz, points.rgb, config, self.rng)
+            gaussians = self.strategy.prepare_initial(
+                initial_gaussians(points.xyz, points.rgb, config, self.rng))
         self.set_gaussians(gaussians.with_degree(config.sh_degree))
         self._order: list[int] = []
         self._grads: tk.Gradients | None = None

@@ -29,7 +29,8 @@ class TrainConfig:
     scaling_lr: float = 5e-3
     rotation_lr: float = 1e-3
     sh_degree_interval: int = 1000
-    # Densification: which strategy (a name in `strategies.STRATEGIES`), and its settings.
+    # Densification: which strategy (a name in `strategies.STRATEGIES`), and its settings
+    # (the "mcmc" strategy reads densify_from/until/every, prune_opacity and max_gaussians too).
     strategy: str = "default"
     densify_from: int = 500
     densify_until: int = 15_000
@@ -44,4 +45,11 @@ class TrainConfig:
     # 0 disables it.
     prune_large_fraction: float = 0.3
     initial_opacity: float = 0.1
+    # The "mcmc" strategy (strategies/mcmc.py): the reference values of 3DGS-MCMC.
+    mcmc_growth: float = 0.05          # Gaussians added per densification step, of the count
+    mcmc_noise_lr: float = 5e5         # position noise, times the position learning rate
+    mcmc_opacity_reg: float = 0.01
+    mcmc_scale_reg: float = 0.01
+    mcmc_initial_opacity: float = 0.5
+    mcmc_initial_scale: float = 1.0    # times the 3-NN scale (the paper's code; gsplat uses 0.1)
     max_initial_points: int = 50_000  # the 3-NN scale estimate is quadratic in this

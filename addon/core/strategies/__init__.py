@@ -11,8 +11,9 @@ import numpy as np
 from ..train_config import TrainConfig
 from .base import StepInfo, Strategy
 from .default import DefaultStrategy
+from .mcmc import MCMCStrategy
 
-STRATEGIES: dict[str, type[Strategy]] = {"default": DefaultStrategy}
+STRATEGIES: dict[str, type[Strategy]] = {"default": DefaultStrategy, "mcmc": MCMCStrategy}
 
 
 def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator) -> Strategy:
@@ -25,4 +26,4 @@ def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator) 
     return kind(config, extent, rng)
 
 
-__all__ = ["STRATEGIES", "DefaultStrategy", "StepInfo", "Strategy", "make_strategy"]
+__all__ = ["STRATEGIES", "DefaultStrategy", "MCMCStrategy", "StepInfo", "Strategy", "make_strategy"]

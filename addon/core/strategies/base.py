@@ -9,6 +9,8 @@ A step of `Trainer.train_step`, and where the strategy comes in:
   gradients of any regulariser the strategy owns (they act on parameters, not pixels).
 - `after_step(params, info)`: Adam has run. Change the set of Gaussians: clone, split, prune,
   relocate, reset opacities, add noise. Return the change in their count.
+- `prepare_initial(gaussians)`: the Gaussians made from the sparse points, as this strategy
+  wants to start from (not called for Gaussians the caller passes in).
 - `reset(count)`: the parameters were replaced (start, compaction): statistics start over.
 - `state_arrays()` / `load_state_arrays(data)`: what a checkpoint must hold to resume exactly.
 
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..cameras import Camera
+from ..gaussians import Gaussians
 from ..optimizer import GaussianParameters
 from ..train_config import TrainConfig
 from ..train_kernels import Gradients, TrainState
@@ -47,6 +50,9 @@ class Strategy:
         self.config = config
         self.extent = extent  # the scene's radius (`train.scene_extent`)
         self.rng = rng
+
+    def prepare_initial(self, gaussians: Gaussians) -> Gaussians:
+        return gaussians
 
     def reset(self, count: int) -> None:
         pass
