@@ -412,7 +412,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vn / np.maximum(norm, 1e-30)
 
 
-def _raster_candidates(x0, x1, y0, y1, limit: int):
+def raster_candidates(x0, x1, y0, y1, limit: int):
     """Yield (triangle ids, px, py) of every pixel in each triangle's bounding box, in chunks of
     about `limit` pixels."""
     w = np.maximum(x1 - x0 + 1, 0)
@@ -460,7 +460,7 @@ def zbuffer_depth(vertices: np.ndarray, faces: np.ndarray, camera: Camera, *,
     x1 = np.clip(np.floor(fu.max(axis=1) - 0.5), -1, w - 1).astype(np.int64)
     y0 = np.clip(np.ceil(fv.min(axis=1) - 0.5), 0, h).astype(np.int64)
     y1 = np.clip(np.floor(fv.max(axis=1) - 0.5), -1, h - 1).astype(np.int64)
-    for tid, px, py in _raster_candidates(x0, x1, y0, y1, chunk):
+    for tid, px, py in raster_candidates(x0, x1, y0, y1, chunk):
         sx, sy = px + 0.5, py + 0.5
         a, b, cc = fu[tid], fv[tid], fzz[tid]
         det = (b[:, 1] - b[:, 2]) * (a[:, 0] - a[:, 2]) + (a[:, 2] - a[:, 1]) * (b[:, 0] - b[:, 2])
