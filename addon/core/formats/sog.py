@@ -59,8 +59,9 @@ from . import webp
 from .atomic import atomic_write
 from .codebook import palette, scalar_codebook
 from .errors import SplatFileError
+from .morton import morton_order
 
-__all__ = ["load", "save", "SogInfo", "read_info", "morton_order", "MAX_COUNT", "VERSION"]
+__all__ = ["load", "load_with_info", "save", "SogInfo", "read_info", "morton_order", "MAX_COUNT", "VERSION"]
 
 VERSION = 2
 MAX_COUNT = 1 << 27  # 134M Gaussians: beyond any real scene; bounds what a header can ask for
@@ -155,9 +156,10 @@ class _Source:
     def __init__(self, path: Path, folder: Path, bundle: zipfile.ZipFile | None = None,
                  scratch: Path | None = None) -> None:
         self.path, self.folder, self.bundle, self.scratch = path, folder, bundle, scratch
+        self.meta_name = "meta.json" if bundle is not None else path.name
 
-    def meta_bytes(self, name: str) -> bytes:
-        return self._bytes(name, MAX_META_BYTES)
+    def meta_bytes(self) -> bytes:
+        return self._bytes(self.meta_name, MAX_META_BYTES)
 
     def _bytes(self, name: str, limit: int) -> bytes:
         if self.bundle is None:
@@ -290,8 +292,8 @@ def _decode_sh_rest(path: Path, meta: dict, source: _Source, count: int) -> np.n
     return centroids[labels]
 
 
-def _decode(path: Path, source: _Source, meta_name: str = "meta.json") -> tuple[Gaussians, SogInfo]:
-    meta = _parse_meta(path, source.meta_bytes(meta_name))
+def _decode(path: Path, source: _Source) -> tuple[Gaussians, SogInfo]:
+    meta = _parse_meta(path, source.meta_bytes())
     count = _integer(path, _field(path, meta, "count"), "count", 0, MAX_COUNT)
     means = _decode_means(path, meta, source, count)
     quats = _decode_quats(path, meta, source, count)
@@ -326,13 +328,18 @@ def _with_source(path: str | os.PathLike, action: Callable[[Path, _Source], Any]
 
 def load(path: str | os.PathLike) -> Gaussians:
     """Read a SOG (`.sog` bundle, `meta.json`, or its folder) into `Gaussians`."""
-    return _with_source(path, lambda p, source: _decode(p, source)[0])
+    return load_with_info(path)[0]
+
+
+def load_with_info(path: str | os.PathLike) -> tuple[Gaussians, SogInfo]:
+    """`load`, and what meta.json says about the data (the antialiased flag among it)."""
+    return _with_source(path, _decode)
 
 
 def read_info(path: str | os.PathLike) -> SogInfo:
     """What a SOG holds, from meta.json alone (count, SH degree, antialiased flag)."""
     def info(p: Path, source: _Source) -> SogInfo:
-        meta = _parse_meta(p, source.meta_bytes("meta.json"))
+        meta = _parse_meta(p, source.meta_bytes())
         count = _integer(p, _field(p, meta, "count"), "count", 0, MAX_COUNT)
         sh = meta.get("shN")
         bands = _integer(p, _field(p, meta, "shN", "bands"), "shN.bands", 1, 3) if sh else 0
@@ -344,30 +351,11 @@ def load_chunk(meta_path: Path, root: Path) -> Gaussians:
     """One chunk of a LOD set: a folder SOG whose meta.json is `meta_path`; errors name `root`."""
     if not meta_path.is_file():
         raise _fail(root, f"missing chunk {meta_path}")
-    return _decode(meta_path, _Source(meta_path, meta_path.parent), meta_path.name)[0]
+    return _decode(meta_path, _Source(meta_path, meta_path.parent))[0]
 
 
 # ------------------------------------------------------------------------------------------
 # Writing
-
-
-def morton_order(means: np.ndarray) -> np.ndarray:
-    """Stable order of the Gaussians along a 3D Morton (Z-order) curve, 10 bits an axis."""
-    if len(means) == 0:
-        return np.zeros(0, np.intp)
-    m = np.asarray(means, np.float64)
-    lo, hi = m.min(axis=0), m.max(axis=0)
-    extent = np.where(hi > lo, hi - lo, 1.0)
-    q = np.minimum((m - lo) / extent * 1024.0, 1023.0).astype(np.uint64)
-
-    def spread(v: np.ndarray) -> np.ndarray:  # 10 bits -> every third of 30 bits
-        v = (v | (v << np.uint64(16))) & np.uint64(0x030000FF)
-        v = (v | (v << np.uint64(8))) & np.uint64(0x0300F00F)
-        v = (v | (v << np.uint64(4))) & np.uint64(0x030C30C3)
-        return (v | (v << np.uint64(2))) & np.uint64(0x09249249)
-
-    code = (spread(q[:, 0]) << np.uint64(2)) | (spread(q[:, 1]) << np.uint64(1)) | spread(q[:, 2])
-    return np.argsort(code, kind="stable")
 
 
 def image_size(count: int) -> tuple[int, int]:
