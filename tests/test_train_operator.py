@@ -18,7 +18,7 @@ from addon.blender import colmap_import, train_operator
 from addon.blender.train_operator import (OBJECT_KEY, RUNNING, ColmapSource, JobModal,
                                           background_training, rig_transform,
                                           train_colmap_collection, train_request)
-from addon.core import photos
+from addon.core import image_io
 from addon.core.jobs import Progress, format_duration, status_line
 from addon.core.render import render
 from addon.core.train import Trainer, TrainConfig, psnr
@@ -53,8 +53,8 @@ def _render_from(camera_obj, gaussians):
 
 
 def _photo(camera_obj, camera):
-    pixels = photos.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
-    return photos.to_float(photos.rgb_alpha(pixels)[0])
+    pixels = image_io.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
+    return image_io.to_float(image_io.rgb_alpha(pixels)[0])
 
 
 def _world_gaussians(obj):

@@ -24,7 +24,7 @@ Distorted cameras (every COLMAP model other than SIMPLE_PINHOLE and PINHOLE) are
 to pinhole with pycolmap: `undistort_camera` at COLMAP's resolution chooses the pinhole camera
 (and its crop, no blank pixels), which is then scaled like any other camera; observations go
 through pycolmap's `Camera.cam_from_img`, photos through the same mapping (bilinear, every bit
-depth, see `photos.remap_bilinear`; it agrees with pycolmap's `undistort_image`). Undistorted
+depth, see `image_io.remap_bilinear`; it agrees with pycolmap's `undistort_image`). Undistorted
 photos (and upright copies of photos stored sideways with an EXIF orientation), with the
 undistorted model (a COLMAP workspace of its own: `images/`, `sparse/0/`), are cached in
 `cache_dir`, by default `<workspace>/splat_cache/` when that is writable, else a user cache
@@ -57,7 +57,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import photos
+from . import image_io
 from .cameras import Camera
 
 IMAGE_FOLDERS = ("images", "images_2", "images_4", "images_8")
@@ -707,8 +707,8 @@ def _find_photos(registered, rec, image_dir: Path | None) -> tuple[dict[str, _Ph
             missing[im.name] = "not found"
             continue
         try:
-            header = photos.read_header(src)
-        except photos.PhotoError as error:
+            header = image_io.read_header(src)
+        except image_io.ImageError as error:
             missing[im.name] = str(error)
             continue
         cam = rec.cameras[im.camera_id]
@@ -870,11 +870,11 @@ def _copy_photos(images: list[ColmapImage], intrinsics: dict[int, _Intrinsics],
         photo, intr = found[im.name], intrinsics[im.camera_id]
         if out.resolve() == photo.source.resolve():
             raise ColmapError(f"{out}: refusing to overwrite the input photo")
-        pixels = photos.read_pixels(photo.source, orientation=photo.orientation)
+        pixels = image_io.read_pixels(photo.source, orientation=photo.orientation)
         if intr.distorted:
             x, y = undistortion_map(intr, im.camera, photo.size)
-            pixels = photos.remap_bilinear(pixels, x, y)
-        photos.write_pixels(out, pixels)
+            pixels = image_io.remap_bilinear(pixels, x, y)
+        image_io.write_pixels(out, pixels)
         return item
 
     workers = threads if threads > 0 else (os.cpu_count() or 1)
@@ -885,7 +885,7 @@ def _copy_photos(images: list[ColmapImage], intrinsics: dict[int, _Intrinsics],
                     im.path = out
                     done[im.name] = entry
                     report((k + 1) / len(todo), f"undistorted {im.name}")
-    except photos.PhotoError as error:
+    except image_io.ImageError as error:
         raise ColmapError(str(error)) from error
     finally:
         if done:

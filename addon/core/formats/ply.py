@@ -24,7 +24,7 @@ from typing import BinaryIO, Iterable
 import numpy as np
 
 from ..gaussians import SH_COUNTS, Gaussians
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
 
 __all__ = ["load", "save", "read_header", "read_elements", "PlyHeader", "PlyElement", "PlyProperty",

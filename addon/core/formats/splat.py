@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
 
 __all__ = ["load", "save", "RECORD"]
