@@ -19,7 +19,7 @@ from addon.blender import colmap_import, job_runner, train_operator
 from addon.blender.job_runner import RUNNING, JobOperator
 from addon.blender.train_operator import (OBJECT_KEY, source_of, train_colmap_collection,
                                           train_request, training_job)
-from addon.core import colmap, photos
+from addon.core import colmap, image_io
 from addon.core.jobs import Progress, format_duration, status_line
 from addon.core.render import render
 from addon.core.train import Trainer, TrainConfig, psnr
@@ -54,8 +54,8 @@ def _render_from(camera_obj, gaussians):
 
 
 def _photo(camera_obj, camera):
-    pixels = photos.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
-    return photos.to_float(photos.rgb_alpha(pixels)[0])
+    pixels = image_io.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
+    return image_io.to_float(image_io.rgb_alpha(pixels)[0])
 
 
 def _world_gaussians(obj):

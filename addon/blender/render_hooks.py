@@ -45,7 +45,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from ..core import exr
+from ..core import exr_layers
 from ..core.cameras import Camera
 from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed,
                               render_region, splat_layer)
@@ -220,9 +220,9 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
             image.save_render(path, scene=scene)
     timings["save_ms"] = 1000 * (time.perf_counter() - start)
     start = time.perf_counter()
-    channels = exr.read_channels(path)
+    channels = exr_layers.read_channels(path)
     timings["read_ms"] = 1000 * (time.perf_counter() - start)
-    rgba = exr.find_pass(channels, layer, "Combined", "RGBA")
+    rgba = exr_layers.find_pass(channels, layer, "Combined", "RGBA")
     if rgba is None:  # e.g. "Render Single Layer" with another layer active: use what rendered
         layers = sorted({name[:-len(".Combined.R")] for name in channels
                          if name.endswith(".Combined.R") and not name.startswith("Composite.")})
@@ -231,8 +231,8 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
         print(f"Gaussian splats: view layer {layer!r} was not rendered; composing with "
               f"{layers[0]!r}")
         layer = layers[0]
-        rgba = exr.find_pass(channels, layer, "Combined", "RGBA")
-    depth = exr.find_pass(channels, layer, "Depth", "Z")
+        rgba = exr_layers.find_pass(channels, layer, "Combined", "RGBA")
+    depth = exr_layers.find_pass(channels, layer, "Depth", "Z")
     if depth is None:
         print(f"Gaussian splats: view layer {layer!r} has no Depth pass; splats are drawn in "
               f"front of every mesh (enable View Layer > Passes > Data > Z)")
@@ -242,7 +242,7 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     timings["layer"] = layer
     # Cycles' "Shadow Catcher" pass (on when the scene has shadow catchers, e.g. splat proxies:
     # `compositor_bridge.ensure_bridge`): the factor the composite is darkened by.
-    timings["shadow"] = exr.find_pass(channels, layer, "Shadow Catcher", "RGB")
+    timings["shadow"] = exr_layers.find_pass(channels, layer, "Shadow Catcher", "RGB")
     return np.ascontiguousarray(rgba), np.ascontiguousarray(depth), timings
 
 
@@ -292,7 +292,7 @@ def _write_result(engine, rgba: np.ndarray, depth: np.ndarray, origin: Region,
         if layer.passes.get("Depth") is not None:
             channels[f"{layer.name}.Depth.Z"] = depth
         path = os.path.join(_private_dir(), f"result-{os.getpid()}.exr")
-        exr.write_channels(path, channels)
+        exr_layers.write_channels(path, channels)
         result.load_from_file(path)
     finally:
         engine.end_result(result)
@@ -514,8 +514,8 @@ def _on_render_write(scene, _depsgraph=None) -> None:
             print("Gaussian splats: cannot find the written multilayer EXR to add the splat "
                   "passes to")
             return
-        exr.append_layers(path, {"Splats.Combined": ("RGBA", layer.rgba),
-                                 "Splats.Depth": ("Z", layer.depth[..., None])})
+        exr_layers.append_layers(path, {"Splats.Combined": ("RGBA", layer.rgba),
+                                        "Splats.Depth": ("Z", layer.depth[..., None])})
     except Exception:
         traceback.print_exc()
 

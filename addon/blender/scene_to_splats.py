@@ -55,7 +55,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
-from ..core import photos, splat_io
+from ..core import image_io, splat_io
 from ..core.cameras import Camera, camera_to_blender
 from ..core.colour import display_from_linear, srgb_encode
 from ..core.jobs import TrainingJob, compaction_note
@@ -282,7 +282,7 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
             bpy.ops.render.render(write_still=True, scene=scene.name)
             if not path.is_file():
                 raise SceneToSplatsError(f"Cycles wrote no image for view {i} (expected {path})")
-            rgba = photos.to_float(photos.read_pixels(path))
+            rgba = image_io.to_float(image_io.read_pixels(path))
             if rgba.shape[2] < 4:
                 opaque = np.ones(rgba.shape[:2] + (1,), np.float32)
                 rgba = np.concatenate([rgba[..., :3], opaque], axis=2)

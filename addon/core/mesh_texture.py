@@ -33,7 +33,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .cameras import Camera
-from .surface import Cancelled, View, raster_candidates, vertex_normals
+from .surface import (Cancelled, View, barycentric, project_points, raster_candidates,
+                      vertex_normals)
 
 
 def unwrap(vertices: np.ndarray, faces: np.ndarray, texture_size: int = 1024,
@@ -95,14 +96,7 @@ def rasterise_uv(vertices: np.ndarray, faces: np.ndarray, corner_uvs: np.ndarray
     owner = np.full(size * size, -1, np.int64)
     bary = np.zeros((size * size, 3), np.float64)
     for tid, px, py in raster_candidates(x0, x1, y0, y1, chunk):
-        a, b = fu[tid], fv[tid]
-        det = (b[:, 1] - b[:, 2]) * (a[:, 0] - a[:, 2]) + (a[:, 2] - a[:, 1]) * (b[:, 0] - b[:, 2])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            l0 = ((b[:, 1] - b[:, 2]) * (px - a[:, 2]) + (a[:, 2] - a[:, 1]) * (py - b[:, 2])) / det
-            l1 = ((b[:, 2] - b[:, 0]) * (px - a[:, 2]) + (a[:, 0] - a[:, 2]) * (py - b[:, 2])) / det
-        l2 = 1.0 - l0 - l1
-        eps = -1e-6
-        ok = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & np.isfinite(l0) & (det != 0)
+        l0, l1, l2, ok = barycentric(fu[tid], fv[tid], px, py, eps=-1e-6)
         flat = py[ok] * size + px[ok]
         owner[flat] = tid[ok]
         bary[flat] = np.stack([l0[ok], l1[ok], l2[ok]], axis=1)
@@ -143,13 +137,7 @@ def project_views(texels: TexelMap, views: Sequence[View], *, tolerance: float,
         if cancel is not None and cancel():
             raise Cancelled()
         cam = view.camera
-        r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
-        c = texels.position @ r.T + t
-        z = c[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = cam.fx * c[:, 0] / z + cam.cx
-            v = cam.fy * c[:, 1] / z + cam.cy
-        ok = (z > near) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        z, u, v, ok = project_points(cam, texels.position, near)
         idx = np.nonzero(ok)[0]
         px, py = u[idx].astype(np.int64), v[idx].astype(np.int64)
         a = view.alpha[py, px].astype(np.float64)

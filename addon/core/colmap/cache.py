@@ -12,7 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
-from .. import photos
+from .. import image_io
 from .errors import ColmapError
 from .model import MODEL_FILES, Photo
 from .scene import ColmapImage
@@ -111,11 +111,11 @@ def write_photo_copies(images: list[ColmapImage], intrinsics: dict[int, PinholeI
         photo, intr = found[im.name], intrinsics[im.camera_id]
         if out.resolve() == photo.source.resolve():
             raise ColmapError(f"{out}: refusing to overwrite the input photo")
-        pixels = photos.read_pixels(photo.source, orientation=photo.orientation)
+        pixels = image_io.read_pixels(photo.source, orientation=photo.orientation)
         if intr.distorted:
             x, y = undistortion_map(intr, im.camera, photo.size)
-            pixels = photos.remap_bilinear(pixels, x, y)
-        photos.write_pixels(out, pixels)
+            pixels = image_io.remap_bilinear(pixels, x, y)
+        image_io.write_pixels(out, pixels)
         return item
 
     workers = threads if threads > 0 else (os.cpu_count() or 1)
@@ -126,7 +126,7 @@ def write_photo_copies(images: list[ColmapImage], intrinsics: dict[int, PinholeI
                     im.path = out
                     done[im.name] = entry
                     report((k + 1) / len(todo), f"undistorted {im.name}")
-    except photos.PhotoError as error:
+    except image_io.ImageError as error:
         raise ColmapError(str(error)) from error
     finally:
         if done:

@@ -8,7 +8,7 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import photos
+from .. import image_io
 from .errors import ColmapError, import_pycolmap
 
 IMAGE_FOLDERS = ("images", "images_2", "images_4", "images_8")
@@ -91,8 +91,8 @@ def find_photos(registered, rec, image_dir: Path | None) -> tuple[dict[str, Phot
             missing[im.name] = "not found"
             continue
         try:
-            header = photos.read_header(src)
-        except photos.PhotoError as error:
+            header = image_io.read_header(src)
+        except image_io.ImageError as error:
             missing[im.name] = str(error)
             continue
         cam = rec.cameras[im.camera_id]

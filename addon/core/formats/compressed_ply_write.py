@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
 from .morton import morton_order
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from ..transform import transform_gaussians
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
 from .frames import rdf_to_rub
 

@@ -19,7 +19,7 @@ from typing import BinaryIO
 import numpy as np
 
 from ..gaussians import Gaussians
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
 from .ply_sh import F_REST_COUNTS, f_rest_names
 from .plyfile import PlyElement, PlyTable, check_finite, read_elements, read_header

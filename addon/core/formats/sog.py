@@ -56,7 +56,7 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from . import webp
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook
 from .errors import SplatFileError
 from .morton import morton_order

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from ..sh import SH_C0
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
 
 __all__ = ["load", "save", "RECORD"]
