@@ -53,7 +53,7 @@ from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
 from ..core import colmap_training
 from ..core.colmap_training import ColmapSource, TrainRequest
-from ..core.dataset import Points
+from ..core.dataset import NO_CAMERA, Points
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, TrainingJob, compaction_note
 from ..core.train import TrainConfig
@@ -119,7 +119,7 @@ def scene_points(collection) -> Points | None:
     for obj in collection.all_objects:
         data = getattr(obj, "data", None)
         attributes = getattr(data, "attributes", None)
-        if attributes is None or "colmap_point_id" not in attributes or "position" not in attributes:
+        if attributes is None or not {"colmap_point_id", "position"} <= set(attributes.keys()):
             continue
         n = len(attributes["position"].data)
         xyz = np.empty(n * 3, np.float32)
@@ -257,8 +257,15 @@ def finish_training(request: TrainRequest, job: TrainingJob, *,
         quality = (f", held-out PSNR {p.evaluation.psnr:.2f} dB / SSIM "
                    f"{p.evaluation.ssim:.3f} on {p.evaluation.views} views")
     steps = f"{p.step:,} steps" if not p.start_step else f"from step {p.start_step:,} to {p.step:,}"
-    return "INFO", (f"Trained {steps} in {p.elapsed:.1f} s: {name} has {p.gaussians:,} "
-                    f"Gaussians{quality}{compaction_note(job)}{where}"), obj
+    message = (f"Trained {steps} in {p.elapsed:.1f} s: {name} has {p.gaussians:,} "
+               f"Gaussians{quality}{compaction_note(job)}{where}")
+    missing = job.trainer.dataset.scene.missing
+    left_out = sorted(name for name, why in missing.items() if why == NO_CAMERA)
+    if left_out:
+        listed = ", ".join(left_out[:3]) + (", ..." if len(left_out) > 3 else "")
+        return "WARNING", (f"{message} (left out, no camera object: {len(left_out)} "
+                           f"photo{'s' if len(left_out) > 1 else ''}, {listed})"), obj
+    return "INFO", message, obj
 
 
 def training_job(request: TrainRequest) -> OperatorJob:
