@@ -199,7 +199,8 @@ class JobOperator:
         """The one execute path: in the background when `self.interactive` and there is a
         window, else blocking."""
         if job.key in RUNNING:
-            self.report({"ERROR"}, f"{job.title}: '{job.key.split(':', 1)[-1]}' is already running")
+            name = job.key.split(":", 1)[-1]
+            self.report({"ERROR"}, f"{job.title}: '{name}' is already running")
             return {"CANCELLED"}
         if getattr(self, "interactive", False) and wants_background(context):
             return self._start_background(context, job)

@@ -27,10 +27,11 @@ What it does:
    The scene's view transform and look are not baked in: in Blender the splats then look like
    the meshes did under the same view transform; a web viewer shows them as "Standard" would.
 5. Training (alpha-aware): every step composites the target over a fresh random background
-   colour and renders the splats over the same colour (`addon.core.scene_to_splats.RandomBackground`), so
-   transparent parts of the renders must stay transparent: no background, no dark fringe. The
-   Gaussians start from `initial_points` points spread over the targets' surfaces (area-weighted,
-   the material's base colour, else grey). By default every view trains (`hold_out` 0).
+   colour and renders the splats over the same colour
+   (`addon.core.scene_to_splats.RandomBackground`), so transparent parts of the renders must
+   stay transparent: no background, no dark fringe. The Gaussians start from `initial_points`
+   points spread over the targets' surfaces (area-weighted, the material's base colour, else
+   grey). By default every view trains (`hold_out` 0).
 6. Output: a splat object `<object> Splats` (world space, identity transform) in the active
    collection, and the .ply at `filepath` (`addon.core.splat_io.save`, the standard 3DGS layout
    web viewers read). Empty `filepath`: `<blend>_<object>_splats.ply` beside the saved .blend,
@@ -229,7 +230,8 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
     targets. Every setting touched is restored, the temporary camera removed, also on error."""
 
     if not hasattr(scene, "cycles"):
-        raise SceneToSplatsError("Cycles is not available in this Blender (enable the Cycles add-on)")
+        raise SceneToSplatsError("Cycles is not available in this Blender (enable the Cycles "
+                                 "add-on)")
     folder = Path(tempfile.mkdtemp(prefix="splat-views-"))
     data = bpy.data.cameras.new("Splat View Camera")
     cam_obj = bpy.data.objects.new("Splat View Camera", data)
@@ -301,7 +303,7 @@ def _clip_range(camera: Camera, scene) -> tuple[float, float]:
     return 1e-3 * max(distance, 1e-3), 1e3 * max(distance, 1.0) + 1e4
 
 
-# -- training on the views ------------------------------------------------------------------------------------
+# -- training on the views -----------------------------------------------------------------------
 
 @dataclass
 class SceneToSplatsRequest:
