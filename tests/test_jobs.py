@@ -47,6 +47,8 @@ def test_staged_job_polls_cancels_and_fails_cleanly() -> None:
     failing = StagedJob(_steps([], fail_at="write"), STAGES).run(raise_errors=False)
     assert failing.done and isinstance(failing.error, ValueError)
     assert failing.progress().phase == "failed" and "write broke" in failing.progress().message
+    assert status_line(failing.progress(), "Converting") == \
+        "Converting failed: ValueError: write broke"
     with pytest.raises(ValueError, match="load broke"):
         StagedJob(_steps([], fail_at="load"), STAGES).run()
 

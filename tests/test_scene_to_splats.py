@@ -1,7 +1,7 @@
-"""A Blender scene to splats ("Bake to Splats"): the Blender-free parts (cameras on a sphere, surface sampling, the
-in-memory dataset, the colour conversion of the targets) and `bpy.ops.splat.bake_to_splats` on a
-small coloured cube (8 views at 48x36, 100 steps): a splat object and a readable .ply around the
-cube, every scene setting put back."""
+"""A Blender scene to splats ("Bake to Splats"): the Blender-free parts (cameras on a sphere,
+surface sampling, the in-memory dataset, the colour conversion of the targets) and
+`bpy.ops.splat.bake_to_splats` on a small coloured cube (8 views at 48x36, 100 steps): a splat
+object and a readable .ply around the cube, every scene setting put back."""
 
 from __future__ import annotations
 

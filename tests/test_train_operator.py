@@ -20,6 +20,7 @@ from addon.blender.job_runner import RUNNING, JobOperator
 from addon.blender.train_operator import (OBJECT_KEY, source_of, train_colmap_collection,
                                           train_request, training_job)
 from addon.core import colmap, image_io
+from addon.core.dataset import NO_CAMERA
 from addon.core.jobs import Progress, format_duration, status_line
 from addon.core.render import render
 from addon.core.train import Trainer, TrainConfig, psnr
@@ -175,6 +176,15 @@ def test_training_takes_the_cameras_and_points_as_they_are_in_the_scene(demo) ->
     others = [n for n in source.cameras if n != name]
     assert all(np.array_equal(alone.cameras[n].world_to_camera,
                               rigged.cameras[n].world_to_camera) for n in others)
+
+    # A deleted camera leaves its photo out of training (and the report says so).
+    gone = cameras[5]["colmap_image_name"]
+    bpy.data.objects.remove(cameras[5])
+    fewer = source_of(demo.collection)
+    assert gone not in fewer.cameras and len(fewer.cameras) == len(source.cameras) - 1
+    dataset = fewer.dataset(downscale=4.0, preload_threads=-1)
+    assert gone not in dataset.names and len(dataset) == len(source.cameras) - 1
+    assert dataset.scene.missing[gone] == NO_CAMERA
 
 
 def test_worker_thread_cancels_with_a_consistent_state(demo) -> None:

@@ -30,7 +30,7 @@ in small steps on the main thread, for jobs that touch Blender data). Either way
 
 At the end `finish(job, write)` (main thread) writes the result (not when `write` is False: the
 object is in Edit Mode) and returns (level, message, object or None); the runner reports the
-message (and prints it headless) and makes the object active.
+message (headless, Blender prints reports) and makes the object active.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterator
 
 import bpy
-from bpy.props import StringProperty
+from bpy.props import BoolProperty, StringProperty
 
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, ProgressPrinter, StagedJob, TrainingJob, status_line
@@ -162,17 +162,45 @@ def _can_write(context, obj) -> bool:
         return True
 
 
+def draw_settings(layout, operator, groups) -> None:
+    """An operator's settings dialog: each group (a tuple of property names) in an aligned
+    column, a lone name on its own row."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    for group in groups:
+        if isinstance(group, str):
+            layout.prop(operator, group)
+            continue
+        column = layout.column(align=True)
+        for name in group:
+            column.prop(operator, name)
+
+
 class JobOperator:
     """Mixin for an operator that runs an `OperatorJob` (see the module docstring)."""
 
+    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"},
+                              description="Run in the background from a modal timer (set by "
+                                          "invoke; scripts get a blocking run)")
+
     _timer = None
     _key = ""
+
+    def invoke_settings(self, context, title: str, confirm_text: str) -> set:
+        """`invoke` for a job with a settings dialog: the dialog's OK runs `execute` in the
+        background; without a window `execute` blocks at once."""
+        self.interactive = wants_background(context)
+        if not self.interactive:
+            return self.execute(context)
+        return context.window_manager.invoke_props_dialog(self, width=420, title=title,
+                                                          confirm_text=confirm_text)
 
     def run_job(self, context, job: OperatorJob) -> set:
         """The one execute path: in the background when `self.interactive` and there is a
         window, else blocking."""
         if job.key in RUNNING:
-            self.report({"ERROR"}, f"{job.title}: '{job.key.split(':', 1)[-1]}' is already running")
+            name = job.key.split(":", 1)[-1]
+            self.report({"ERROR"}, f"{job.title}: '{name}' is already running")
             return {"CANCELLED"}
         if getattr(self, "interactive", False) and wants_background(context):
             return self._start_background(context, job)
@@ -186,7 +214,7 @@ class JobOperator:
             if window:
                 wm.progress_update(int(1000 * p.fraction))
 
-        job.job.on_progress = on_progress
+        job.job.on_progress = on_progress  # the runner owns a blocking job's progress
         if window:
             wm.progress_begin(0, 1000)
         try:
@@ -197,11 +225,9 @@ class JobOperator:
         return self._report_end(context, *job.finish(job, True))
 
     def _report_end(self, context, level: str, message: str, obj) -> set:
-        if obj is not None and level != "ERROR":
+        if obj is not None:
             make_active(context, obj)
-        self.report({level}, message)
-        if bpy.app.background:
-            print(message, flush=True)
+        self.report({level}, message)  # headless, Blender prints reports to the terminal
         return {"CANCELLED"} if level == "ERROR" else {"FINISHED"}
 
     def _start_background(self, context, job: OperatorJob) -> set:
@@ -319,6 +345,37 @@ def menu_parent():
     """Where job operators go: the 3D View's Gaussian Splats submenu when the edit operators
     made one, else Object."""
     return getattr(bpy.types, "VIEW3D_MT_splat", None) or bpy.types.VIEW3D_MT_object
+
+
+_MENU_ENTRIES: list = []  # (menu, draw function) added by `add_menu_entry`
+
+
+def add_menu_entry(draw) -> None:
+    """Append a job operator's menu `draw` function to `menu_parent()` (once)."""
+    parent = menu_parent()
+    parent.remove(draw)
+    parent.append(draw)
+    _MENU_ENTRIES.append((parent, draw))
+
+
+def remove_menu_entry(draw) -> None:
+    for entry in [e for e in _MENU_ENTRIES if e[1] is draw]:
+        entry[0].remove(draw)
+        _MENU_ENTRIES.remove(entry)
+
+
+def registration(classes: tuple, menu_draw) -> tuple[Callable[[], None], Callable[[], None]]:
+    """`register`, `unregister` for a module of job operators with one menu entry."""
+
+    def register() -> None:
+        register_classes(classes)
+        add_menu_entry(menu_draw)
+
+    def unregister() -> None:
+        remove_menu_entry(menu_draw)
+        unregister_classes(classes)
+
+    return register, unregister
 
 
 @bpy.app.handlers.persistent

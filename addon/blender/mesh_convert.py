@@ -368,10 +368,6 @@ class SPLAT_OT_convert_to_mesh(JobOperator, bpy.types.Operator):
     proxy: BoolProperty(name="Proxy", default=False,
                         description="Shadow catcher and collider for its splat object")
 
-    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"},
-                              description="Convert a little on every timer tick (set by invoke; "
-                                          "scripts get a blocking run)")
-
     @classmethod
     def poll(cls, context):
         return context.mode == "OBJECT"

@@ -27,10 +27,11 @@ What it does:
    The scene's view transform and look are not baked in: in Blender the splats then look like
    the meshes did under the same view transform; a web viewer shows them as "Standard" would.
 5. Training (alpha-aware): every step composites the target over a fresh random background
-   colour and renders the splats over the same colour (`addon.core.scene_to_splats.RandomBackground`), so
-   transparent parts of the renders must stay transparent: no background, no dark fringe. The
-   Gaussians start from `initial_points` points spread over the targets' surfaces (area-weighted,
-   the material's base colour, else grey). By default every view trains (`hold_out` 0).
+   colour and renders the splats over the same colour
+   (`addon.core.scene_to_splats.RandomBackground`), so transparent parts of the renders must
+   stay transparent: no background, no dark fringe. The Gaussians start from `initial_points`
+   points spread over the targets' surfaces (area-weighted, the material's base colour, else
+   grey). By default every view trains (`hold_out` 0).
 6. Output: a splat object `<object> Splats` (world space, identity transform) in the active
    collection, and the .ply at `filepath` (`addon.core.splat_io.save`, the standard 3DGS layout
    web viewers read). Empty `filepath`: `<blend>_<object>_splats.ply` beside the saved .blend,
@@ -58,16 +59,15 @@ from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorPropert
 from ..core import image_io, splat_io
 from ..core.cameras import Camera, camera_to_blender
 from ..core.colour import display_from_linear, srgb_encode
-from ..core.jobs import TrainingJob, compaction_note
 from ..core.dataset import Points
+from ..core.jobs import TrainingJob, compaction_note
 from ..core.scene_to_splats import ImageDataset, RandomBackground, orbit_cameras, sample_surface
 from ..core.train import Trainer, TrainConfig
 from . import splat_object
 from .camera_adapter import set_camera
-from .job_runner import (JobOperator, OperatorJob, is_running, menu_parent, preparing,
-                         wants_background)
-from .registration import register_classes, unregister_classes
-from .train_operator import replace_gaussians
+from .job_runner import (JobOperator, OperatorJob, draw_settings, is_running, preparing,
+                         registration)
+from .train_operator import COMPACT_DESCRIPTION, TrainingSettings, replace_gaussians
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "CURVES", "POINTCLOUD", "VOLUME",
                   "GREASEPENCIL"}
@@ -230,7 +230,8 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
     targets. Every setting touched is restored, the temporary camera removed, also on error."""
 
     if not hasattr(scene, "cycles"):
-        raise SceneToSplatsError("Cycles is not available in this Blender (enable the Cycles add-on)")
+        raise SceneToSplatsError("Cycles is not available in this Blender (enable the Cycles "
+                                 "add-on)")
     folder = Path(tempfile.mkdtemp(prefix="splat-views-"))
     data = bpy.data.cameras.new("Splat View Camera")
     cam_obj = bpy.data.objects.new("Splat View Camera", data)
@@ -302,7 +303,7 @@ def _clip_range(camera: Camera, scene) -> tuple[float, float]:
     return 1e-3 * max(distance, 1e-3), 1e3 * max(distance, 1.0) + 1e4
 
 
-# -- training on the views ------------------------------------------------------------------------------------
+# -- training on the views -----------------------------------------------------------------------
 
 @dataclass
 class SceneToSplatsRequest:
@@ -437,7 +438,7 @@ def finish_scene_to_splats(request: SceneToSplatsRequest, job: TrainingJob, obj=
                     f"{request.filepath}"), obj
 
 
-def scene_to_splats_job(request: SceneToSplatsRequest, on_progress=None) -> OperatorJob:
+def scene_to_splats_job(request: SceneToSplatsRequest) -> OperatorJob:
     """The request as the job runner runs it (see `train_operator.training_job`)."""
     state = {"object": None}
 
@@ -447,7 +448,7 @@ def scene_to_splats_job(request: SceneToSplatsRequest, on_progress=None) -> Oper
     def finish(running, write):
         return finish_scene_to_splats(request, running.job, state["object"], write=write)
 
-    return OperatorJob(f"bake:{request.name}", "Baking", request.job(on_progress), finish, apply,
+    return OperatorJob(f"bake:{request.name}", "Baking", request.job(), finish, apply,
                        lambda: state["object"])
 
 
@@ -464,7 +465,7 @@ def scene_to_splats(context=None, progress=None, **options):
     return obj
 
 
-class SPLAT_OT_bake_to_splats(JobOperator, bpy.types.Operator):
+class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator):
     """Render the selected objects with Cycles from cameras all around them and train Gaussian
     splats on the renders: a splat object and a .ply that web viewers open"""
 
@@ -482,7 +483,6 @@ class SPLAT_OT_bake_to_splats(JobOperator, bpy.types.Operator):
                           description="Denoise the renders (cleaner targets at few samples)")
     steps: IntProperty(name="Steps", default=3000, min=1, soft_max=30000)
     max_gaussians: IntProperty(name="Max Gaussians", default=200_000, min=1, soft_max=3_000_000)
-    sh_degree: IntProperty(name="SH Degree", default=3, min=0, max=3)
     radius_factor: FloatProperty(
         name="Distance", default=2.5, min=1.05, soft_max=10.0,
         description="Camera distance from the centre, in bounding-sphere radii")
@@ -497,52 +497,25 @@ class SPLAT_OT_bake_to_splats(JobOperator, bpy.types.Operator):
     hold_out: IntProperty(name="Hold Out Every", default=0, min=0, soft_max=32,
                           description="Every n-th view is held out to measure quality (0: all "
                                       "views train)")
-    seed: IntProperty(name="Seed", default=0, min=0)
-    threads: IntProperty(name="Threads", default=0, min=0, soft_max=64)
-    compact: BoolProperty(name="Compact", default=True,
-                          description="After training, prune negligible Gaussians and unneeded "
-                                      "SH bands")
-    update_every: IntProperty(name="Update Every", default=200, min=0, soft_max=2000)
+    compact: BoolProperty(name="Compact", default=True, description=COMPACT_DESCRIPTION)
     filepath: StringProperty(name="Output", subtype="FILE_PATH",
                              description="The .ply to write (empty: beside the .blend, or the "
                                          "temporary folder)")
-    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"})
+
+    DIALOG = (("cameras", "resolution", "samples", "denoise", "radius_factor",
+               "upper_hemisphere", "only_selected"),
+              ("steps", "max_gaussians", "sh_degree", "initial_points", "compact"),
+              ("hold_out", "update_every", "threads", "seed"), "filepath")
 
     @classmethod
     def poll(cls, context):
         return context.scene is not None and getattr(context, "view_layer", None) is not None
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        col = layout.column(align=True)
-        col.prop(self, "cameras")
-        col.prop(self, "resolution")
-        col.prop(self, "samples")
-        col.prop(self, "denoise")
-        col.prop(self, "radius_factor")
-        col.prop(self, "upper_hemisphere")
-        col.prop(self, "only_selected")
-        col = layout.column(align=True)
-        col.prop(self, "steps")
-        col.prop(self, "max_gaussians")
-        col.prop(self, "sh_degree")
-        col.prop(self, "initial_points")
-        col.prop(self, "compact")
-        col = layout.column(align=True)
-        col.prop(self, "hold_out")
-        col.prop(self, "update_every")
-        col.prop(self, "threads")
-        col.prop(self, "seed")
-        layout.prop(self, "filepath")
+        draw_settings(self.layout, self, self.DIALOG)
 
     def invoke(self, context, event):
-        self.interactive = wants_background(context)
-        if not self.interactive:
-            return self.execute(context)
-        return context.window_manager.invoke_props_dialog(self, width=420, title="Bake to Splats",
-                                                          confirm_text="Bake")
+        return self.invoke_settings(context, "Bake to Splats", "Bake")
 
     def _options(self) -> dict:
         return dict(cameras=self.cameras, resolution=tuple(self.resolution), samples=self.samples,
@@ -572,19 +545,4 @@ def _menu(self, context):
 
 
 CLASSES = (SPLAT_OT_bake_to_splats,)
-_MENU_PARENTS: list = []
-
-
-def register() -> None:
-    register_classes(CLASSES)
-    parent = menu_parent()
-    parent.remove(_menu)
-    parent.append(_menu)
-    _MENU_PARENTS.append(parent)
-
-
-def unregister() -> None:
-    for parent in _MENU_PARENTS:
-        parent.remove(_menu)
-    _MENU_PARENTS.clear()
-    unregister_classes(CLASSES)
+register, unregister = registration(CLASSES, _menu)

@@ -53,14 +53,13 @@ from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
 from ..core import colmap_training
 from ..core.colmap_training import ColmapSource, TrainRequest
-from ..core.dataset import Points
+from ..core.dataset import NO_CAMERA, Points
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, TrainingJob, compaction_note
 from ..core.train import TrainConfig
 from . import job_runner, splat_object
 from .camera_adapter import camera_of
-from .job_runner import JobOperator, OperatorJob, menu_parent, wants_background
-from .registration import register_classes, unregister_classes
+from .job_runner import JobOperator, OperatorJob, draw_settings, registration
 
 COLMAP_KEY = "colmap_transform"
 OBJECT_KEY = "splat_object"
@@ -120,7 +119,7 @@ def scene_points(collection) -> Points | None:
     for obj in collection.all_objects:
         data = getattr(obj, "data", None)
         attributes = getattr(data, "attributes", None)
-        if attributes is None or "colmap_point_id" not in attributes or "position" not in attributes:
+        if attributes is None or not {"colmap_point_id", "position"} <= set(attributes.keys()):
             continue
         n = len(attributes["position"].data)
         xyz = np.empty(n * 3, np.float32)
@@ -258,11 +257,18 @@ def finish_training(request: TrainRequest, job: TrainingJob, *,
         quality = (f", held-out PSNR {p.evaluation.psnr:.2f} dB / SSIM "
                    f"{p.evaluation.ssim:.3f} on {p.evaluation.views} views")
     steps = f"{p.step:,} steps" if not p.start_step else f"from step {p.start_step:,} to {p.step:,}"
-    return "INFO", (f"Trained {steps} in {p.elapsed:.1f} s: {name} has {p.gaussians:,} "
-                    f"Gaussians{quality}{compaction_note(job)}{where}"), obj
+    message = (f"Trained {steps} in {p.elapsed:.1f} s: {name} has {p.gaussians:,} "
+               f"Gaussians{quality}{compaction_note(job)}{where}")
+    missing = job.trainer.dataset.scene.missing
+    left_out = sorted(name for name, why in missing.items() if why == NO_CAMERA)
+    if left_out:
+        listed = ", ".join(left_out[:3]) + (", ..." if len(left_out) > 3 else "")
+        return "WARNING", (f"{message} (left out, no camera object: {len(left_out)} "
+                           f"photo{'s' if len(left_out) > 1 else ''}, {listed})"), obj
+    return "INFO", message, obj
 
 
-def training_job(request: TrainRequest, on_progress=None) -> OperatorJob:
+def training_job(request: TrainRequest) -> OperatorJob:
     """The request as the job runner runs it: the job (not started), and what the main thread
     does with its snapshots and its end."""
     name = request.source.name
@@ -277,8 +283,7 @@ def training_job(request: TrainRequest, on_progress=None) -> OperatorJob:
     def finish(running, write):
         return finish_training(request, running.job, write=write)
 
-    return OperatorJob(f"train:{name}", "Training", request.job(on_progress), finish, apply,
-                       target)
+    return OperatorJob(f"train:{name}", "Training", request.job(), finish, apply, target)
 
 
 def train_colmap_collection(collection, config: TrainConfig | None = None,
@@ -295,7 +300,23 @@ def train_colmap_collection(collection, config: TrainConfig | None = None,
 
 # -- operators ------------------------------------------------------------------------------------
 
-class SPLAT_OT_train(JobOperator, bpy.types.Operator):
+COMPACT_DESCRIPTION = "After training, prune negligible Gaussians and unneeded SH bands"
+
+
+class TrainingSettings:
+    """Settings both training operators share (Train Gaussians, Bake to Splats)."""
+
+    sh_degree: IntProperty(name="SH Degree", default=3, min=0, max=3,
+                           description="Spherical-harmonics bands to train (view-dependent colour)")
+    seed: IntProperty(name="Seed", default=0, min=0)
+    threads: IntProperty(name="Threads", default=0, min=0, soft_max=64,
+                         description="Worker threads for the kernels (0: every core)")
+    update_every: IntProperty(name="Update Every", default=200, min=0, soft_max=2000,
+                              description="Steps between updates of the splat object while "
+                                          "training in the background (0: only at the end)")
+
+
+class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
     """Train Gaussians on the CPU from the photos of an imported COLMAP scene. From the menu it
     runs in the background (Esc stops it, keeping the last state); from scripts it blocks"""
 
@@ -303,83 +324,49 @@ class SPLAT_OT_train(JobOperator, bpy.types.Operator):
     bl_label = "Train Gaussians"
     bl_options = {"UNDO"}  # no redo panel: redoing would train again
 
-    collection: StringProperty(
-        name="COLMAP Scene",
-        description="The imported COLMAP collection (empty: the active object's, the active "
-                    "collection, or the scene's only one)")
+    collection: StringProperty(name="COLMAP Scene", description=(
+        "The imported COLMAP collection (empty: the active object's, the active collection, or "
+        "the scene's only one)"))
     steps: IntProperty(name="Steps", default=7000, min=1, soft_max=30000,
                        description="Total optimisation steps (when resuming: up to this many)")
     max_gaussians: IntProperty(name="Max Gaussians", default=300_000, min=1,
                                soft_max=3_000_000, description="The Gaussian budget")
-    sh_degree: IntProperty(name="SH Degree", default=3, min=0, max=3,
-                           description="Spherical-harmonics bands to train (view-dependent colour)")
-    image_folder: StringProperty(
-        name="Image Folder",
-        description="Photos to train on: a folder beside the model (images_2, images_4, ...) or "
-                    "an absolute path (empty: the import's)")
+    image_folder: StringProperty(name="Image Folder", description=(
+        "Photos to train on: a folder beside the model (images_2, images_4, ...) or an absolute "
+        "path (empty: the import's)"))
     downscale: FloatProperty(name="Downscale", default=1.0, min=1.0, soft_max=8.0,
                              description="Divide the photos' size by this (faster, coarser)")
     hold_out: IntProperty(name="Hold Out Every", default=8, min=0, soft_max=32,
                           description="Every n-th photo (by name) is a held-out test view "
                                       "(0: train on all)")
-    seed: IntProperty(name="Seed", default=0, min=0)
-    threads: IntProperty(name="Threads", default=0, min=0, soft_max=64,
-                         description="Worker threads for the kernels (0: every core)")
     antialiased: BoolProperty(name="Antialiased", default=False,
                               description="Train for the Mip-Splatting antialiased render mode")
-    update_every: IntProperty(name="Update Every", default=200, min=0, soft_max=2000,
-                              description="Steps between updates of the splat object while "
-                                          "training in the background (0: only at the end)")
     checkpoint_every: IntProperty(name="Checkpoint Every", default=1000, min=0, soft_max=10000,
                                   description="Steps between checkpoints (0: only at the end)")
-    compact: BoolProperty(name="Compact", default=False,
-                          description="After training, prune negligible Gaussians and unneeded "
-                                      "SH bands")
+    compact: BoolProperty(name="Compact", default=False, description=COMPACT_DESCRIPTION)
     resume: BoolProperty(name="Resume", default=False,
                          description="Continue from the checkpoint (up to Steps in total)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH",
                                description="Checkpoint file (empty: beside the .blend, or the "
                                            "user cache folder for an unsaved file)")
-    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"},
-                              description="Train on a worker thread with a modal timer (set by "
-                                          "invoke; scripts get a blocking run)")
+
+    DIALOG = ("collection", ("steps", "max_gaussians", "sh_degree"),
+              ("image_folder", "downscale", "hold_out"),
+              ("update_every", "checkpoint_every", "threads", "seed"),
+              "antialiased", "compact", "resume", "checkpoint")
 
     @classmethod
     def poll(cls, context):
         return any(is_colmap_collection(c) for c in bpy.data.collections)
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        layout.prop(self, "collection")
-        col = layout.column(align=True)
-        col.prop(self, "steps")
-        col.prop(self, "max_gaussians")
-        col.prop(self, "sh_degree")
-        col = layout.column(align=True)
-        col.prop(self, "image_folder")
-        col.prop(self, "downscale")
-        col.prop(self, "hold_out")
-        col = layout.column(align=True)
-        col.prop(self, "update_every")
-        col.prop(self, "checkpoint_every")
-        col.prop(self, "threads")
-        col.prop(self, "seed")
-        layout.prop(self, "antialiased")
-        layout.prop(self, "compact")
-        layout.prop(self, "resume")
-        layout.prop(self, "checkpoint")
+        draw_settings(self.layout, self, self.DIALOG)
 
     def invoke(self, context, event):
         collection = find_colmap_collection(context, self.collection)
         if collection is not None:
             self.collection = collection.name
-        self.interactive = wants_background(context)
-        if not self.interactive:
-            return self.execute(context)
-        return context.window_manager.invoke_props_dialog(self, width=420, title="Train Gaussians",
-                                                          confirm_text="Train")
+        return self.invoke_settings(context, "Train Gaussians", "Train")
 
     def execute(self, context):
         collection = find_colmap_collection(context, self.collection)
@@ -414,19 +401,4 @@ def _menu(self, context):
 
 
 CLASSES = (SPLAT_OT_train,)
-_MENU_PARENTS: list = []
-
-
-def register() -> None:
-    register_classes(CLASSES)
-    parent = menu_parent()
-    parent.remove(_menu)
-    parent.append(_menu)
-    _MENU_PARENTS.append(parent)
-
-
-def unregister() -> None:
-    for parent in _MENU_PARENTS:
-        parent.remove(_menu)
-    _MENU_PARENTS.clear()
-    unregister_classes(CLASSES)
+register, unregister = registration(CLASSES, _menu)

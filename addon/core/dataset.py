@@ -55,6 +55,9 @@ def split_indices(count: int, test_every: int = 8) -> tuple[list[int], list[int]
     return [i for i in range(count) if i not in held], test
 
 
+NO_CAMERA = "no camera object with this colmap_image_name in the scene"
+
+
 @dataclass
 class Points:
     """Points to start training from."""
@@ -74,7 +77,7 @@ def with_cameras(scene: ColmapScene, cameras: dict[str, Camera],
     for im in scene.images:
         camera = cameras.get(im.name)
         if camera is None:
-            missing[im.name] = "no camera object with this colmap_image_name in the scene"
+            missing[im.name] = NO_CAMERA
             continue
         size = im.camera.width, im.camera.height
         if abs(camera.width * size[1] - camera.height * size[0]) > 0.01 * camera.height * size[0]:

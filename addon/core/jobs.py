@@ -86,7 +86,8 @@ def format_duration(seconds: float | None) -> str:
 def status_line(p: Progress, title: str = "Training") -> str:
     """The one-line status shown in Blender's status bar (and printed in background mode)."""
     if p.phase == "failed":
-        return f"{title} failed at step {p.step:,}: {p.message}"
+        where = f" at step {p.step:,}" if p.total else ""
+        return f"{title} failed{where}: {p.message}"
     if p.phase in ("waiting", "loading"):
         return f"{title}: {p.message or 'loading photos'}..."
     if p.phase == "working":
