@@ -391,7 +391,7 @@ def _rows(*channels: np.ndarray, alpha: np.ndarray | int = 255) -> np.ndarray:
 
 def _encode_means(means: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
     n = np.sign(means) * np.log1p(np.abs(means))
-    mins, maxs = n.min(axis=0), n.max(axis=0)
+    mins, maxs = (n.min(axis=0), n.max(axis=0)) if len(n) else (np.zeros(3), np.zeros(3))
     span = np.where(maxs > mins, maxs - mins, 1.0)
     q = np.clip(np.rint((n - mins) / span * 65535.0), 0, 65535).astype(np.uint16)
     low, high = (q & 0xFF).astype(np.uint8), (q >> 8).astype(np.uint8)
