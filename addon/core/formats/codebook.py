@@ -8,8 +8,8 @@ own instead of being clipped into the dense middle. Every value then takes its n
 
 `palette(points, size)` -> (centroids, labels): k-means with up to 65536 centroids on up to 45
 dimensions, which flat Lloyd iterations cannot afford on a CPU (N x K x D per pass). It runs in
-two levels: `coarse` k-means clusters first, then each cluster's points get their own k-means
-with a share of `size` proportional to the cluster's count. Cost per pass ~ N x (coarse +
+two levels: `coarse` k-means cells first (placed from a sample of 64 points a cell), then each
+cell's points get their own k-means with a share of `size` proportional to the cell's count. Cost per pass ~ N x (coarse +
 size/coarse) x D, about 1/256 of the flat version at 65536 centroids, with BLAS doing the
 distances. Seeded: the same input gives the same palette.
 """
@@ -22,6 +22,7 @@ __all__ = ["scalar_codebook", "nearest_scalar", "palette"]
 
 HISTOGRAM_BINS = 1024
 GROUP_BINS = 128  # longest codebook group searched (bins); 1024 bins / 256 entries average 4
+COARSE_SAMPLE = 64  # points per coarse cell used to place the cells
 _CHUNK = 1 << 15  # rows per distance block: bounds the (rows, centroids) temporary
 
 
@@ -107,7 +108,7 @@ def _means(points: np.ndarray, labels: np.ndarray, k: int, previous: np.ndarray)
     """Cluster means; a cluster that lost all its points keeps its previous centroid."""
     order = np.argsort(labels, kind="stable")
     present, starts, counts = np.unique(labels[order], return_index=True, return_counts=True)
-    sums = np.add.reduceat(points[order].astype(np.float64), starts, axis=0)
+    sums = np.add.reduceat(points[order], starts, axis=0, dtype=np.float64)
     out = previous.copy()
     out[present] = (sums / counts[:, None]).astype(points.dtype)
     return out
@@ -144,7 +145,7 @@ def _shares(counts: np.ndarray, total: int) -> np.ndarray:
     return share
 
 
-def palette(points: np.ndarray, size: int, *, coarse: int = 256, iterations: int = 8,
+def palette(points: np.ndarray, size: int, *, coarse: int = 256, iterations: int = 6,
             seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Up to `size` float32 centroids for `points` (N, D) and each point's label (N,)."""
     points = np.ascontiguousarray(points, np.float32)
@@ -152,7 +153,10 @@ def palette(points: np.ndarray, size: int, *, coarse: int = 256, iterations: int
     if len(points) <= size:
         return points.copy(), np.arange(len(points))
     coarse = min(coarse, size)
-    _, coarse_labels = _kmeans(points, coarse, iterations, rng)
+    # The coarse cells only split the work: learn them from a sample, then assign every point.
+    sample = points[rng.choice(len(points), min(len(points), COARSE_SAMPLE * coarse), replace=False)]
+    coarse_centroids, _ = _kmeans(sample, coarse, iterations, rng)
+    coarse_labels = _assign(points, coarse_centroids)
     order = np.argsort(coarse_labels, kind="stable")
     counts = np.bincount(coarse_labels, minlength=coarse)
     shares = _shares(counts, size)
