@@ -289,9 +289,9 @@ def test_bad_files(tmp_path: Path) -> None:
     cases = {
         "truncated": (good[:-30], "truncated"),
         "short": (good[:10], "truncated"),
-        "magic": (b"glTX" + good[4:], "bad glTF JSON"),
+        "magic": (b"glTX" + good[4:], "bad JSON in the glTF document"),
         "version": (good[:4] + struct.pack("<I", 1) + good[8:], "container version 1"),
-        "json": (good[:20] + b"}" + good[21:], "bad glTF JSON"),
+        "json": (good[:20] + b"}" + good[21:], "bad JSON in the glTF document"),
     }
     for name, (data, message) in cases.items():
         path = tmp_path / f"{name}.glb"
