@@ -1,15 +1,15 @@
 """Vector quantisation for compressed splat formats (SOG): 1D codebooks and a k-means palette.
 
 `scalar_codebook(values, size)` -> (codebook ascending, labels): `size` values that minimise the
-squared error of the pooled `values`, found exactly by dynamic programming over a 1024-bin
-histogram (the optimal 1D k-means on bins). Bins count with weight sqrt(count), not count: the
+squared error of the pooled `values`, found by dynamic programming over a 1024-bin histogram
+(the optimal 1D k-means on bins, with no entry spanning more than 128 bins). Bins count with weight sqrt(count), not count: the
 sparse tails (a few very large Gaussians, saturated colours) then keep codebook entries of their
 own instead of being clipped into the dense middle. Every value then takes its nearest entry.
 
 `palette(points, size)` -> (centroids, labels): k-means with up to 65536 centroids on up to 45
 dimensions, which flat Lloyd iterations cannot afford on a CPU (N x K x D per pass). It runs in
-two levels: `coarse` k-means clusters first, then each cluster's points get their own k-means
-with a share of `size` proportional to the cluster's count. Cost per pass ~ N x (coarse +
+two levels: `coarse` k-means cells first (placed from a sample of 64 points a cell), then each
+cell's points get their own k-means with a share of `size` proportional to the cell's count. Cost per pass ~ N x (coarse +
 size/coarse) x D, about 1/256 of the flat version at 65536 centroids, with BLAS doing the
 distances. Seeded: the same input gives the same palette.
 """
@@ -21,6 +21,8 @@ import numpy as np
 __all__ = ["scalar_codebook", "nearest_scalar", "palette"]
 
 HISTOGRAM_BINS = 1024
+GROUP_BINS = 128  # longest codebook group searched (bins); 1024 bins / 256 entries average 4
+COARSE_SAMPLE = 64  # points per coarse cell used to place the cells
 _CHUNK = 1 << 15  # rows per distance block: bounds the (rows, centroids) temporary
 
 
@@ -54,34 +56,41 @@ def scalar_codebook(values: np.ndarray, size: int = 256) -> tuple[np.ndarray, np
 
 
 def _optimal_1d(x: np.ndarray, w: np.ndarray, k: int) -> np.ndarray:
-    """Weighted 1D k-means, exact: the k contiguous groups of sorted `x` with least weighted SSE."""
+    """Weighted 1D k-means on sorted `x`: the k contiguous groups with the least weighted SSE,
+    among groups of at most GROUP_BINS bins (the first group excepted), found exactly."""
     n = len(x)
     if n <= k:
         return x.copy()
     pw = np.concatenate([[0.0], np.cumsum(w)])
     pwx = np.concatenate([[0.0], np.cumsum(w * x)])
     pwxx = np.concatenate([[0.0], np.cumsum(w * x * x)])
-    a = np.arange(n)[:, None]  # group start
-    b = np.arange(n)[None, :]  # group end (inclusive)
-    with np.errstate(invalid="ignore", divide="ignore"):
+
+    def cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # group a..b inclusive
         sw = pw[b + 1] - pw[a]
         swx = pwx[b + 1] - pwx[a]
-        cost = np.where(b >= a, (pwxx[b + 1] - pwxx[a]) - swx * swx / sw, np.inf)
-    cost = np.maximum(cost, 0.0)  # rounding can leave tiny negatives
-    best = cost[0].copy()  # best[j]: bins 0..j in m groups
-    split = np.zeros((k, n), np.int32)
+        with np.errstate(invalid="ignore", divide="ignore"):  # empty (invalid) groups: masked later
+            return np.maximum((pwxx[b + 1] - pwxx[a]) - swx * swx / sw, 0.0)  # rounding: no negatives
+
+    window = min(GROUP_BINS, n)
+    d = np.arange(window)[:, None]  # a group ending at j starts at j - d
+    j = np.arange(n)[None, :]
+    valid = j - d >= 1  # room for the earlier groups before it
+    start = np.where(valid, j - d, 1)
+    band = np.where(valid, cost(start, np.broadcast_to(j, start.shape)), np.inf)
+    best = cost(np.zeros(n, np.intp), np.arange(n))  # one group 0..j
+    split = np.zeros((k, n), np.int32)  # split[m, j]: last bin of the earlier groups
     for m in range(1, k):
-        # A new last group s+1..j after the best m-group split of 0..s.
-        candidates = best[:-1, None] + cost[1:, :]  # rows s = 0..n-2, group start s+1
+        previous = np.where(valid, best[np.maximum(start - 1, 0)], np.inf)
+        candidates = previous + band
         arg = np.argmin(candidates, axis=0)
         best = candidates[arg, np.arange(n)]
-        split[m] = arg
+        split[m] = np.arange(n) - arg - 1
     entries = np.empty(k)
     end = n - 1
     for m in range(k - 1, -1, -1):
-        start = int(split[m, end]) + 1 if m > 0 else 0
-        entries[m] = (pwx[end + 1] - pwx[start]) / (pw[end + 1] - pw[start])
-        end = start - 1
+        first = int(split[m, end]) + 1 if m > 0 else 0
+        entries[m] = (pwx[end + 1] - pwx[first]) / (pw[end + 1] - pw[first])
+        end = first - 1
     return entries
 
 
@@ -97,12 +106,11 @@ def _assign(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
 
 def _means(points: np.ndarray, labels: np.ndarray, k: int, previous: np.ndarray) -> np.ndarray:
     """Cluster means; a cluster that lost all its points keeps its previous centroid."""
-    counts = np.bincount(labels, minlength=k).astype(np.float64)
-    sums = np.stack([np.bincount(labels, weights=points[:, d], minlength=k)
-                     for d in range(points.shape[1])], axis=1)
+    order = np.argsort(labels, kind="stable")
+    present, starts, counts = np.unique(labels[order], return_index=True, return_counts=True)
+    sums = np.add.reduceat(points[order], starts, axis=0, dtype=np.float64)
     out = previous.copy()
-    used = counts > 0
-    out[used] = (sums[used] / counts[used, None]).astype(points.dtype)
+    out[present] = (sums / counts[:, None]).astype(points.dtype)
     return out
 
 
@@ -137,7 +145,7 @@ def _shares(counts: np.ndarray, total: int) -> np.ndarray:
     return share
 
 
-def palette(points: np.ndarray, size: int, *, coarse: int = 256, iterations: int = 8,
+def palette(points: np.ndarray, size: int, *, coarse: int = 256, iterations: int = 6,
             seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Up to `size` float32 centroids for `points` (N, D) and each point's label (N,)."""
     points = np.ascontiguousarray(points, np.float32)
@@ -145,7 +153,10 @@ def palette(points: np.ndarray, size: int, *, coarse: int = 256, iterations: int
     if len(points) <= size:
         return points.copy(), np.arange(len(points))
     coarse = min(coarse, size)
-    _, coarse_labels = _kmeans(points, coarse, iterations, rng)
+    # The coarse cells only split the work: learn them from a sample, then assign every point.
+    sample = points[rng.choice(len(points), min(len(points), COARSE_SAMPLE * coarse), replace=False)]
+    coarse_centroids, _ = _kmeans(sample, coarse, iterations, rng)
+    coarse_labels = _assign(points, coarse_centroids)
     order = np.argsort(coarse_labels, kind="stable")
     counts = np.bincount(coarse_labels, minlength=coarse)
     shares = _shares(counts, size)

@@ -35,6 +35,7 @@ from ..gaussians import Gaussians
 from ..atomic import atomic_write
 from .errors import SplatFileError
 from .morton import morton_order
+from .quaternions import smallest_three
 
 __all__ = ["save", "CHUNK_SIZE", "header_text"]
 
@@ -87,13 +88,8 @@ def _pack_11_10_11(t: np.ndarray) -> np.ndarray:
 
 
 def _pack_rotation(quats: np.ndarray) -> np.ndarray:
-    q = np.asarray(quats, np.float64)
-    norm = np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(norm > 0, q / np.where(norm > 0, norm, 1.0), [1.0, 0.0, 0.0, 0.0])
-    largest = np.argmax(np.abs(q), axis=1)
-    q *= np.where(q[np.arange(len(q)), largest] < 0, -1.0, 1.0)[:, None]
-    keep = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])[largest]
-    small = _unorm(np.take_along_axis(q, keep, axis=1) * (math.sqrt(2.0) * 0.5) + 0.5, 10)
+    largest, small = smallest_three(quats)
+    small = _unorm(small * (math.sqrt(2.0) * 0.5) + 0.5, 10)
     return (largest.astype(np.uint32) << np.uint32(30)) | (small[:, 0] << np.uint32(20)) \
         | (small[:, 1] << np.uint32(10)) | small[:, 2]
 

@@ -50,6 +50,8 @@ from ..transform import transform_gaussians
 from ..atomic import atomic_write
 from .errors import SplatFileError
 from .frames import rdf_to_rub
+from .json_file import parse_object
+from .quaternions import unit_quaternions
 
 __all__ = ["load", "save", "EXTENSION", "SPZ_EXTENSION", "attribute_names"]
 
@@ -114,9 +116,7 @@ def _document(gaussians: Gaussians) -> tuple[dict, bytes]:
     blob = _Blob([], [], [])
     attributes: dict[str, int] = {}
     attributes["POSITION"] = blob.add(g.means.astype("<f4"), FLOAT, "VEC3", bounds=True)
-    q = g.quats.astype(np.float64)
-    norm = np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(norm > 0, q / np.where(norm > 0, norm, 1.0), [1.0, 0.0, 0.0, 0.0])
+    q = unit_quaternions(g.quats)
     attributes[f"{PREFIX}ROTATION"] = blob.add(q[:, [1, 2, 3, 0]].astype("<f4"), FLOAT, "VEC4")
     attributes[f"{PREFIX}SCALE"] = blob.add(np.exp(g.log_scales.astype(np.float64)).astype("<f4"), FLOAT, "VEC3")
     opacity = 1.0 / (1.0 + np.exp(-g.opacity_logits.astype(np.float64)))
@@ -184,13 +184,7 @@ def _read_bytes(path: Path) -> bytes:
 
 
 def _parse_json(path: Path, text: bytes) -> dict:
-    try:
-        document = json.loads(text)
-    except (ValueError, UnicodeDecodeError) as e:
-        raise SplatFileError(path, f"bad glTF JSON: {e}") from None
-    if not isinstance(document, dict):
-        raise SplatFileError(path, "bad glTF JSON: not an object")
-    return document
+    return parse_object(path, text, "the glTF document")
 
 
 def _split_glb(path: Path, data: bytes) -> tuple[dict, bytes | None]:

@@ -59,7 +59,9 @@ from . import webp
 from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook
 from .errors import SplatFileError
+from .json_file import parse_object
 from .morton import morton_order
+from .quaternions import smallest_three
 
 __all__ = ["load", "load_with_info", "save", "SogInfo", "read_info", "morton_order", "MAX_COUNT", "VERSION"]
 
@@ -91,12 +93,7 @@ def _fail(path: Path, problem: str) -> SplatFileError:
 
 
 def _parse_meta(path: Path, text: bytes) -> dict[str, Any]:
-    try:
-        meta = json.loads(text)
-    except (ValueError, UnicodeDecodeError) as e:
-        raise _fail(path, f"bad JSON in meta.json: {e}") from None
-    if not isinstance(meta, dict):
-        raise _fail(path, "meta.json is not a JSON object")
+    meta = parse_object(path, text, "meta.json")
     version = meta.get("version")
     if version is None:
         raise _fail(path, "SOG version 1 (meta.json without 'version') is not supported; "
@@ -391,7 +388,7 @@ def _rows(*channels: np.ndarray, alpha: np.ndarray | int = 255) -> np.ndarray:
 
 def _encode_means(means: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
     n = np.sign(means) * np.log1p(np.abs(means))
-    mins, maxs = n.min(axis=0), n.max(axis=0)
+    mins, maxs = (n.min(axis=0), n.max(axis=0)) if len(n) else (np.zeros(3), np.zeros(3))
     span = np.where(maxs > mins, maxs - mins, 1.0)
     q = np.clip(np.rint((n - mins) / span * 65535.0), 0, 65535).astype(np.uint16)
     low, high = (q & 0xFF).astype(np.uint8), (q >> 8).astype(np.uint8)
@@ -399,14 +396,8 @@ def _encode_means(means: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
 
 
 def _encode_quats(quats: np.ndarray) -> np.ndarray:
-    q = np.asarray(quats, np.float64)
-    norm = np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(norm > 0, q / np.where(norm > 0, norm, 1.0), [1.0, 0.0, 0.0, 0.0])
-    largest = np.argmax(np.abs(q), axis=1)
-    q *= np.where(q[np.arange(len(q)), largest] < 0, -1.0, 1.0)[:, None]
-    keep = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])[largest]
-    small = np.take_along_axis(q, keep, axis=1) * math.sqrt(2.0)
-    bytes_ = np.clip(np.rint((small * 0.5 + 0.5) * 255.0), 0, 255).astype(np.uint8)
+    largest, small = smallest_three(quats)
+    bytes_ = np.clip(np.rint((small * math.sqrt(2.0) * 0.5 + 0.5) * 255.0), 0, 255).astype(np.uint8)
     return _rows(*bytes_.T, alpha=(252 + largest).astype(np.uint8))
 
 

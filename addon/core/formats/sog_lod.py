@@ -13,7 +13,6 @@ chunk is read once, whatever number of runs it holds).
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -22,6 +21,7 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from .errors import SplatFileError
+from .json_file import parse_object
 from .sog import MAX_COUNT, load_chunk
 
 __all__ = ["load", "levels", "LOD_META"]
@@ -36,13 +36,10 @@ def _read_index(path: Path) -> dict[str, Any]:
     try:
         if path.stat().st_size > MAX_INDEX_BYTES:
             raise SplatFileError(path, f"lod-meta.json is larger than {MAX_INDEX_BYTES} bytes")
-        index = json.loads(path.read_bytes())
+        text = path.read_bytes()
     except OSError as e:
         raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
-    except (ValueError, UnicodeDecodeError) as e:
-        raise SplatFileError(path, f"bad JSON: {e}") from None
-    if not isinstance(index, dict):
-        raise SplatFileError(path, "lod-meta.json is not a JSON object")
+    index = parse_object(path, text, "lod-meta.json")
     version = index.get("version", READ_VERSION)  # files before version 1 have none
     if not isinstance(version, int) or version > READ_VERSION:
         raise SplatFileError(path, f"unsupported streamed SOG version {version!r}: expected {READ_VERSION}")
