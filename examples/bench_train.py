@@ -46,7 +46,7 @@ def curve(dataset: ColmapDataset, scene: str, config: TrainConfig, eval_every: i
     trainer = Trainer(dataset, config)
     probe = dataset.names.index("1.jpg") if "1.jpg" in dataset.names else None
     camera = dataset.cameras[0]
-    print(f"\n{scene} at {camera.width}x{camera.height}, strategy {config.strategy}: "
+    print(f"\n{scene} at {camera.width}x{camera.height}: "
           f"{len(dataset.train_indices)} train / {len(dataset.test_indices)} held-out views, "
           f"{len(trainer)} initial Gaussians, {config.threads or 'all'} threads")
     print(f"{'step':>6} {'CPU s':>8} {'ms/step':>8} {'gaussians':>9} {'MB':>6} "
@@ -145,10 +145,25 @@ def step_times(dataset: ColmapDataset, counts: tuple[int, ...]) -> None:
             print(f"{count:>9} {threads:>7} {f:>8.1f} {l:>6.1f} {b:>8.1f} {a:>6.1f} {t:>6.1f}")
 
 
+def parse_variant(text: str) -> tuple[str, dict]:
+    """"label:key=value,key=value" -> (label, {key: value}), values typed like TrainConfig's."""
+    label, _, pairs = text.partition(":")
+    defaults = TrainConfig()
+    overrides = {}
+    for pair in filter(None, pairs.split(",")):
+        key, _, value = pair.partition("=")
+        kind = type(getattr(defaults, key))
+        overrides[key] = kind(value) if kind is not bool else value.lower() in ("1", "true", "yes")
+    return label, overrides
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     parser.add_argument("--strategies", nargs="+", default=["default", "mcmc"])
+    parser.add_argument("--variant", action="append", default=[], metavar="LABEL:KEY=VALUE,...",
+                        help="one more curve with TrainConfig overrides, e.g. "
+                             "c2f:coarse_levels=2,coarse_until=1000 (repeatable)")
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--eval-every", type=int, default=250)
     parser.add_argument("--max-gaussians", type=int, default=TrainConfig.max_gaussians)
@@ -161,10 +176,13 @@ def main() -> None:
         results = {}
         for scene in args.scenes:
             dataset = load(scene)
-            for strategy in args.strategies:  # back to back, so the machine's load is alike
-                config = TrainConfig(steps=args.steps, max_gaussians=args.max_gaussians,
-                                     threads=args.threads, strategy=strategy)
-                results[scene, strategy] = curve(dataset, scene, config, args.eval_every)
+            runs = [(name, {"strategy": name}) for name in args.strategies]
+            runs += [parse_variant(text) for text in args.variant]
+            for label, overrides in runs:  # back to back, so the machine's load is alike
+                config = TrainConfig(**({"steps": args.steps, "max_gaussians": args.max_gaussians,
+                                         "threads": args.threads} | overrides))
+                results[scene, label] = curve(dataset, f"{scene} ({label})", config,
+                                              args.eval_every)
         note = (f"{args.steps} steps, {args.threads or 'all'} thread(s), every 8th view held out; "
                 f"CPU seconds measured on a shared, busy machine ({time.strftime('%Y-%m-%d')})")
         plot(results, args.plot, note)
