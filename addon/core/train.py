@@ -15,7 +15,9 @@ What it does, as the reference implementation (Kerbl et al. 2023) does unless no
 - densification (clone, split, prune, opacity reset, the Gaussian budget `max_gaussians`) is a
   strategy, one file each in `strategies/`; `TrainConfig.strategy` picks one ("default": the
   reference's, with a budget);
-- deterministic for a given seed (the native kernels are identical for any thread count).
+- deterministic for a given seed (the native kernels are identical for any thread count);
+- with `TrainConfig.stop_below_db_per_minute`, training stops when done: when the held-out
+  PSNR gains less than that per minute of training (`steps` stays the ceiling).
 
 `compact()` (after training, not in the reference) prunes Gaussians whose total contribution to
 the training views is negligible and drops SH bands that do not improve them, and reports size
@@ -93,6 +95,19 @@ def initial_gaussians(xyz: np.ndarray, rgb: np.ndarray, config: TrainConfig,
                      np.full(n, logit(config.initial_opacity)), sh)
 
 
+def downscaled_view(camera: Camera, image: np.ndarray, factor: int) -> tuple[Camera, np.ndarray]:
+    """`image` averaged over factor x factor blocks (a partial last row or column of blocks is
+    dropped) and the camera that sees it: new pixel i covers old pixels [f i, f i + f), whose
+    centre f (i + 0.5) is the new pixel's centre, so the intrinsics scale by exactly 1 / f."""
+    h, w = image.shape[0] // factor, image.shape[1] // factor
+    if h < 1 or w < 1:
+        raise ValueError(f"a {image.shape[1]}x{image.shape[0]} image cannot shrink {factor}x")
+    blocks = image[:h * factor, :w * factor].reshape(h, factor, w, factor, -1)
+    small = np.ascontiguousarray(blocks.mean(axis=(1, 3), dtype=np.float64), dtype=np.float32)
+    return Camera(camera.world_to_camera, camera.fx / factor, camera.fy / factor,
+                  camera.cx / factor, camera.cy / factor, w, h), small
+
+
 def psnr(image: np.ndarray, target: np.ndarray) -> float:
     mse = float(np.mean((np.clip(image, 0.0, 1.0) - target) ** 2))
     return float("inf") if mse == 0 else -10.0 * math.log10(mse)
@@ -117,6 +132,9 @@ class Trainer:
         self.rng = np.random.default_rng(config.seed)
         self.extent = scene_extent(dataset.train_cameras)
         self.step = 0
+        self.seconds = 0.0  # training time so far (the steps' wall time, evaluations excluded)
+        self.converged = False
+        self.checks: list[tuple[float, float]] = []  # (seconds, PSNR) at each stopping check
         self.background = np.asarray(config.background, np.float32)
         self.strategy = strategy or make_strategy(config, self.extent, self.rng)
         if gaussians is None:
@@ -127,6 +145,7 @@ class Trainer:
         self._order: list[int] = []
         self._grads: tk.Gradients | None = None
         self._loss_grad: dict[tuple[int, int], np.ndarray] = {}
+        self._coarse: dict[tuple[int, int], tuple[Camera, np.ndarray]] = {}
 
     # -- parameters -----------------------------------------------------------------------
     def set_gaussians(self, gaussians: Gaussians) -> None:
@@ -157,6 +176,23 @@ class Trainer:
                 "sh_rest": c.sh_rest_lr}
 
     # -- one step -------------------------------------------------------------------------
+    def resolution_level(self, step: int | None = None) -> int:
+        """How many times the images of `step` (default: the next one) are halved."""
+        c = self.config
+        step = self.step + 1 if step is None else step
+        if c.coarse_levels <= 0 or step > c.coarse_until:
+            return 0
+        return math.ceil(c.coarse_levels * (1.0 - (step - 1) / c.coarse_until))
+
+    def _view(self, view: int, level: int) -> tuple[Camera, np.ndarray]:
+        camera, image = self.dataset.cameras[view], self.dataset.image(view)
+        if level == 0:
+            return camera, image
+        key = (view, level)
+        if key not in self._coarse:
+            self._coarse[key] = downscaled_view(camera, image, 2 ** level)
+        return self._coarse[key]
+
     def _next_view(self) -> int:
         if not self._order:
             self._order = list(self.rng.permutation(self.dataset.train_indices))
@@ -168,7 +204,7 @@ class Trainer:
         start = time.perf_counter()
         self.step += 1
         view = self._next_view()
-        camera, target = self.dataset.cameras[view], self.dataset.image(view)
+        camera, target = self._view(view, self.resolution_level())
         degree = min(c.sh_degree, (self.step - 1) // c.sh_degree_interval)
         gaussians = self.gaussians
         result, state = tk.render_train(gaussians, camera, background=self.background,
@@ -193,8 +229,25 @@ class Trainer:
     def run(self, steps: int | None = None) -> Iterator[dict[str, float]]:
         """Train up to `steps` (default: the config's) total steps, yielding each step's stats."""
         target = self.config.steps if steps is None else steps
-        while self.step < target:
-            yield self.train_step()
+        while self.step < target and not self.converged:
+            stats = self.train_step()
+            self.seconds += stats["seconds"]
+            if self.config.stop_below_db_per_minute > 0 and \
+                    self.step % self.config.stop_check_every == 0:
+                self.converged = self._gain_has_stalled()
+            yield stats
+
+    def _gain_has_stalled(self) -> bool:
+        """Record a check; True when the last two intervals each gained less than the threshold
+        per minute (a single slow interval, e.g. across an opacity reset, does not stop it)."""
+        views = self.dataset.test_indices or self.dataset.train_indices[:: max(
+            1, len(self.dataset.train_indices) // 8)][:8]
+        self.checks.append((self.seconds, self.evaluate(views).psnr))
+        if len(self.checks) < 3:
+            return False
+        rates = [(b[1] - a[1]) / max((b[0] - a[0]) / 60.0, 1e-9)
+                 for a, b in zip(self.checks[-3:-1], self.checks[-2:])]
+        return all(rate < self.config.stop_below_db_per_minute for rate in rates)
 
     def evaluate(self, indices: list[int] | None = None, *, sh_degree: int | None = None,
                  gaussians: Gaussians | None = None) -> Evaluation:
@@ -222,7 +275,8 @@ class Trainer:
         state (written to a temporary file, then moved over `path`)."""
         path = Path(path)
         meta = {"step": self.step, "config": asdict(self.config), "order": self._order,
-                "rng": self.rng.bit_generator.state}
+                "rng": self.rng.bit_generator.state, "seconds": self.seconds,
+                "converged": self.converged, "checks": self.checks}
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez(tmp, meta=np.frombuffer(repr(meta).encode(), np.uint8),
                  **self.strategy.state_arrays(), **self.parameters.state_arrays())
@@ -240,6 +294,9 @@ class Trainer:
             trainer.parameters = GaussianParameters.from_state_arrays(data)
             trainer.strategy.load_state_arrays(data)
         trainer.step = int(meta["step"])
+        trainer.seconds = float(meta.get("seconds", 0.0))
+        trainer.converged = bool(meta.get("converged", False))
+        trainer.checks = [tuple(c) for c in meta.get("checks", [])]
         trainer._order = list(meta["order"])
         trainer.rng.bit_generator.state = meta["rng"]
         return trainer

@@ -12,6 +12,12 @@ from dataclasses import dataclass
 @dataclass
 class TrainConfig:
     steps: int = 7000
+    # Stopping when done: with `stop_below_db_per_minute` > 0, `Trainer.run()` also ends before
+    # `steps` once the PSNR on the held-out views (with none, on up to 8 training views),
+    # measured every `stop_check_every` steps, gained less than that per minute of training
+    # time at two checks in a row (`Trainer.converged` then says so).
+    stop_below_db_per_minute: float = 0.0
+    stop_check_every: int = 500
     max_gaussians: int = 300_000
     sh_degree: int = 3
     seed: int = 0
@@ -29,6 +35,11 @@ class TrainConfig:
     scaling_lr: float = 5e-3
     rotation_lr: float = 1e-3
     sh_degree_interval: int = 1000
+    # Coarse to fine (not in the reference): the first steps train on images halved
+    # `coarse_levels` times (box-filtered), the resolution doubling at even intervals until full
+    # at step `coarse_until`. 0 levels: off.
+    coarse_levels: int = 0
+    coarse_until: int = 1000
     # Densification: which strategy (a name in `strategies.STRATEGIES`), and its settings
     # (the "mcmc" strategy reads densify_from/until/every, prune_opacity and max_gaussians too).
     strategy: str = "default"

@@ -136,6 +136,6 @@ class MCMCStrategy(Strategy):
         p = params.params
         r = quat_to_matrix(p["quats"][moving])
         variance = np.exp(2.0 * p["log_scales"][moving].astype(np.float64))
-        covariance = (r * variance[:, None, :]) @ np.swapaxes(r, 1, 2)
-        step = np.einsum("nij,nj->ni", covariance, noise[moving] * (gate[moving] * scale)[:, None])
+        z = noise[moving] * (gate[moving] * scale)[:, None]
+        step = np.einsum("nij,nj->ni", r, variance * np.einsum("nji,nj->ni", r, z))  # R V R^T z
         p["means"][moving] += step.astype(np.float32)
