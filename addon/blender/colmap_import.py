@@ -25,7 +25,8 @@ What it builds, in one new collection (named after the workspace) linked to the 
 
 The collection carries `colmap_transform` (16 floats, row-major 4x4 similarity from COLMAP's
 frame to Blender's world: identity unless aligned), `colmap_model_dir`, `colmap_image_dir`,
-`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment` and `colmap_missing`.
+`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment`, `colmap_missing` and
+`colmap_dropped` (what the reader left out as non-finite, with counts).
 
 Bad input (see `addon.core.colmap`) raises `ColmapError` before anything is created; a failure
 while building removes everything built so far. The operator reports either as an error.
@@ -238,6 +239,8 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
     except BaseException:
         built.remove_all()
         raise
+    # What the reader left out as non-finite, for the operator's report ("points3D: 2, ...").
+    collection["colmap_dropped"] = ", ".join(f"{k}: {v}" for k, v in data.dropped.items())
     report(1.0, "done")
     return collection
 
@@ -355,6 +358,9 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
             wm.progress_end()
         missing = collection["colmap_missing"].splitlines()
         cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
+        if collection["colmap_dropped"]:
+            self.report({"WARNING"}, f"left out as non-finite (NaN or Inf) in the model: "
+                                     f"{collection['colmap_dropped']}")
         if missing:
             shown = ", ".join(line.split(":")[0] for line in missing[:5])
             more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""

@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import Callable
 
 from .. import image_io
+from ..atomic import atomic_write
+from .checks import inside
 from .errors import ColmapError
 from .model import MODEL_FILES, Photo
 from .scene import ColmapImage
@@ -99,7 +101,7 @@ def write_photo_copies(images: list[ColmapImage], intrinsics: dict[int, PinholeI
         cam = im.camera
         entry = [st.st_size, st.st_mtime_ns, photo.orientation, cam.width, cam.height,
                  cam.fx, cam.fy, cam.cx, cam.cy]
-        out = folder / "images" / im.name
+        out = inside(folder, f"images/{im.name}", folder, "undistorted copy")
         if manifest.get(im.name) == entry and out.is_file():
             im.path = out
             done[im.name] = entry
@@ -131,8 +133,7 @@ def write_photo_copies(images: list[ColmapImage], intrinsics: dict[int, PinholeI
     finally:
         if done:
             manifest.update(done)
-            tmp = manifest_path.with_name(".manifest.json.tmp")
-            tmp.write_text(json.dumps(manifest))
-            os.replace(tmp, manifest_path)
+            with atomic_write(inside(folder, "manifest.json", folder, "manifest")) as f:
+                f.write(json.dumps(manifest).encode())
 
 

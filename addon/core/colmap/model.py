@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import os
 import re
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 from .. import image_io
+from .checks import check_binary_model, check_text_cameras, is_inside
 from .errors import ColmapError, import_pycolmap
 
 IMAGE_FOLDERS = ("images", "images_2", "images_4", "images_8")
@@ -17,7 +17,7 @@ MODEL_FILES = ("cameras", "images", "points3D")
 
 # -- finding the model and the photos ---------------------------------------------------------
 
-def _model_format(folder: Path) -> str | None:
+def model_format(folder: Path) -> str | None:
     for ext in (".bin", ".txt"):
         if all((folder / f"{name}{ext}").is_file() for name in MODEL_FILES):
             return ext
@@ -39,7 +39,7 @@ def find_model(path: str | os.PathLike) -> Path:
                           key=lambda p: int(p.name))
         candidates += numbered
     for folder in candidates:
-        if folder.is_dir() and _model_format(folder):
+        if folder.is_dir() and model_format(folder):
             return folder
     partial = [f.name for folder in candidates if folder.is_dir() for f in folder.iterdir()
                if f.stem in MODEL_FILES and f.suffix in (".bin", ".txt")]
@@ -83,12 +83,19 @@ class Photo:
     orientation: int  # EXIF orientation to apply to the stored pixels (1: none)
 
 
-def find_photos(registered, rec, image_dir: Path | None) -> tuple[dict[str, Photo], dict[str, str]]:
+def find_photos(registered, rec, image_dir: Path | None,
+                images_file: Path) -> tuple[dict[str, Photo], dict[str, str]]:
+    """The photos of the `registered` images that fit their cameras, and why the others do not.
+    Names were checked on reading (`checks.image_name`); a photo that is a link leading outside
+    `image_dir` is not read (missing, with the reason)."""
     found, missing = {}, {}
     for im in registered:
         src = image_dir / im.name if image_dir is not None else None
         if src is None or not src.is_file():
             missing[im.name] = "not found"
+            continue
+        if not is_inside(image_dir, src):
+            missing[im.name] = f"it is a link leading outside {image_dir}; refused"
             continue
         try:
             header = image_io.read_header(src)
@@ -106,95 +113,17 @@ def find_photos(registered, rec, image_dir: Path | None) -> tuple[dict[str, Phot
     return found, missing
 
 
-# -- structural check of binary models -------------------------------------------------------
-
-def _num_params_by_model_id() -> dict[int, int]:
-    pycolmap = import_pycolmap()
-    table = {}
-    for name, model_id in pycolmap.CameraModelId.__members__.items():
-        if name == "INVALID":
-            continue
-        try:
-            cam = pycolmap.Camera.create_from_model_id(1, model_id, 1.0, 1, 1)
-        except Exception:  # noqa: BLE001 - a model pycolmap cannot create is not supported
-            continue
-        table[int(model_id)] = len(cam.params)
-    return table
-
-
-def check_binary_model(model_dir: Path) -> None:
-    """Walk the .bin files' structure: every count must fit in what is left of the file."""
-    def fail(name: str, offset: int, what: str) -> None:
-        raise ColmapError(f"{model_dir / name}: corrupt COLMAP binary file at byte {offset}: {what}")
-
-    def u64(buf, off, name):
-        if off + 8 > len(buf):
-            fail(name, off, "file ends early")
-        return struct.unpack_from("<Q", buf, off)[0]
-
-    params = _num_params_by_model_id()
-    name = "cameras.bin"
-    buf = (model_dir / name).read_bytes()
-    count, off = u64(buf, 0, name), 8
-    if count * 24 > len(buf):
-        fail(name, 0, f"{count} cameras cannot fit in {len(buf)} bytes")
-    for _ in range(count):
-        if off + 24 > len(buf):
-            fail(name, off, "file ends early")
-        model_id = struct.unpack_from("<i", buf, off + 4)[0]
-        if model_id not in params:
-            fail(name, off, f"unknown camera model id {model_id}")
-        off += 24 + 8 * params[model_id]
-    if off > len(buf):
-        fail(name, off, "file ends early")
-
-    name = "images.bin"
-    buf = (model_dir / name).read_bytes()
-    count, off = u64(buf, 0, name), 8
-    if count * 73 > len(buf):
-        fail(name, 0, f"{count} images cannot fit in {len(buf)} bytes")
-    for _ in range(count):
-        end = buf.find(b"\0", off + 64)
-        if off + 64 > len(buf) or end < 0:
-            fail(name, off, "file ends early")
-        n = u64(buf, end + 1, name)
-        off = end + 9
-        if n * 24 > len(buf) - off:
-            fail(name, off - 8, f"{n} image points cannot fit in the rest of the file")
-        off += 24 * n
-
-    name = "points3D.bin"
-    buf = (model_dir / name).read_bytes()
-    count, off = u64(buf, 0, name), 8
-    if count * 51 > len(buf):
-        fail(name, 0, f"{count} points cannot fit in {len(buf)} bytes")
-    unpack = struct.Struct("<Q").unpack_from
-    size = len(buf)
-    for _ in range(count):
-        if off + 51 > size:
-            fail(name, off, "file ends early")
-        n = unpack(buf, off + 43)[0]
-        off += 51 + 8 * n
-        if off > size:
-            fail(name, off - 8 * n - 8, f"a track of {n} observations cannot fit in the file")
-
-    for name, record in (("rigs.bin", 16), ("frames.bin", 68)):
-        if (model_dir / name).is_file():
-            buf = (model_dir / name).read_bytes()
-            count = u64(buf, 0, name)
-            if count * record > len(buf):
-                fail(name, 0, f"{count} entries cannot fit in {len(buf)} bytes")
-
-
 def read_reconstruction(model_dir: Path):
     """pycolmap's Reconstruction of a model folder, after the structural check."""
     pycolmap = import_pycolmap()
     model_dir = Path(model_dir)
-    fmt = _model_format(model_dir)
+    fmt = model_format(model_dir)
     if fmt is None:
         raise ColmapError(f"{model_dir}: no COLMAP model (cameras, images, points3D)")
     if fmt == ".bin":
         check_binary_model(model_dir)
+    else:
+        check_text_cameras(model_dir / "cameras.txt")
     rec = pycolmap.Reconstruction()
     try:
         if fmt == ".bin":

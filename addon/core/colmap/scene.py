@@ -60,6 +60,8 @@ class ColmapScene:
     world_from_colmap: np.ndarray = field(default_factory=lambda: np.eye(4))
     alignment_info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)  # seconds per step
+    # What was left out as unusable (non-finite values), with counts: "points3D", "observations".
+    dropped: dict[str, int] = field(default_factory=dict)
 
     @property
     def with_photos(self) -> list[ColmapImage]:

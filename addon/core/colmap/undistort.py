@@ -3,12 +3,16 @@ points and photo pixels mapped into it, and the undistorted model written as COL
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..cameras import Camera
+from .checks import inside
 from .errors import ColmapError, import_pycolmap
 from .scene import PINHOLE_MODELS, ColmapImage
 
@@ -25,7 +29,8 @@ class PinholeIntrinsics:
         return self.model not in PINHOLE_MODELS
 
 
-def pinhole_of(camera, options) -> PinholeIntrinsics:
+def pinhole_of(camera, options, where: Path | str = "COLMAP model") -> PinholeIntrinsics:
+    """The pinhole replacement of a pycolmap camera; errors name `where` (the cameras file)."""
     pycolmap = import_pycolmap()
     model = camera.model.name
     if model == "SIMPLE_PINHOLE":
@@ -34,13 +39,17 @@ def pinhole_of(camera, options) -> PinholeIntrinsics:
     if model == "PINHOLE":
         return _intrinsics(camera, model, camera.params, camera.width, camera.height)
     if not camera.is_perspective():
-        raise ColmapError(f"camera {camera.camera_id}: the {model} model has no pinhole "
+        raise ColmapError(f"{where}: camera {camera.camera_id}: the {model} model has no pinhole "
                           f"equivalent (not a perspective camera)")
     try:
         pin = pycolmap.undistort_camera(options, camera)
     except Exception as error:  # noqa: BLE001
-        raise ColmapError(f"camera {camera.camera_id} ({model}): cannot undistort: {error}") from error
-    return _intrinsics(camera, model, pin.params, pin.width, pin.height)
+        raise ColmapError(f"{where}: camera {camera.camera_id} ({model}): cannot undistort: {error}") from error
+    try:
+        return _intrinsics(camera, model, pin.params, pin.width, pin.height)
+    except ValueError as error:  # e.g. distortion so strong that no pinhole camera fits
+        raise ColmapError(f"{where}: camera {camera.camera_id} ({model}): no usable pinhole "
+                          f"camera: {error}") from error
 
 
 def _intrinsics(camera, model: str, params, width: int, height: int) -> PinholeIntrinsics:
@@ -89,10 +98,13 @@ def undistortion_map(intr: PinholeIntrinsics, camera: Camera, photo_size: tuple[
 def write_undistorted_model(rec, registered, images: list[ColmapImage],
                              intrinsics: dict[int, PinholeIntrinsics], folder: Path) -> None:
     """The model with pinhole cameras and every 2D point moved accordingly, as COLMAP binary
-    in folder/sparse/0 (with folder/images, a COLMAP workspace). One rig per camera."""
+    in folder/sparse/0 (with folder/images, a COLMAP workspace). One rig per camera. What
+    `read_colmap` dropped as non-finite is left out here too (non-finite keypoints become
+    (0, 0), observed by no point)."""
     pycolmap = import_pycolmap()
     out = pycolmap.Reconstruction()
     camera_ids: dict[tuple, int] = {}
+    unusable: set[tuple[int, int]] = set()  # (image id, keypoint index) of non-finite keypoints
     for im, ours in zip(registered, images):
         cam = ours.camera
         key = (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
@@ -103,15 +115,27 @@ def write_undistorted_model(rec, registered, images: list[ColmapImage],
                 params=[cam.fx, cam.fy, cam.cx, cam.cy]))
         xy = np.array([p.xy for p in im.points2D], np.float64).reshape(-1, 2)
         moved = undistort_points(intrinsics[im.camera_id], cam, xy)
+        bad = ~np.isfinite(moved).all(axis=1)
+        moved[bad] = 0.0
+        unusable.update((im.image_id, int(k)) for k in np.flatnonzero(bad))
         image = pycolmap.Image(name=im.name, keypoints=moved, camera_id=camera_ids[key],
                                image_id=im.image_id)
         out.add_image_with_trivial_frame(image, im.cam_from_world())
-    for pid, point in rec.points3D.items():
-        out.add_point3D(point.xyz, pycolmap.Track(point.track.elements), point.color)
+    for point in rec.points3D.values():
+        elements = [e for e in point.track.elements if (e.image_id, e.point2D_idx) not in unusable]
+        if elements and np.isfinite(point.xyz).all() and np.isfinite(point.error):
+            out.add_point3D(point.xyz, pycolmap.Track(elements), point.color)
     out.update_point_3d_errors()
-    target = folder / "sparse" / "0"
+    target = inside(folder, "sparse/0", folder, "undistorted model")
     target.mkdir(parents=True, exist_ok=True)
+    # pycolmap follows whatever links a (downloaded) cache folder holds: it writes into a folder
+    # of our own, and the files are renamed into place (a rename replaces a link, never its target).
+    fresh = Path(tempfile.mkdtemp(prefix=".model.", dir=target))
     try:
-        out.write_binary(str(target))
+        out.write_binary(str(fresh))
+        for written in fresh.iterdir():
+            os.replace(written, target / written.name)
     except Exception as error:  # noqa: BLE001
         raise ColmapError(f"{target}: cannot write the undistorted model: {error}") from error
+    finally:
+        shutil.rmtree(fresh, ignore_errors=True)

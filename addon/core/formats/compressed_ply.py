@@ -29,6 +29,7 @@ import numpy as np
 from ..gaussians import Gaussians
 from ..sh import SH_C0
 from .errors import SplatFileError
+from .limits import check_gaussian_count
 from .ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
 from .plyfile import PlyHeader, PlyTable, check_finite, read_elements, read_header
 
@@ -120,7 +121,8 @@ def load(path: str | os.PathLike, header: PlyHeader | None = None) -> Gaussians:
     if header.element("vertex") is None:
         raise SplatFileError(path, "missing element 'vertex' in a compressed ply")
     wanted = ["chunk", "vertex"] + (["sh"] if header.element("sh") is not None else [])
-    tables = read_elements(path, header, wanted)
+    tables = read_elements(path, header, wanted,
+                           check_rows=lambda p, rows: check_gaussian_count(p, header.element("vertex").count))
     chunk, vertex = tables["chunk"], tables["vertex"]
     has_color_bounds = _check_layout(path, chunk, vertex)
     bounds = chunk.gather(CHUNK_POSITION + CHUNK_SCALE, np.float64)

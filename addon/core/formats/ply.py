@@ -21,6 +21,7 @@ import numpy as np
 from ..gaussians import Gaussians
 from ..atomic import atomic_write
 from .errors import SplatFileError
+from .limits import check_gaussian_count
 from .ply_sh import F_REST_COUNTS, f_rest_names
 from .plyfile import PlyElement, PlyTable, check_finite, read_elements, read_header
 
@@ -98,7 +99,7 @@ def load(path: str | os.PathLike) -> Gaussians:
     if vertex is None:
         raise SplatFileError(path, "missing element 'vertex': not a Gaussian splat file")
     rest_count = _vertex_schema(path, vertex)  # before reading: a wrong file fails fast
-    table = read_elements(path, header, ["vertex"])["vertex"]
+    table = read_elements(path, header, ["vertex"], check_rows=check_gaussian_count)["vertex"]
     return _gaussians_from_vertices(path, table, rest_count)
 
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 import io
 import itertools
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO, Iterable
+from typing import BinaryIO, Callable, Iterable
 
 import numpy as np
 
@@ -128,7 +128,8 @@ def _parse_header(path: Path, f: BinaryIO) -> PlyHeader:
     lines = text.decode("utf-8", errors="replace").splitlines()[1:]  # drop "ply"
     fmt: str | None = None
     comments: list[str] = []
-    elements: list[tuple[str, int, list[PlyProperty]]] = []
+    elements: list[_Draft] = []
+    element_names: set[str] = set()  # sets, not scans: a hostile header has 10^5 names
     for number, line in enumerate(lines, start=2):
         words = line.split()
         if not words:
@@ -139,7 +140,7 @@ def _parse_header(path: Path, f: BinaryIO) -> PlyHeader:
         elif keyword == "format":
             fmt = _parse_format(path, words, number)
         elif keyword == "element":
-            elements.append(_parse_element(path, words, number, elements))
+            elements.append(_parse_element(path, words, number, element_names))
         elif keyword == "property":
             if not elements:
                 raise SplatFileError(path, f"malformed header: property before any element (line {number})")
@@ -148,7 +149,7 @@ def _parse_header(path: Path, f: BinaryIO) -> PlyHeader:
             raise SplatFileError(path, f"malformed header: unknown keyword {keyword!r} (line {number})")
     if fmt is None:
         raise SplatFileError(path, "malformed header: no format line")
-    frozen = tuple(PlyElement(name, count, tuple(props)) for name, count, props in elements)
+    frozen = tuple(PlyElement(e.name, e.count, tuple(e.properties)) for e in elements)
     return PlyHeader(fmt, frozen, length, tuple(comments))
 
 
@@ -160,17 +161,25 @@ def _parse_format(path: Path, words: list[str], number: int) -> str:
     return words[1]
 
 
-def _parse_element(path: Path, words: list[str], number: int,
-                   elements: list[tuple[str, int, list[PlyProperty]]]) -> tuple[str, int, list[PlyProperty]]:
+@dataclass
+class _Draft:
+    """An element while its header lines are read."""
+    name: str
+    count: int
+    properties: list[PlyProperty] = field(default_factory=list)
+    names: set[str] = field(default_factory=set)
+
+
+def _parse_element(path: Path, words: list[str], number: int, seen: set[str]) -> _Draft:
     if len(words) != 3 or not (words[2].isascii() and words[2].isdigit()):  # "²".isdigit() is True
         raise SplatFileError(path, f"malformed header: bad element line {' '.join(words)!r} (line {number})")
-    if any(name == words[1] for name, _, _ in elements):
+    if words[1] in seen:
         raise SplatFileError(path, f"malformed header: duplicate element {words[1]!r}")
-    return words[1], int(words[2]), []
+    seen.add(words[1])
+    return _Draft(words[1], int(words[2]))
 
 
-def _add_property(path: Path, words: list[str], number: int,
-                  element: tuple[str, int, list[PlyProperty]]) -> None:
+def _add_property(path: Path, words: list[str], number: int, element: _Draft) -> None:
     def scalar(type_name: str) -> str:
         if type_name not in SCALAR_TYPES:
             raise SplatFileError(path, f"malformed header: unknown property type {type_name!r} (line {number})")
@@ -182,9 +191,10 @@ def _add_property(path: Path, words: list[str], number: int,
         prop = PlyProperty(words[2], scalar(words[1]))
     else:
         raise SplatFileError(path, f"malformed header: bad property line {' '.join(words)!r} (line {number})")
-    if any(p.name == prop.name for p in element[2]):
-        raise SplatFileError(path, f"malformed header: duplicate property {prop.name!r} in element {element[0]!r}")
-    element[2].append(prop)
+    if prop.name in element.names:
+        raise SplatFileError(path, f"malformed header: duplicate property {prop.name!r} in element {element.name!r}")
+    element.names.add(prop.name)
+    element.properties.append(prop)
 
 
 # --------------------------------------------------------------------------------------------
@@ -241,9 +251,12 @@ def _runs(indices: list[int]) -> list[tuple[int, int, int]]:
     return runs
 
 
-def read_elements(path: str | os.PathLike, header: PlyHeader, wanted: Iterable[str]) -> dict[str, PlyTable]:
+def read_elements(path: str | os.PathLike, header: PlyHeader, wanted: Iterable[str],
+                  check_rows: Callable[[Path, int], None] | None = None) -> dict[str, PlyTable]:
     """Read the elements named in `wanted` (all must exist). Elements before the last wanted one
-    are skipped and so must be fixed-size; elements after it are never looked at."""
+    are skipped and so must be fixed-size; elements after it are never looked at.
+    `check_rows(path, total rows wanted)` runs once the counts are known to fit the file and
+    before anything is allocated (the caller's memory bound)."""
     path = Path(path)
     wanted = set(wanted)
     for name in wanted:
@@ -258,15 +271,17 @@ def read_elements(path: str | os.PathLike, header: PlyHeader, wanted: Iterable[s
             target = header.elements[last].name
             raise SplatFileError(path, f"element {element.name!r} before {target!r} has a list property; "
                                        f"cannot locate the {target!r} data")
+    check = (lambda: check_rows(path, sum(e.count for e in span if e.name in wanted))) \
+        if check_rows is not None else (lambda: None)
     with _open(path) as f:
         size = os.fstat(f.fileno()).st_size
         if header.format == "ascii":
-            return _read_ascii(path, f, header, span, wanted, size)
-        return _read_binary(path, f, header, span, wanted, size)
+            return _read_ascii(path, f, header, span, wanted, size, check)
+        return _read_binary(path, f, header, span, wanted, size, check)
 
 
 def _read_binary(path: Path, f: BinaryIO, header: PlyHeader, span: tuple[PlyElement, ...],
-                 wanted: set[str], size: int) -> dict[str, PlyTable]:
+                 wanted: set[str], size: int, check: Callable[[], None]) -> dict[str, PlyTable]:
     order = header.byte_order
     offsets, offset = [], header.header_length
     for element in span:
@@ -278,6 +293,7 @@ def _read_binary(path: Path, f: BinaryIO, header: PlyHeader, span: tuple[PlyElem
         raise SplatFileError(path, f"truncated data: element {bad.name!r} declares {bad.count} rows, "
                                    f"the header needs {offset - header.header_length} data bytes but "
                                    f"the file holds {max(0, size - header.header_length)}")
+    check()
     tables = {}
     for element, start in zip(span, offsets):
         if element.name in wanted:
@@ -286,6 +302,8 @@ def _read_binary(path: Path, f: BinaryIO, header: PlyHeader, span: tuple[PlyElem
 
 
 def _read_binary_element(path: Path, f: BinaryIO, element: PlyElement, order: str, start: int) -> PlyTable:
+    if not element.properties:  # rows of zero bytes: nothing to read (numpy cannot view them)
+        return PlyTable(path, element, matrix=np.zeros((element.count, 0), np.float32))
     dtype = element.row_dtype(order)
     raw = np.empty(element.count * dtype.itemsize, np.uint8)
     f.seek(start)
@@ -299,12 +317,13 @@ def _read_binary_element(path: Path, f: BinaryIO, element: PlyElement, order: st
 
 
 def _read_ascii(path: Path, f: BinaryIO, header: PlyHeader, span: tuple[PlyElement, ...],
-                wanted: set[str], size: int) -> dict[str, PlyTable]:
+                wanted: set[str], size: int, check: Callable[[], None]) -> dict[str, PlyTable]:
     # Every value takes at least one character and one separator: a cheap bound on the count.
     least = sum(e.count * 2 * len(e.properties) for e in span) - 1
     if least > size - header.header_length:
         raise SplatFileError(path, f"truncated data: the header declares more rows than the "
                                    f"{size - header.header_length} data bytes can hold")
+    check()
     f.seek(header.header_length)
     text = io.TextIOWrapper(f, encoding="ascii", errors="replace")
     lines = (line for line in text if line.strip())
