@@ -2,7 +2,8 @@
  * splatcore: a CPU renderer for 3D Gaussian splats that reproduces the reference 3DGS
  * rasterizer (Kerbl et al. 2023) up to float rounding, with its training backward pass.
  *
- * This is the public C API: everything a caller (module.c, the Python binding) needs. The stage-to-stage declarations live in
+ * This is the public C API: everything a caller (module.c, the Python binding, or a C program
+ * such as native/tests/render_driver.c) needs. The stage-to-stage declarations live in
  * src/internal.h, which only the library's own files include.
  *
  * Plain C11, no Python. Arrays are caller-owned, C-contiguous, float32 unless noted; nothing
@@ -16,7 +17,8 @@
  *   composite.c  per tile, front to back, with an optional mesh layer (colour + depth); and the
  *                training variant that records what the backward pass needs
  *   render.c     the pipeline above, with timings
- *   threadpool.c a small persistent pool
+ *   threadpool.c a small persistent pool (POSIX threads, or Win32 threads on Windows)
+ *   cpu.c        the instruction set the compositor kernels run with, picked once at run time
  *
  * Training (backward passes, loss and optimizer):
  *   composite_backward.c  per tile, back to front: gradients of the projected Gaussians
@@ -129,6 +131,10 @@ double sc_composite_microbench(int count, int iterations);
 
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);
+
+/* The instruction set the compositor kernels run with on this CPU: "avx512", "avx2" or "sse2"
+ * on x86-64 (picked once; SPLATCORE_ISA=sse2|avx2|avx512 caps it), "neon" on arm64. */
+const char *sc_cpu_isa_name(void);
 
 /* ================================================================ training
  *

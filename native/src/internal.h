@@ -116,13 +116,34 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
 void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const double d_rgb[3],
                     double *d_coeffs, double d_dir[3]);
 
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__) && defined(__linux__)
-#define SC_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+/* ---------------------------------------------------------------- CPU dispatch
+ * The compositor kernels are compiled once per instruction-set level and the best one for this
+ * CPU runs (cpu.c). SC_MULTIVERSION(ret, name, params, args, call) defines `static ret
+ * name params`, which runs `return call;` compiled for the chosen level; `args` forwards the
+ * parameters. Function-level target attributes work with GCC and Clang on every x86-64 OS
+ * (unlike target_clones, which needs ELF ifuncs). Elsewhere (arm64: NEON is baseline) there is
+ * one build. */
+typedef enum { SC_ISA_BASE, SC_ISA_V3 /* AVX2 + FMA */, SC_ISA_V4 /* AVX-512 */ } sc_isa;
+sc_isa sc_cpu_isa(void);
+
+#if defined(__GNUC__) && (defined(__x86_64__) || defined(_M_X64))
+#define SC_MULTIVERSIONED 1
+#define SC_MULTIVERSION(ret, name, params, args, call)                                           \
+    static ret name##_base params { return call; }                                               \
+    __attribute__((target("arch=x86-64-v3"))) static ret name##_v3 params { return call; }      \
+    __attribute__((target("arch=x86-64-v4"))) static ret name##_v4 params { return call; }      \
+    static ret name params {                                                                     \
+        const sc_isa isa = sc_cpu_isa();                                                         \
+        return isa == SC_ISA_V4 ? name##_v4 args : isa == SC_ISA_V3 ? name##_v3 args             \
+                                                                    : name##_base args;          \
+    }
 #else
-#define SC_CLONES
+#define SC_MULTIVERSIONED 0
+#define SC_MULTIVERSION(ret, name, params, args, call)                                           \
+    static ret name params { return call; }
 #endif
 
-/* Inner blocks must be inlined into the SC_CLONES caller to be vectorised for its target. */
+/* Inner blocks must be inlined into the SC_MULTIVERSION kernels to be vectorised for their level. */
 #if defined(__GNUC__)
 #define SC_ALWAYS_INLINE __attribute__((always_inline)) inline
 #else
