@@ -222,12 +222,13 @@ def table(found: dict[tuple[str, str], Fetched], pythons: tuple[str, ...]) -> st
 
 def build(platform: str, out_dir: Path, pythons: tuple[str, ...], cache: Path) -> Path:
     found = dependency_wheels(PLATFORMS[platform], pythons, cache)
+    print(f"{platform}: dependencies' wheels\n{table(found, pythons)}", flush=True)
     with tempfile.TemporaryDirectory() as scratch:
         native = build_native_wheel(platform, Path(scratch))
         wheels = [native] + [f.wheel for f in found.values() if f.wheel is not None]
         target = build_zip(out_dir, platform, wheels)
-    print(f"{target.name}: {target.stat().st_size / 1e6:.1f} MB, {native.name} and\n"
-          + table(found, pythons), flush=True)
+    print(f"{platform}: {target} ({target.stat().st_size / 1e6:.1f} MB) with {native.name}",
+          flush=True)
     return target
 
 
