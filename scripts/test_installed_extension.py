@@ -7,7 +7,8 @@ For each bpy version (default BPY_VERSIONS, the newest of each supported line on
 holding nothing but that bpy wheel and what pip installs with it (cached in --cache, default
 ~/.cache/gaussian-splatting-ci, and made once), and a fresh, empty Blender user folder:
 
-  install   `bpy.ops.extensions.package_install_files(enable_on_install=True)` of the zip (the
+  install   `extension validate` (that Blender's own bl_pkg/cli/blender_ext.py), then
+            `bpy.ops.extensions.package_install_files(enable_on_install=True)` of the zip (the
             path of Preferences > Get Extensions > Install from Disk); every module the add-on
             needs must then import (splatcore from the extension's own site-packages).
   formats   a new session (preferences read as Blender starts; bpy 4.2 enables the extension
@@ -320,6 +321,12 @@ def clear_scene(bpy) -> None:
 
 def stage_install(bpy, zip_path: Path) -> None:
     user = os.environ["BLENDER_USER_RESOURCES"]
+    with check("extension validate"):  # what `blender --command extension validate` runs
+        cli = Path(bpy.utils.system_resource("SCRIPTS")) / "addons_core/bl_pkg/cli/blender_ext.py"
+        done = subprocess.run([sys.executable, str(cli), "validate", str(zip_path)],
+                              capture_output=True, text=True, timeout=120)
+        output = " ".join((done.stdout + done.stderr).split())
+        assert done.returncode == 0 and "FATAL" not in output and "Error" not in output, output
     with check("install the zip"):
         result = bpy.ops.extensions.package_install_files(
             filepath=str(zip_path), repo="user_default", enable_on_install=True)
