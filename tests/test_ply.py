@@ -576,7 +576,9 @@ def test_huge_headers_parse_in_linear_time(tmp_path, shape):
     header = ply.read_header(path)
     with pytest.raises(SplatFileError, match="huge_header.ply: missing"):
         ply.load(path)
-    assert time.perf_counter() - start < 1.0
+    # A hang detector, not a benchmark: milliseconds alone, quadratic parsing took 33 s (40k
+    # elements); the bound leaves room for a machine busy with other work.
+    assert time.perf_counter() - start < 10.0
     assert len(header.elements) == (1 if shape == "properties" else 55_000)
 
 
