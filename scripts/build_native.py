@@ -18,7 +18,8 @@ ROOT = Path(__file__).resolve().parent.parent
 def build_native_wheel(platform: str, out_dir: Path) -> Path:
     """The `splatcore` wheel for Blender platform `platform` (e.g. "linux-x64"), in `out_dir`."""
     if platform != "linux-x64":
-        raise NotImplementedError(f"the stand-in build_native.py builds linux-x64 only, not {platform}")
+        raise NotImplementedError(
+            f"the stand-in build_native.py builds linux-x64 only, not {platform}")
     out_dir.mkdir(parents=True, exist_ok=True)
     for old in out_dir.glob("splatcore-*.whl"):
         old.unlink()

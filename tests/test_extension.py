@@ -92,17 +92,18 @@ FARM = textwrap.dedent("""
     ext = sys.modules[bpy.types.SPLAT_OT_import_splats.__module__.rsplit(".", 2)[0]]
     from importlib import import_module
     core = ext.__name__ + ".core"
-    exr, render_mod, colour = (import_module(core + m) for m in (".exr", ".render", ".colour"))
+    exr_layers, render_mod, colour = (import_module(core + m)
+                                      for m in (".exr_layers", ".render", ".colour"))
     gather = import_module(ext.__name__ + ".blender.gather")
-    hooks = import_module(ext.__name__ + ".blender.render_hooks")
+    cameras = import_module(ext.__name__ + ".blender.camera_adapter")
     errors = []
     for frame in (1, 2):
         scene.frame_set(frame)
-        channels = exr.read_channels({out!r} + f"/layers_{{frame:04d}}.exr")
-        mesh = exr.find_pass(channels, "ViewLayer", "Combined", "RGBA")
-        depth = exr.find_pass(channels, "ViewLayer", "Depth", "Z")[..., 0]
+        channels = exr_layers.read_channels({out!r} + f"/layers_{{frame:04d}}.exr")
+        mesh = exr_layers.find_pass(channels, "ViewLayer", "Combined", "RGBA")
+        depth = exr_layers.find_pass(channels, "ViewLayer", "Depth", "Z")[..., 0]
         depsgraph = bpy.context.evaluated_depsgraph_get()
-        camera = hooks.blender_camera(scene.camera.evaluated_get(depsgraph), scene.render)
+        camera = cameras.camera_of(scene.camera.evaluated_get(depsgraph), scene.render)
         result = render_mod.render(gather.gather(depsgraph).gaussians, camera,
                                    mesh_rgba=colour.display_from_linear(mesh), mesh_depth=depth)
         rgba = colour.linear_from_display(

@@ -46,14 +46,7 @@ import functools
 import numpy as np
 
 from .gaussians import Gaussians
-
-# Real SH constants of the reference 3DGS code (forward.cu, computeColorFromSH).
-_C0 = 0.28209479177387814
-_C1 = 0.4886025119029199
-_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
-       0.5462742152960396)
-_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-       -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+from .sh import SH_C0 as _C0, SH_C1 as _C1, SH_C2 as _C2, SH_C3 as _C3
 
 BAND_SLICES = {1: slice(1, 4), 2: slice(4, 9), 3: slice(9, 16)}
 SIMILARITY_RTOL = 1e-6  # singular values equal to this (relative): treated as a similarity

@@ -6,7 +6,7 @@
 #if !defined(_WIN32)
 #define _GNU_SOURCE /* sched_getaffinity, CPU_COUNT */
 #endif
-#include "splatcore.h"
+#include "internal.h"
 
 #include <stdatomic.h>
 #include <time.h>

@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians
+from ..sh import SH_C0
 from .errors import SplatFileError
-from .ply import (F_REST_COUNTS, PlyHeader, PlyTable, check_finite, f_rest_names, read_elements,
-                  read_header, sh_from_file_layout)
+from .ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
+from .plyfile import PlyHeader, PlyTable, check_finite, read_elements, read_header
 
 __all__ = ["load", "CHUNK_SIZE"]
 
 CHUNK_SIZE = 256  # splats per chunk row
-SH_C0 = 0.28209479177387814
 OPACITY_LOGIT_LIMIT = 40.0  # opacity byte 0 or 255 maps here, as the PlayCanvas engine does
 
 CHUNK_POSITION = ("min_x", "min_y", "min_z", "max_x", "max_y", "max_z")

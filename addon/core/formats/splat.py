@@ -34,12 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians
-from .atomic import atomic_write
+from ..sh import SH_C0
+from ..atomic import atomic_write
 from .errors import SplatFileError
 
 __all__ = ["load", "save", "RECORD"]
 
-SH_C0 = 0.28209479177387814
 
 RECORD = np.dtype([("position", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
 assert RECORD.itemsize == 32

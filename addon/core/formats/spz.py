@@ -67,7 +67,7 @@ from types import ModuleType
 import numpy as np
 
 from ..gaussians import Gaussians
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
 from .splat import decode_alpha, encode_alpha
 

@@ -1,0 +1,206 @@
+"""Finding a COLMAP model and its photos, and reading the model (pycolmap) after checking it."""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import image_io
+from .errors import ColmapError, import_pycolmap
+
+IMAGE_FOLDERS = ("images", "images_2", "images_4", "images_8")
+MODEL_FILES = ("cameras", "images", "points3D")
+
+
+# -- finding the model and the photos ---------------------------------------------------------
+
+def _model_format(folder: Path) -> str | None:
+    for ext in (".bin", ".txt"):
+        if all((folder / f"{name}{ext}").is_file() for name in MODEL_FILES):
+            return ext
+    return None
+
+
+def find_model(path: str | os.PathLike) -> Path:
+    """The model folder for `path`: the folder itself, or `sparse/0`, `sparse`, `0` in it
+    (then the lowest-numbered model in `sparse/`)."""
+    path = Path(path)
+    if path.is_file():
+        path = path.parent
+    if not path.is_dir():
+        raise ColmapError(f"{path}: no such folder")
+    candidates = [path, path / "sparse" / "0", path / "sparse", path / "0"]
+    sparse = path / "sparse"
+    if sparse.is_dir():
+        numbered = sorted((p for p in sparse.iterdir() if p.is_dir() and p.name.isdigit()),
+                          key=lambda p: int(p.name))
+        candidates += numbered
+    for folder in candidates:
+        if folder.is_dir() and _model_format(folder):
+            return folder
+    partial = [f.name for folder in candidates if folder.is_dir() for f in folder.iterdir()
+               if f.stem in MODEL_FILES and f.suffix in (".bin", ".txt")]
+    if partial:
+        raise ColmapError(
+            f"{path}: incomplete COLMAP model (found {', '.join(sorted(set(partial)))}; "
+            f"cameras, images and points3D are all needed, as .bin or .txt)")
+    raise ColmapError(
+        f"{path}: no COLMAP model (cameras, images, points3D as .bin or .txt) in it or in "
+        f"its sparse/0 or sparse folder")
+
+
+def find_image_dir(path: Path, model_dir: Path, image_folder: str) -> Path | None:
+    """`image_folder` (absolute, or a name looked up beside the model: in `path`, the model
+    folder and up to two folders above it)."""
+    folder = Path(image_folder)
+    if folder.is_absolute():
+        return folder if folder.is_dir() else None
+    path = path if path.is_dir() else path.parent
+    for root in (path, model_dir, model_dir.parent, model_dir.parent.parent):
+        if (root / folder).is_dir():
+            return root / folder
+    return None
+
+
+def folder_factor(image_folder: str) -> int:
+    match = re.search(r"_(\d+)$", Path(image_folder).name)
+    return int(match.group(1)) if match else 1
+
+
+def fits(photo: tuple[int, int], width: int, height: int) -> bool:
+    """Can a photo of size `photo` show a width x height camera, scaled (any rounding)?"""
+    w, h = photo
+    return w > 0 and h > 0 and abs(w * height - h * width) <= width + height
+
+
+@dataclass
+class Photo:
+    source: Path
+    size: tuple[int, int]  # upright size, the one that matches the camera
+    orientation: int  # EXIF orientation to apply to the stored pixels (1: none)
+
+
+def find_photos(registered, rec, image_dir: Path | None) -> tuple[dict[str, Photo], dict[str, str]]:
+    found, missing = {}, {}
+    for im in registered:
+        src = image_dir / im.name if image_dir is not None else None
+        if src is None or not src.is_file():
+            missing[im.name] = "not found"
+            continue
+        try:
+            header = image_io.read_header(src)
+        except image_io.ImageError as error:
+            missing[im.name] = str(error)
+            continue
+        cam = rec.cameras[im.camera_id]
+        if fits(header.size(False), cam.width, cam.height):
+            found[im.name] = Photo(src, header.size(False), 1)
+        elif header.orientation != 1 and fits(header.size(True), cam.width, cam.height):
+            found[im.name] = Photo(src, header.size(True), header.orientation)
+        else:
+            w, h = header.size(False)
+            missing[im.name] = f"its size {w}x{h} does not fit its camera's {cam.width}x{cam.height}"
+    return found, missing
+
+
+# -- structural check of binary models -------------------------------------------------------
+
+def _num_params_by_model_id() -> dict[int, int]:
+    pycolmap = import_pycolmap()
+    table = {}
+    for name, model_id in pycolmap.CameraModelId.__members__.items():
+        if name == "INVALID":
+            continue
+        try:
+            cam = pycolmap.Camera.create_from_model_id(1, model_id, 1.0, 1, 1)
+        except Exception:  # noqa: BLE001 - a model pycolmap cannot create is not supported
+            continue
+        table[int(model_id)] = len(cam.params)
+    return table
+
+
+def check_binary_model(model_dir: Path) -> None:
+    """Walk the .bin files' structure: every count must fit in what is left of the file."""
+    def fail(name: str, offset: int, what: str) -> None:
+        raise ColmapError(f"{model_dir / name}: corrupt COLMAP binary file at byte {offset}: {what}")
+
+    def u64(buf, off, name):
+        if off + 8 > len(buf):
+            fail(name, off, "file ends early")
+        return struct.unpack_from("<Q", buf, off)[0]
+
+    params = _num_params_by_model_id()
+    name = "cameras.bin"
+    buf = (model_dir / name).read_bytes()
+    count, off = u64(buf, 0, name), 8
+    if count * 24 > len(buf):
+        fail(name, 0, f"{count} cameras cannot fit in {len(buf)} bytes")
+    for _ in range(count):
+        if off + 24 > len(buf):
+            fail(name, off, "file ends early")
+        model_id = struct.unpack_from("<i", buf, off + 4)[0]
+        if model_id not in params:
+            fail(name, off, f"unknown camera model id {model_id}")
+        off += 24 + 8 * params[model_id]
+    if off > len(buf):
+        fail(name, off, "file ends early")
+
+    name = "images.bin"
+    buf = (model_dir / name).read_bytes()
+    count, off = u64(buf, 0, name), 8
+    if count * 73 > len(buf):
+        fail(name, 0, f"{count} images cannot fit in {len(buf)} bytes")
+    for _ in range(count):
+        end = buf.find(b"\0", off + 64)
+        if off + 64 > len(buf) or end < 0:
+            fail(name, off, "file ends early")
+        n = u64(buf, end + 1, name)
+        off = end + 9
+        if n * 24 > len(buf) - off:
+            fail(name, off - 8, f"{n} image points cannot fit in the rest of the file")
+        off += 24 * n
+
+    name = "points3D.bin"
+    buf = (model_dir / name).read_bytes()
+    count, off = u64(buf, 0, name), 8
+    if count * 51 > len(buf):
+        fail(name, 0, f"{count} points cannot fit in {len(buf)} bytes")
+    unpack = struct.Struct("<Q").unpack_from
+    size = len(buf)
+    for _ in range(count):
+        if off + 51 > size:
+            fail(name, off, "file ends early")
+        n = unpack(buf, off + 43)[0]
+        off += 51 + 8 * n
+        if off > size:
+            fail(name, off - 8 * n - 8, f"a track of {n} observations cannot fit in the file")
+
+    for name, record in (("rigs.bin", 16), ("frames.bin", 68)):
+        if (model_dir / name).is_file():
+            buf = (model_dir / name).read_bytes()
+            count = u64(buf, 0, name)
+            if count * record > len(buf):
+                fail(name, 0, f"{count} entries cannot fit in {len(buf)} bytes")
+
+
+def read_reconstruction(model_dir: Path):
+    """pycolmap's Reconstruction of a model folder, after the structural check."""
+    pycolmap = import_pycolmap()
+    model_dir = Path(model_dir)
+    fmt = _model_format(model_dir)
+    if fmt is None:
+        raise ColmapError(f"{model_dir}: no COLMAP model (cameras, images, points3D)")
+    if fmt == ".bin":
+        check_binary_model(model_dir)
+    rec = pycolmap.Reconstruction()
+    try:
+        if fmt == ".bin":
+            rec.read_binary(str(model_dir))
+        else:
+            rec.read_text(str(model_dir))
+    except Exception as error:  # noqa: BLE001 - pycolmap raises several types
+        raise ColmapError(f"{model_dir}: cannot read the COLMAP model: {error}") from error
+    return rec
