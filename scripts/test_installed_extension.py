@@ -473,7 +473,7 @@ def stage_render(bpy, work: Path, data: Path) -> None:
     """Renders; the driver compares (COMPARE lines), independently of this Blender's modules."""
     for engine in ("CYCLES", "BLENDER_WORKBENCH"):
         name = f"F12 {engine.split('_')[-1].title()} with meshes"
-        with check(f"{name}: render"):
+        with check(f"{name} (the render call)"):
             scene, _ = build_render_scene(bpy, data, engine)
             output_png(bpy, scene, work / f"f12_{engine}")
             result = bpy.ops.render.render(write_still=True)
@@ -482,7 +482,7 @@ def stage_render(bpy, work: Path, data: Path) -> None:
             assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
             dump_frame(bpy, scene, name, work / f"f12_{engine}.png",
                        work / f"f12_{engine}_layers.exr")
-    with check("animation (render -a), Workbench, 2 frames: render") as c:
+    with check("animation (render -a), Workbench, 2 frames (the render calls)") as c:
         scene, cube = build_render_scene(bpy, data, "BLENDER_WORKBENCH")
         scene.frame_start, scene.frame_end = 1, 2
         x = cube.location.x
