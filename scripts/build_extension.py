@@ -52,11 +52,11 @@ PYTHONS = ("3.11", "3.13", "3.14")
 # What the add-on imports beyond the standard library, numpy (every Blender has it: official
 # builds bundle it, distributions depend on it) and bpy's own modules, and Blender does not
 # guarantee (checked against the bpy wheels 4.2 / 4.5 / 5.0 and Debian's Blender 4.3 / 5.2):
-#   pycolmap     COLMAP import, training          in no Blender
-#   OpenImageIO  EXR/PNG reading and writing      official builds bundle it; the bpy wheels keep
-#                                                 it off sys.path (5.0) or lack it (4.2); Debian lacks it
-#   xatlas       Convert to Mesh (UV atlas)       in no Blender
-#   zstandard    .spz version 4                   official builds and bpy's dependencies; Debian lacks it
+#   pycolmap     COLMAP import, training     in no Blender
+#   OpenImageIO  EXR/PNG, SOG's WebP         official builds bundle it; the bpy wheels keep it
+#                                            off sys.path (5.0) or lack it (4.2); Debian lacks it
+#   xatlas       Convert to Mesh (UV atlas)  in no Blender
+#   zstandard    .spz version 4              official builds and bpy's dependencies; not Debian
 # Versions are requirements.txt's pins (tested there), except where a pin has no wheel for a
 # Python: OVERRIDES names the version used for it.
 BUNDLED = ("pycolmap", "OpenImageIO", "xatlas", "zstandard")
@@ -129,7 +129,8 @@ def _pip_download(requirement: str, tags: tuple[str, ...], python: str, into: Pa
         done = subprocess.run(command, capture_output=True, text=True)
         wheels = list(Path(scratch).glob("*.whl"))
         if done.returncode != 0 or len(wheels) != 1:
-            if "No matching distribution" in done.stderr or "Could not find a version" in done.stderr:
+            not_on_pypi = ("No matching distribution", "Could not find a version")
+            if any(s in done.stderr for s in not_on_pypi):
                 return None
             raise RuntimeError(f"pip download {requirement} (Python {python}, {tags[0]}) failed:\n"
                                + done.stderr[-2000:])

@@ -1,4 +1,4 @@
-"""The product as a user gets it: the linux-x64 zip installed into clean bpy wheels, every feature used.
+"""The product as a user gets it: the linux-x64 zip in clean bpy wheels, every feature used.
 
     .venv/bin/python scripts/test_installed_extension.py [--bpy 4.2.23 ...] [--zip FILE]
                                                          [--cache DIR] [--keep]
@@ -12,9 +12,9 @@ holding nothing but that bpy wheel and what pip installs with it (cached in --ca
             path of Preferences > Get Extensions > Install from Disk); every module the add-on
             needs must then import (splatcore from the extension's own site-packages).
   formats   a new session (preferences read as Blender starts; bpy 4.2 enables the extension
-            instead, its read_userpref crashes): import .ply, compressed .ply,
-            .spz (version 4, zstd) and .splat from ../shared/data; export .ply/.splat/.spz and
-            import each back.
+            instead, its read_userpref crashes): import .ply, compressed .ply, .spz (version 4,
+            zstd), .splat and a streamed SOG from ../shared/data; export every format the
+            extension writes and import each back.
   render    F12 (`render(write_still=True)`) in Cycles and Workbench of PLAYBOT with a cube in
             front and a plane behind, and a two-frame animation (`render(animation=True)`, as
             `blender -b -a` runs). Each written PNG must equal the native composite within
@@ -123,44 +123,20 @@ def run_stage(venv: Path, stage: str, zip_path: Path, user: Path, work: Path, da
     return results
 
 
-# The expected image, computed in the project venv (addon.core.render, OpenImageIO from
+# The expected image, computed in the project venv (addon.core: render, colour; OpenImageIO from
 # requirements.txt): what the installed extension wrote must equal it, whatever that Blender's
 # own modules can do.
-
-def encode(x):
-    import numpy as np
-
-    x = np.asarray(x, np.float64)
-    a = np.abs(x)
-    return np.sign(x) * np.where(a <= 0.0031308, 12.92 * a,
-                                 1.055 * np.maximum(a, 1e-12) ** (1 / 2.4) - 0.055)
-
-
-def decode(y):
-    import numpy as np
-
-    y = np.asarray(y, np.float64)
-    a = np.abs(y)
-    return np.sign(y) * np.where(a <= 0.04045, a / 12.92, ((a + 0.055) / 1.055) ** 2.4)
-
-
-def premultiplied(rgba, transfer):
-    import numpy as np
-
-    rgba = np.asarray(rgba, np.float64).copy()
-    alpha = np.where(rgba[..., 3:] > 0, rgba[..., 3:], 1.0)
-    rgba[..., :3] = transfer(rgba[..., :3] / alpha) * alpha
-    return rgba
-
 
 def standard_8bit(linear_rgba):
     """What Blender writes to an 8-bit RGBA PNG under the Standard view transform: straight
     colour, sRGB-encoded, rounded."""
     import numpy as np
+    from addon.core.colour import srgb_encode
 
+    linear_rgba = np.asarray(linear_rgba, np.float64)
     alpha = linear_rgba[..., 3:]
     straight = np.where(alpha > 0, linear_rgba[..., :3] / np.where(alpha > 0, alpha, 1), 0)
-    out = np.concatenate([encode(straight), alpha], axis=-1)
+    out = np.concatenate([srgb_encode(straight), alpha], axis=-1)
     return np.round(np.clip(out, 0, 1) * 255).astype(np.int32)
 
 
@@ -181,8 +157,8 @@ def compare_frame(frame: dict) -> str:
     shows both the splats and the cube in front of them; else a summary."""
     import numpy as np
 
-    sys.path.insert(0, str(ROOT))
-    from addon.core import exr
+    from addon.core import exr_layers as exr
+    from addon.core.colour import display_from_linear, linear_from_display
     from addon.core.cameras import BlenderCameraParams, camera_from_blender
     from addon.core.gaussians import Gaussians
     from addon.core.render import render
@@ -196,9 +172,9 @@ def compare_frame(frame: dict) -> str:
     camera = camera_from_blender(BlenderCameraParams(**params))
     with np.load(frame["splats"]) as arrays:
         gaussians = Gaussians(**{k: arrays[k] for k in arrays.files})
-    result = render(gaussians, camera, mesh_rgba=premultiplied(mesh, encode).astype(np.float32),
+    result = render(gaussians, camera, mesh_rgba=display_from_linear(mesh),
                     mesh_depth=depth[..., 0])
-    out = premultiplied(np.concatenate([result.rgb, result.alpha[..., None]], axis=-1), decode)
+    out = linear_from_display(np.concatenate([result.rgb, result.alpha[..., None]], axis=-1))
     expected, mesh_only = standard_8bit(out), standard_8bit(mesh)
     written = read_png(Path(frame["png"]))
     error = np.abs(written - expected).max()
@@ -226,6 +202,7 @@ def main() -> int:
     if args.inside:
         return inside(args.inside, Path(args.zip), Path(args.work), Path(args.data))
 
+    sys.path.insert(0, str(ROOT))  # the expected images come from this checkout's addon.core
     started = time.perf_counter()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -346,7 +323,8 @@ def stage_install(bpy, zip_path: Path) -> None:
 # ------------------------------------------------------------------------------ formats
 
 FILES = (("playbot_125k_sh2.ply", 125_000), ("guitar.compressed.ply", 90_854),
-         ("biker.spz", 152_746), ("chair.splat", 89_945))
+         ("biker.spz", 152_746), ("chair.splat", 89_945),
+         ("playbot_sog/lod-meta.json", 500_000))  # streamed SOG: WebP through OpenImageIO
 
 
 def splat_count(obj) -> int:
@@ -370,7 +348,9 @@ def stage_formats(bpy, work: Path, data: Path) -> None:
             assert splat_count(obj) == count, f"{splat_count(obj)} splats, expected {count}"
             c.detail = f"{count} splats"
             chair = obj if name.endswith(".splat") else chair
-    for suffix in (".ply", ".splat", ".spz"):
+    registry = ext_module("core.formats.registry")
+    suffixes = [f.endings[0] for f in registry.export_formats() if not f.whole_name]
+    for suffix in suffixes:
         with check(f"export {suffix} and import it back") as c:
             assert chair is not None, "no object to export"
             bpy.context.view_layer.objects.active = chair
@@ -493,7 +473,7 @@ def stage_render(bpy, work: Path, data: Path) -> None:
     """Renders; the driver compares (COMPARE lines), independently of this Blender's modules."""
     for engine in ("CYCLES", "BLENDER_WORKBENCH"):
         name = f"F12 {engine.split('_')[-1].title()} with meshes"
-        with check(f"{name}: render"):
+        with check(f"{name} (the render call)"):
             scene, _ = build_render_scene(bpy, data, engine)
             output_png(bpy, scene, work / f"f12_{engine}")
             result = bpy.ops.render.render(write_still=True)
@@ -502,7 +482,7 @@ def stage_render(bpy, work: Path, data: Path) -> None:
             assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
             dump_frame(bpy, scene, name, work / f"f12_{engine}.png",
                        work / f"f12_{engine}_layers.exr")
-    with check("animation (render -a), Workbench, 2 frames: render") as c:
+    with check("animation (render -a), Workbench, 2 frames (the render calls)") as c:
         scene, cube = build_render_scene(bpy, data, "BLENDER_WORKBENCH")
         scene.frame_start, scene.frame_end = 1, 2
         x = cube.location.x

@@ -13,7 +13,8 @@ class ColmapError(ValueError):
 def _shared_gflags_loaded() -> bool:
     """Whether this process has a shared libgflags loaded (Linux distributions' Blender builds
     link the system's glog/gflags). pycolmap's own glog then registers its flags a second time
-    in that library, and gflags ends the process: Debian's Blender 5.2 quits on `import pycolmap`."""
+    in that library, and gflags ends the process: Debian's Blender 5.2 quits on
+    `import pycolmap`."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -24,7 +25,7 @@ def _shared_gflags_loaded() -> bool:
 
 
 def import_pycolmap() -> ModuleType:
-    """pycolmap, or a ColmapError saying what a user can do about it."""
+    """pycolmap, or a ColmapError saying why it cannot be had here."""
     if "pycolmap" not in sys.modules and _shared_gflags_loaded():
         raise ColmapError(
             "COLMAP import and training need pycolmap, which cannot be loaded in this Blender: "
@@ -36,5 +37,5 @@ def import_pycolmap() -> ModuleType:
         raise ColmapError(
             "COLMAP import and training need pycolmap 4.x, which this Blender cannot load "
             f"({error}): PyPI has no pycolmap for this platform or Python version, so the "
-            "extension could not bundle one (README: Installation)") from error
+            "extension could not bundle one (README: Installing in Blender)") from error
     return pycolmap
