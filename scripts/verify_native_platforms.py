@@ -10,9 +10,10 @@ binaries, not just that they built:
   float64-reference tests at every instruction-set level this CPU has);
 - windows-x64: imports only python3.dll, KERNEL32 and the UCRT; a test program linked with the
   same objects renders, trains (backward, loss, Adam) the test scenes under wine, bit-identical
-  to the Linux build at each instruction-set level (SSE2, AVX2, AVX-512 as this CPU has them);
-- linux-arm64: the same program under qemu-aarch64, compared within a stated bound (NEON with
-  fused multiply-add everywhere rounds differently from x86-64; IMAGE_BOUND below);
+  to the Linux build at each instruction-set level (SSE2, AVX2, AVX-512 as this CPU has them),
+  and its process runs as many threads as asked (the Win32 pool);
+- linux-arm64: the same program under qemu-aarch64, compared within a stated bound (the
+  compilers vectorise and contract differently for NEON; IMAGE_BOUND below);
 - macos-arm64 / macos-x64: Mach-O architecture, minimum macOS (LC_BUILD_VERSION), that it
   links only system libraries, and (arm64) that its ad-hoc code signature matches its bytes
   (no machine here runs macOS binaries).
@@ -342,6 +343,29 @@ def run_driver(platform: str, exe: Path, scene: Path, isa: str | None,
     return (out.read_bytes() if out.exists() else b""), (kernels.group(1) if kernels else "?")
 
 
+def windows_peak_threads(exe: Path, scene: Path, threads: int, wineprefix: Path) -> int:
+    """Run the Windows program with `threads` and count the threads its wine process reaches
+    (from /proc): the Win32 pool really starts its workers."""
+    data = bytearray(scene.read_bytes())
+    data[4 + 6 * 4:4 + 7 * 4] = np.int32(threads).tobytes()  # the header's `threads`
+    copy = scene.with_suffix(f".threads{threads}.bin")
+    copy.write_bytes(bytes(data))
+    env = {**os.environ, "WINEDEBUG": "-all", "WINEPREFIX": str(wineprefix),
+           "WINEDLLOVERRIDES": "mscoree,mshtml="}
+    process = subprocess.Popen([APT_PACKAGES["wine64"], str(exe), str(copy), str(copy) + ".out"],
+                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    peak = 0
+    while process.poll() is None:
+        for entry in Path("/proc").iterdir():
+            try:
+                if entry.name.isdigit() and b"render_driver.exe" in (entry / "cmdline").read_bytes():
+                    peak = max(peak, len(list((entry / "task").iterdir())))
+            except OSError:
+                pass
+        time.sleep(0.02)
+    return peak
+
+
 def compare(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> tuple[bool, float, float]:
     """(bit-identical, max abs image difference, max gradient difference / max |gradient|)."""
     identical = all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
@@ -412,6 +436,10 @@ def main() -> None:
             print(f"  windows-x64 (wine) vs linux-x64, {isa:6s} {scene.name}: "
                   f"{'bit-identical' if same else f'DIFFERENT images {images:.3g} grads {grads:.3g}'}"
                   f"  [{wkernels}]", flush=True)
+    for threads in (1, 4):
+        peak = windows_peak_threads(drivers["windows-x64"], scenes[1], threads, wineprefix)
+        check(peak >= threads, f"windows-x64 with {threads} threads ran {peak} threads")
+        print(f"  windows-x64 (wine), threads={threads}: the process reached {peak} threads")
     worst_images = worst_grads = 0.0
     for scene in scenes:
         linux, _ = run_driver("linux-x64", drivers["linux-x64"], scene, None, wineprefix)
