@@ -3,17 +3,20 @@
 binaries, not just that they built:
 
 - every platform: the binary's format and architecture, that it exports PyInit_splatcore and
-  imports from Python only names of the stable ABI (CPython 3.11's own list), and the wheel tag;
+  imports from Python only names of the stable ABI (CPython 3.11's own list), the wheel tag,
+  and that the compositor's AVX2/AVX-512 (or NEON) copies really hold those instructions;
 - linux-x64: auditwheel finds it manylinux-compliant (and at which glibc), and the test suite's
   native tests pass with this wheel's module imported instead of the development build (the
   float64-reference tests at every instruction-set level this CPU has);
 - windows-x64: imports only python3.dll, KERNEL32 and the UCRT; a test program linked with the
   same objects renders, trains (backward, loss, Adam) the test scenes under wine, bit-identical
-  to the Linux build at each instruction-set level (SSE2, AVX2, AVX-512 as this CPU has them);
-- linux-arm64: the same program under qemu-aarch64, compared within a stated bound (NEON with
-  fused multiply-add everywhere rounds differently from x86-64; IMAGE_BOUND below);
-- macos-arm64 / macos-x64: Mach-O architecture, minimum macOS (LC_BUILD_VERSION) and that it
-  links only system libraries (no machine here runs macOS binaries).
+  to the Linux build at each instruction-set level (SSE2, AVX2, AVX-512 as this CPU has them),
+  and its process runs as many threads as asked (the Win32 pool);
+- linux-arm64: the same program under qemu-aarch64, compared within a stated bound (the
+  compilers vectorise and contract differently for NEON; IMAGE_BOUND below);
+- macos-arm64 / macos-x64: Mach-O architecture, minimum macOS (LC_BUILD_VERSION), that it
+  links only system libraries, and (arm64) that its ad-hoc code signature matches its bytes
+  (no machine here runs macOS binaries).
 
     .venv/bin/python scripts/verify_native_platforms.py [--out-dir dist/native] [--keep DIR]
 
@@ -25,9 +28,11 @@ table and exits non-zero on any failure.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import re
 import shutil
+import struct
 import subprocess
 import sys
 import sysconfig
@@ -156,7 +161,67 @@ def check_binary(platform: str, binary: Path, module_obj: Path, stable: set[str]
         exports = run(["llvm-nm", "--extern-only", "--defined-only", str(binary)]).stdout
         check("_PyInit_splatcore" in exports, f"{platform}: no PyInit_splatcore")
         notes.append(f"Mach-O {cpu}, minos {build.group(2) if build else '?'}, links {', '.join(dylibs)}")
+        if platform == "macos-arm64":
+            check(adhoc_signature_ok(binary), f"{platform}: no valid ad-hoc code signature")
+            notes.append("ad-hoc signature's page hashes match")
     return "; ".join(notes)
+
+
+def adhoc_signature_ok(binary: Path) -> bool:
+    """Whether an arm64 Mach-O file carries a code signature whose page hashes match its bytes
+    (Apple Silicon refuses to load code without one; the linker signs ad hoc)."""
+    data = binary.read_bytes()
+    ncmds = struct.unpack_from("<I", data, 16)[0]
+    at, blob = 32, None
+    for _ in range(ncmds):
+        cmd, size = struct.unpack_from("<II", data, at)
+        if cmd == 0x1D:  # LC_CODE_SIGNATURE
+            offset, length = struct.unpack_from("<II", data, at + 8)
+            blob = data[offset:offset + length]
+        at += size
+    if blob is None or struct.unpack_from(">I", blob, 0)[0] != 0xFADE0CC0:  # embedded signature
+        return False
+    count = struct.unpack_from(">I", blob, 8)[0]
+    for i in range(count):
+        _, offset = struct.unpack_from(">II", blob, 12 + 8 * i)
+        if struct.unpack_from(">I", blob, offset)[0] != 0xFADE0C02:  # not the CodeDirectory
+            continue
+        (hash_offset, _, _, slots, limit, hash_size, hash_type, _, page_log2) = struct.unpack_from(
+            ">IIIIIBBBB", blob, offset + 16)
+        if hash_type != 2 or hash_size != 32:  # SHA-256
+            return False
+        page = 1 << page_log2
+        for slot in range(slots):
+            want = blob[offset + hash_offset + 32 * slot:offset + hash_offset + 32 * (slot + 1)]
+            chunk = data[slot * page:min((slot + 1) * page, limit)]
+            if hashlib.sha256(chunk).digest() != want:
+                return False
+        return slots > 0 and slots * page >= limit
+    return False
+
+
+def check_vectorised(platform: str, build_dir: Path) -> str:
+    """That each instruction-set copy of the compositor kernels really uses its instructions
+    (a target attribute the compiler ignored would leave SSE2 code behind every label)."""
+    functions: dict[str, str] = {}
+    for obj in ("composite.o", "composite_backward.o"):
+        text = objdump("-d", "--no-show-raw-insn", str(build_dir / obj))
+        for chunk in re.split(r"\n(?=[0-9a-f]+ <)", text):
+            name = re.match(r"[0-9a-f]+ <_?([^>]+)>:", chunk)
+            if name:
+                functions[name.group(1)] = chunk
+    if platform.endswith("arm64"):
+        neon = sum(len(re.findall(r"\bfmla\b.*\.4s", body)) for body in functions.values())
+        check(neon > 0, f"{platform}: no NEON fmla in the compositor")
+        return f"NEON kernels ({neon} vector fmla)"
+    notes = []
+    for level, register in (("v3", "ymm"), ("v4", "zmm")):
+        copies = {n: b for n, b in functions.items() if n.endswith("_" + level)}
+        ok = len(copies) == 3 and all(register in b and re.search(r"vfn?m(add|sub)", b)
+                                      for b in copies.values())
+        check(ok, f"{platform}: {level} kernels {sorted(copies)} lack {register} or FMA code")
+        notes.append(f"{len(copies)} {level} kernels with {register}+FMA")
+    return ", ".join(notes)
 
 
 def check_wheel(platform: str, wheel: Path) -> None:
@@ -278,6 +343,29 @@ def run_driver(platform: str, exe: Path, scene: Path, isa: str | None,
     return (out.read_bytes() if out.exists() else b""), (kernels.group(1) if kernels else "?")
 
 
+def windows_peak_threads(exe: Path, scene: Path, threads: int, wineprefix: Path) -> int:
+    """Run the Windows program with `threads` and count the threads its wine process reaches
+    (from /proc): the Win32 pool really starts its workers."""
+    data = bytearray(scene.read_bytes())
+    data[4 + 6 * 4:4 + 7 * 4] = np.int32(threads).tobytes()  # the header's `threads`
+    copy = scene.with_suffix(f".threads{threads}.bin")
+    copy.write_bytes(bytes(data))
+    env = {**os.environ, "WINEDEBUG": "-all", "WINEPREFIX": str(wineprefix),
+           "WINEDLLOVERRIDES": "mscoree,mshtml="}
+    process = subprocess.Popen([APT_PACKAGES["wine64"], str(exe), str(copy), str(copy) + ".out"],
+                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    peak = 0
+    while process.poll() is None:
+        for entry in Path("/proc").iterdir():
+            try:
+                if entry.name.isdigit() and b"render_driver.exe" in (entry / "cmdline").read_bytes():
+                    peak = max(peak, len(list((entry / "task").iterdir())))
+            except OSError:
+                pass
+        time.sleep(0.02)
+    return peak
+
+
 def compare(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> tuple[bool, float, float]:
     """(bit-identical, max abs image difference, max gradient difference / max |gradient|)."""
     identical = all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
@@ -320,6 +408,7 @@ def main() -> None:
         wheel = bn.write_wheel(platform, binary, args.out_dir)
         check_wheel(platform, wheel)
         how = check_binary(platform, binary, scratch / platform / "module.o", stable)
+        how += "; " + check_vectorised(platform, scratch / platform)
         if platform.startswith("linux"):
             how += f"; auditwheel: {auditwheel(wheel)}"
         if platform == "linux-x64":
@@ -347,6 +436,10 @@ def main() -> None:
             print(f"  windows-x64 (wine) vs linux-x64, {isa:6s} {scene.name}: "
                   f"{'bit-identical' if same else f'DIFFERENT images {images:.3g} grads {grads:.3g}'}"
                   f"  [{wkernels}]", flush=True)
+    for threads in (1, 4):
+        peak = windows_peak_threads(drivers["windows-x64"], scenes[1], threads, wineprefix)
+        check(peak >= threads, f"windows-x64 with {threads} threads ran {peak} threads")
+        print(f"  windows-x64 (wine), threads={threads}: the process reached {peak} threads")
     worst_images = worst_grads = 0.0
     for scene in scenes:
         linux, _ = run_driver("linux-x64", drivers["linux-x64"], scene, None, wineprefix)
@@ -364,7 +457,7 @@ def main() -> None:
     print(f"\n{'platform':12s} {'size':>8s}  wheel / how verified")
     for platform, wheel, size, how in rows:
         print(f"{platform:12s} {size:>8s}  {wheel}\n{'':22s}{how}")
-    print(f"\nlinux-arm64 vs linux-x64: images within {worst_images:.2g} (bound {IMAGE_BOUND}), "
+    print(f"\nlinux-arm64 vs linux-x64: images within {worst_images:.2g} (bound 1/255), "
           f"gradients within {worst_grads:.2g} of their largest (bound {GRADIENT_BOUND})")
     print(f"wheels in {args.out_dir}; {time.monotonic() - start:.0f} s")
     if not args.keep:

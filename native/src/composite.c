@@ -27,9 +27,9 @@ typedef struct {
  * masks rather than branches so that the loop vectorises. With `record` (a constant at every
  * call, so the compiler drops the branch) it also notes `entry` as the last Gaussian added at
  * each pixel it was added to, for the backward pass. */
-static inline void blend_block(tile_state *st, int first, float power_y, float cb_dy,
-                               const sc_columns *c, const int record, int32_t *restrict last_all,
-                               int32_t entry) {
+static SC_ALWAYS_INLINE void blend_block(tile_state *st, int first, float power_y, float cb_dy,
+                                         const sc_columns *c, const int record,
+                                         int32_t *restrict last_all, int32_t entry) {
     const int col = first % SC_TILE;
     float *restrict T = st->T + first, *restrict live = st->live + first;
     float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,

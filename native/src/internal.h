@@ -128,10 +128,14 @@ sc_isa sc_cpu_isa(void);
 
 #if defined(__GNUC__) && (defined(__x86_64__) || defined(_M_X64))
 #define SC_MULTIVERSIONED 1
+/* The x86-64-v3 and -v4 psABI levels as feature lists: clang ignores "arch=" in a target
+ * attribute when the command line fixes the features (zig cc does), so name them. */
+#define SC_TARGET_V3 "avx,avx2,bmi,bmi2,f16c,fma,lzcnt,movbe,xsave"
+#define SC_TARGET_V4 SC_TARGET_V3 ",avx512f,avx512bw,avx512cd,avx512dq,avx512vl"
 #define SC_MULTIVERSION(ret, name, params, args, call)                                           \
     static ret name##_base params { return call; }                                               \
-    __attribute__((target("arch=x86-64-v3"))) static ret name##_v3 params { return call; }      \
-    __attribute__((target("arch=x86-64-v4"))) static ret name##_v4 params { return call; }      \
+    __attribute__((target(SC_TARGET_V3))) static ret name##_v3 params { return call; }          \
+    __attribute__((target(SC_TARGET_V4))) static ret name##_v4 params { return call; }          \
     static ret name params {                                                                     \
         const sc_isa isa = sc_cpu_isa();                                                         \
         return isa == SC_ISA_V4 ? name##_v4 args : isa == SC_ISA_V3 ? name##_v3 args             \
