@@ -19,13 +19,15 @@ What it builds, in one new collection (named after the workspace) linked to the 
 - optionally the photos as camera background images (stretched over the camera frame, which
   they fit exactly);
 - the sparse points as a point cloud object with attributes `color` (sRGB bytes), `error`,
-  `track_length` and `colmap_point_id`, and a material that shows the colour;
+  `track_length` and `colmap_point_id`, and a material that shows the colour; shown in the
+  viewport but left out of final renders (`render_points=True` keeps them in);
 - optionally a camera that follows the images in name order, one frame each (exact on every
   frame when all images share one size; the scene takes the first image's resolution).
 
 The collection carries `colmap_transform` (16 floats, row-major 4x4 similarity from COLMAP's
 frame to Blender's world: identity unless aligned), `colmap_model_dir`, `colmap_image_dir`,
-`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment` and `colmap_missing`.
+`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment`, `colmap_missing` and
+`colmap_warnings` (one a line, e.g. photos of an LLFF-style folder matched by sorted order).
 
 Bad input (see `addon.core.colmap`) raises `ColmapError` before anything is created; a failure
 while building removes everything built so far. The operator reports either as an error.
@@ -220,7 +222,7 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
                   align: bool = True, up: str = "auto",
                   scene_size: float = colmap.DEFAULT_SCENE_SIZE,
                   cache_dir: str | os.PathLike | None = None, points: bool = True,
-                  backgrounds: bool = True, animated_camera: bool = False,
+                  render_points: bool = False, backgrounds: bool = True, animated_camera: bool = False,
                   set_scene_camera: bool = True, copy_photos: bool = True,
                   scene: bpy.types.Scene | None = None, progress=None) -> bpy.types.Collection:
     """Import a COLMAP model or workspace into `scene` (default: the context's); returns the
@@ -233,8 +235,8 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
                               progress=lambda f, m: report(0.8 * f, m))
     built = _Built()
     try:
-        collection = _build(data, scene, directory, points, backgrounds, animated_camera,
-                            set_scene_camera, built, lambda f, m: report(0.8 + 0.2 * f, m))
+        collection = _build(data, scene, directory, points, render_points, backgrounds,
+                            animated_camera, set_scene_camera, built, lambda f, m: report(0.8 + 0.2 * f, m))
     except BaseException:
         built.remove_all()
         raise
@@ -242,7 +244,8 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
     return collection
 
 
-def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds: bool,
+def _build(data: colmap.ColmapScene, scene, directory, points: bool, render_points: bool,
+           backgrounds: bool,
            animated: bool, set_scene_camera: bool, built: _Built, report) -> bpy.types.Collection:
     root = Path(directory)
     name = root.name or "COLMAP"
@@ -257,6 +260,7 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds
     collection["colmap_undistorted_dir"] = str(data.undistorted_dir or "")
     collection["colmap_alignment"] = data.alignment_info.get("method", "none")
     collection["colmap_missing"] = "\n".join(f"{k}: {v}" for k, v in data.missing.items())
+    collection["colmap_warnings"] = "\n".join(data.warnings)
 
     clip = _clip_range(data)
     objects = []
@@ -289,8 +293,9 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds
     if points and len(data.points):
         size = np.median([np.linalg.norm(im.camera.centre - data.points.xyz.mean(axis=0))
                           for im in data.images])
-        _points_object(f"{collection.name} points", data.points, 0.002 * float(size),
-                       collection, scene, built)
+        cloud = _points_object(f"{collection.name} points", data.points, 0.002 * float(size),
+                               collection, scene, built)
+        cloud.hide_render = not render_points  # a guide for the viewport, not part of a frame
     report(0.8, "points")
     if animated:
         _animated_camera(f"{collection.name} sequence", data, collection, scene, clip, built)
@@ -326,6 +331,9 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
     scene_size: FloatProperty(name="Scene Size", default=colmap.DEFAULT_SCENE_SIZE, min=0.001,
                               description="Median camera distance from the centre after aligning")
     points: BoolProperty(name="Sparse Points", default=True)
+    render_points: BoolProperty(name="Render Points", default=False,
+                                description="Show the sparse points in final renders too (off: "
+                                            "viewport only)")
     backgrounds: BoolProperty(name="Photo Backgrounds", default=True,
                               description="Show each photo as its camera's background")
     animated_camera: BoolProperty(name="Animated Camera", default=False,
@@ -345,7 +353,8 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
             collection = import_colmap(
                 self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
                 scene_size=self.scene_size, cache_dir=self.cache_dir or None,
-                points=self.points, backgrounds=self.backgrounds,
+                points=self.points, render_points=self.render_points,
+                backgrounds=self.backgrounds,
                 animated_camera=self.animated_camera, scene=context.scene,
                 progress=lambda f, m: wm.progress_update(int(1000 * f)))
         except (colmap.ColmapError, OSError, ImportError) as error:
@@ -353,6 +362,8 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
             return {"CANCELLED"}
         finally:
             wm.progress_end()
+        for warning in collection["colmap_warnings"].splitlines():
+            self.report({"WARNING"}, warning)
         missing = collection["colmap_missing"].splitlines()
         cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
         if missing:

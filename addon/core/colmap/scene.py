@@ -60,6 +60,7 @@ class ColmapScene:
     world_from_colmap: np.ndarray = field(default_factory=lambda: np.eye(4))
     alignment_info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)  # seconds per step
+    warnings: list[str] = field(default_factory=list)  # for the user (e.g. photos matched by order)
 
     @property
     def with_photos(self) -> list[ColmapImage]:
