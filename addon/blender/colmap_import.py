@@ -13,9 +13,11 @@ What it builds, in one new collection (named after the workspace) linked to the 
   `colmap_image_name` (with subfolders), `colmap_image_id`, `colmap_camera_id`,
   `colmap_resolution` (width, height), `colmap_resolution_percentage`,
   `colmap_pixel_aspect` (x, y) and `colmap_photo` (the photo matching the camera; "" if
-  missing). Blender's render size is per scene, not per camera: `apply_camera_resolution()`
-  (or the "Set COLMAP camera" operator, or simply making the camera active in the UI: a
-  message-bus subscription does it) sets the scene's resolution and pixel aspect from them;
+  missing). Blender's render size is per scene, not per camera: making a camera the scene
+  camera, a render's start and a frame change (marker cameras) set the scene's resolution and
+  pixel aspect from them while the scene's `colmap_camera_output` switch is on (Output
+  Properties > Format; see "per-camera render settings" below); so do
+  `apply_camera_resolution()` and the "Set COLMAP camera" operator;
 - optionally the photos as camera background images (stretched over the camera frame, which
   they fit exactly);
 - the sparse points as a point cloud object with attributes `color` (sRGB bytes), `error`,
@@ -44,27 +46,47 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 
 from ..core import colmap
 from ..core.cameras import camera_to_blender
-from .camera_adapter import apply_recorded_output, record_output_settings, set_camera, set_lens, to_matrix
+from .camera_adapter import (apply_recorded_output, marker_camera, record_output_settings,
+                             recorded_output, set_camera, set_lens, to_matrix)
 from .registration import register_classes, unregister_classes
 
 SENSOR_WIDTH = 36.0
 
 
 # -- per-camera render settings ----------------------------------------------------------------
+#
+# Blender keeps one output size and pixel aspect per scene; each COLMAP camera records its
+# photo's. They are applied, while the scene's `colmap_camera_output` switch is on, when:
+#   - a camera becomes the scene camera in the UI (message bus on Scene.camera);
+#   - a render starts (render_init: F12, `blender -b -f N`, scripts), for the camera the
+#     current frame's markers bind (Blender switches marker cameras after that handler);
+#   - the frame changes (frame_change_post: scrubbing past a marker that binds a camera).
+# An animation render keeps the size it started with for every frame (Blender's pipeline reads
+# it once), so during one nothing is changed; a frame whose camera recorded another size is
+# reported on the terminal instead (render such frames one by one: F12, `-f N`, or the
+# `render` command-line verb, which does).
+
+SWITCH = "colmap_camera_output"  # Scene property: the switch above
+_rendering = {"active": False, "warned": set()}
+
 
 def apply_camera_resolution(scene: bpy.types.Scene, camera_obj: bpy.types.Object | None = None) -> bool:
     """Set the scene's resolution, percentage and pixel aspect from an imported camera
-    (`camera_obj`, default the scene camera). False (nothing changed) for other cameras."""
+    (`camera_obj`, default the scene camera). False (nothing changed) for other cameras.
+    Applies whatever the scene's switch says (the handlers check it)."""
     return apply_recorded_output(scene.render, camera_obj if camera_obj is not None else scene.camera)
+
+
+def _switch_on(scene) -> bool:
+    return scene is not None and bool(getattr(scene, SWITCH, True))
 
 
 _MSGBUS_OWNER = object()
 
 
 def _on_scene_camera_changed() -> None:
-    context = bpy.context
-    scene = getattr(context, "scene", None)
-    if scene is not None:
+    scene = getattr(bpy.context, "scene", None)
+    if _switch_on(scene) and not _rendering["active"]:
         apply_camera_resolution(scene)
 
 
@@ -77,6 +99,52 @@ def _subscribe() -> None:
 @bpy.app.handlers.persistent
 def _on_load_post(*_args) -> None:
     _subscribe()
+
+
+@bpy.app.handlers.persistent
+def _on_render_init(scene, *_args) -> None:
+    if _switch_on(scene):
+        camera = marker_camera(scene, scene.frame_current) or scene.camera
+        apply_camera_resolution(scene, camera)
+    _rendering["active"], _rendering["warned"] = True, set()
+
+
+@bpy.app.handlers.persistent
+def _on_render_end(*_args) -> None:
+    _rendering["active"] = False
+
+
+@bpy.app.handlers.persistent
+def _on_frame_change(scene, *_args) -> None:
+    # Markers first: `Scene.frame_set` runs this handler before it switches the camera.
+    camera = marker_camera(scene, scene.frame_current) or scene.camera
+    if not _switch_on(scene) or camera is None:
+        return
+    if not _rendering["active"]:
+        apply_camera_resolution(scene, camera)
+        return
+    wanted, render = recorded_output(camera), scene.render
+    if wanted is None or camera.name in _rendering["warned"]:
+        return
+    current = (render.resolution_x, render.resolution_y, render.resolution_percentage,
+               render.pixel_aspect_x, render.pixel_aspect_y)
+    if not np.allclose(wanted, current, rtol=1e-6, atol=0.0):  # aspects are stored float32
+        _rendering["warned"].add(camera.name)
+        print(f"Gaussian Splatting: frame {scene.frame_current}: camera {camera.name!r} "
+              f"recorded {wanted[0]}x{wanted[1]} at {wanted[2]} % (pixel aspect {wanted[3]:g}:"
+              f"{wanted[4]:g}), but an animation renders every frame at the size it started "
+              f"with; render its frames one by one (F12, blender -b file.blend -f N, or "
+              f"blender -c gaussian_splatting render) to match its photo")
+
+
+_HANDLERS = (("load_post", _on_load_post), ("render_init", _on_render_init),
+             ("render_complete", _on_render_end), ("render_cancel", _on_render_end),
+             ("frame_change_post", _on_frame_change))
+
+
+def _draw_switch(self, context) -> None:
+    if context.scene is not None:
+        self.layout.prop(context.scene, SWITCH)
 
 
 # -- building ----------------------------------------------------------------------------------
@@ -404,16 +472,31 @@ _CLASSES = (SPLAT_OT_import_colmap, SPLAT_OT_colmap_set_camera)
 
 def register() -> None:
     register_classes(_CLASSES)
+    if SWITCH not in bpy.types.Scene.bl_rna.properties:
+        setattr(bpy.types.Scene, SWITCH, BoolProperty(
+            name="Use COLMAP Camera Output", default=True,
+            description="Set the resolution and pixel aspect from each imported COLMAP camera's "
+                        "photo when it becomes the scene camera (also through markers) or a "
+                        "render starts"))
     bpy.types.TOPBAR_MT_file_import.remove(_menu_import)  # no-op unless registered before
     bpy.types.TOPBAR_MT_file_import.append(_menu_import)
-    if _on_load_post not in bpy.app.handlers.load_post:
-        bpy.app.handlers.load_post.append(_on_load_post)
+    bpy.types.RENDER_PT_format.remove(_draw_switch)
+    bpy.types.RENDER_PT_format.append(_draw_switch)
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler not in handlers:
+            handlers.append(handler)
     _subscribe()
 
 
 def unregister() -> None:
     bpy.msgbus.clear_by_owner(_MSGBUS_OWNER)
-    if _on_load_post in bpy.app.handlers.load_post:
-        bpy.app.handlers.load_post.remove(_on_load_post)
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler in handlers:
+            handlers.remove(handler)
+    bpy.types.RENDER_PT_format.remove(_draw_switch)
     bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
     unregister_classes(_CLASSES)
+    if SWITCH in bpy.types.Scene.bl_rna.properties:
+        delattr(bpy.types.Scene, SWITCH)
