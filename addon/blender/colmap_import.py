@@ -38,6 +38,7 @@ while building removes everything built so far. The operator reports either as a
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
 
 import bpy
@@ -46,8 +47,10 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 
 from ..core import colmap
 from ..core.cameras import camera_to_blender
+from ..core.jobs import StagedJob
 from .camera_adapter import (apply_recorded_output, marker_camera, record_output_settings,
                              recorded_output, set_camera, set_lens, to_matrix)
+from .job_runner import JobOperator, OperatorJob, wants_background
 from .registration import register_classes, unregister_classes
 
 SENSOR_WIDTH = 36.0
@@ -286,35 +289,78 @@ def _animated_camera(name: str, scene_data: colmap.ColmapScene, collection, scen
     return obj
 
 
+STAGES = ("reading", "building")  # reading: the model, photos, undistortion (a worker thread)
+
+
 def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
-                  align: bool = True, up: str = "auto",
-                  scene_size: float = colmap.DEFAULT_SCENE_SIZE,
-                  cache_dir: str | os.PathLike | None = None, points: bool = True,
-                  render_points: bool = False, backgrounds: bool = True, animated_camera: bool = False,
-                  set_scene_camera: bool = True, copy_photos: bool = True,
-                  scene: bpy.types.Scene | None = None, progress=None) -> bpy.types.Collection:
+                  progress=None, **options) -> bpy.types.Collection:
     """Import a COLMAP model or workspace into `scene` (default: the context's); returns the
-    new collection. `progress(fraction, message)` is called as the work goes. See the module
-    docstring; the other arguments are those of `addon.core.colmap.read_colmap`."""
-    scene = scene if scene is not None else bpy.context.scene
+    new collection. `progress(fraction, message)` is called as the work goes. Options: those
+    of `import_steps`."""
+    steps = import_steps(directory, image_folder, **options)
     report = progress or (lambda fraction, message: None)
-    data = colmap.read_colmap(directory, image_folder, cache_dir=cache_dir, align=align, up=up,
-                              scene_size=scene_size, copy_photos=copy_photos,
-                              progress=lambda f, m: report(0.8 * f, m))
+    try:
+        while True:
+            stage, fraction = next(steps)
+            report((STAGES.index(stage) + fraction) / len(STAGES), stage)
+    except StopIteration as done:
+        report(1.0, "done")
+        return done.value
+
+
+def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
+                 align: bool = True, up: str = "auto",
+                 scene_size: float = colmap.DEFAULT_SCENE_SIZE,
+                 cache_dir: str | os.PathLike | None = None, points: bool = True,
+                 render_points: bool = False, backgrounds: bool = True,
+                 animated_camera: bool = False, set_scene_camera: bool = True,
+                 copy_photos: bool = True, scene: bpy.types.Scene | None = None):
+    """The import as a generator of (stage, fraction) steps (`STAGES`) for `job_runner`; its
+    return value is the new collection. The Blender-free reading (model, photos, undistortion)
+    runs on a worker thread meanwhile; closing the generator stops it at its next photo and
+    removes whatever was built. The other arguments are those of `colmap.read_colmap`."""
+    scene = scene if scene is not None else bpy.context.scene
+    state = {"fraction": 0.0, "cancel": False}
+    outcome: dict = {}
+
+    def progress(fraction: float, message: str) -> None:
+        if state["cancel"]:
+            raise colmap.ColmapError("import cancelled")
+        state["fraction"] = fraction
+
+    def read() -> None:
+        try:
+            outcome["data"] = colmap.read_colmap(
+                directory, image_folder, cache_dir=cache_dir, align=align, up=up,
+                scene_size=scene_size, copy_photos=copy_photos, progress=progress)
+        except BaseException as error:  # handed to the main thread below
+            outcome["error"] = error
+
+    worker = threading.Thread(target=read, name="colmap-import", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(0.05)
+            yield "reading", state["fraction"]
+    finally:
+        if worker.is_alive():  # closed early: stop the reader and wait for it
+            state["cancel"] = True
+            worker.join()
+    if "error" in outcome:
+        raise outcome["error"]
     built = _Built()
     try:
-        collection = _build(data, scene, directory, points, render_points, backgrounds,
-                            animated_camera, set_scene_camera, built, lambda f, m: report(0.8 + 0.2 * f, m))
+        collection = yield from _build(outcome["data"], scene, directory, points, render_points,
+                                       backgrounds, animated_camera, set_scene_camera, built)
     except BaseException:
         built.remove_all()
         raise
-    report(1.0, "done")
     return collection
 
 
 def _build(data: colmap.ColmapScene, scene, directory, points: bool, render_points: bool,
-           backgrounds: bool,
-           animated: bool, set_scene_camera: bool, built: _Built, report) -> bpy.types.Collection:
+           backgrounds: bool, animated: bool, set_scene_camera: bool, built: _Built):
+    """Generator of ("building", fraction) steps; returns the new collection."""
     root = Path(directory)
     name = root.name or "COLMAP"
     if name in ("0", "sparse") and root.parent.name:
@@ -356,7 +402,7 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, render_poin
             background.alpha = 1.0
         objects.append(obj)
         if k % 16 == 0:
-            report(0.7 * (k + 1) / len(data.images), f"camera {im.name}")
+            yield "building", 0.7 * (k + 1) / len(data.images)
 
     if points and len(data.points):
         size = np.median([np.linalg.norm(im.camera.centre - data.points.xyz.mean(axis=0))
@@ -364,7 +410,7 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, render_poin
         cloud = _points_object(f"{collection.name} points", data.points, 0.002 * float(size),
                                collection, scene, built)
         cloud.hide_render = not render_points  # a guide for the viewport, not part of a frame
-    report(0.8, "points")
+    yield "building", 0.8
     if animated:
         _animated_camera(f"{collection.name} sequence", data, collection, scene, clip, built)
     if set_scene_camera and objects:
@@ -375,7 +421,7 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, render_poin
 
 # -- operators ---------------------------------------------------------------------------------
 
-class SPLAT_OT_import_colmap(bpy.types.Operator):
+class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
     """Import a COLMAP (or GLOMAP) reconstruction: cameras, photos, sparse points"""
 
     bl_idname = "splat.import_colmap"
@@ -410,39 +456,45 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
                               description="Where undistorted photos go (empty: beside the "
                                           "input if writable, else a user cache folder)")
 
+    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"},
+                              description="Read on a worker thread with a modal timer (set by "
+                                          "invoke; scripts get a blocking run)")
+
     def invoke(self, context, event):
+        self.interactive = wants_background(context)
         context.window_manager.fileselect_add(self)
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        wm = context.window_manager
-        wm.progress_begin(0, 1000)
-        try:
-            collection = import_colmap(
-                self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
-                scene_size=self.scene_size, cache_dir=self.cache_dir or None,
-                points=self.points, render_points=self.render_points,
-                backgrounds=self.backgrounds,
-                animated_camera=self.animated_camera, scene=context.scene,
-                progress=lambda f, m: wm.progress_update(int(1000 * f)))
-        except (colmap.ColmapError, OSError, ImportError) as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        finally:
-            wm.progress_end()
-        for warning in collection["colmap_warnings"].splitlines():
-            self.report({"WARNING"}, warning)
-        missing = collection["colmap_missing"].splitlines()
-        cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
-        if missing:
-            shown = ", ".join(line.split(":")[0] for line in missing[:5])
-            more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
-            self.report({"WARNING"},
-                        f"{len(missing)} of {cameras} photos missing or unusable in "
-                        f"{self.image_folder} ({shown}{more}): their cameras have no photo")
-        else:
-            self.report({"INFO"}, f"imported {cameras} cameras into '{collection.name}'")
-        return {"FINISHED"}
+        steps = import_steps(
+            self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
+            scene_size=self.scene_size, cache_dir=self.cache_dir or None, points=self.points,
+            render_points=self.render_points, backgrounds=self.backgrounds,
+            animated_camera=self.animated_camera, scene=context.scene)
+        image_folder = self.image_folder
+
+        def finish(running, write):
+            job = running.job
+            if job.error is not None:
+                return "ERROR", str(job.error), None
+            collection = job.result
+            if collection is None:
+                return "WARNING", "COLMAP import cancelled: nothing changed", None
+            for warning in collection["colmap_warnings"].splitlines():
+                self.report({"WARNING"}, warning)
+            missing = collection["colmap_missing"].splitlines()
+            cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
+            if missing:
+                shown = ", ".join(line.split(":")[0] for line in missing[:5])
+                more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
+                return ("WARNING", f"{len(missing)} of {cameras} photos missing or unusable in "
+                                   f"{image_folder} ({shown}{more}): their cameras have no "
+                                   f"photo", None)
+            return "INFO", f"imported {cameras} cameras into '{collection.name}'", None
+
+        key = f"colmap:{Path(self.directory).resolve()}"
+        return self.run_job(context, OperatorJob(key, "Importing COLMAP",
+                                                 StagedJob(steps, STAGES), finish))
 
 
 class SPLAT_OT_colmap_set_camera(bpy.types.Operator):

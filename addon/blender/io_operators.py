@@ -83,6 +83,7 @@ def import_splats(filepath: str | os.PathLike, *, name: str | None = None, colle
         source_path=str(path))
     obj.matrix_world = to_matrix(matrix)
     view_layer = context.view_layer
+    view_layer.update()  # a newly linked object shows in the layer's objects after an update
     for other in view_layer.objects:
         if other.select_get(view_layer=view_layer):
             other.select_set(False, view_layer=view_layer)
