@@ -44,6 +44,7 @@ from ..core.gaussians import Gaussians
 from ..core.transform import transform_gaussians
 from . import gather, splat_object
 from .camera_adapter import to_matrix
+from .job_runner import preparing
 from .registration import register_classes, unregister_classes
 
 FILTER_GLOB = "*.ply;*.splat;*.spz"
@@ -179,14 +180,16 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
         if context.mode != "OBJECT" and context.active_object is not None:
             bpy.ops.object.mode_set(mode="OBJECT")
         loaded = []
-        for path in paths:
-            try:
-                matrix = file_axes(path, self.forward_axis, self.up_axis)
-                gaussians, antialiased = read_splat_file(path)
-            except (SplatFileError, OSError, ValueError) as error:
-                self.report({"ERROR"}, f"Cannot import: {error}")
-                return {"CANCELLED"}
-            loaded.append((path, gaussians, antialiased, matrix))
+        with preparing(context, "Importing splats", ", ".join(p.name for p in paths)) as progress:
+            for k, path in enumerate(paths):
+                progress(k / len(paths), "")
+                try:
+                    matrix = file_axes(path, self.forward_axis, self.up_axis)
+                    gaussians, antialiased = read_splat_file(path)
+                except (SplatFileError, OSError, ValueError) as error:
+                    self.report({"ERROR"}, f"Cannot import: {error}")
+                    return {"CANCELLED"}
+                loaded.append((path, gaussians, antialiased, matrix))
         objects = []
         try:
             for path, gaussians, antialiased, matrix in loaded:
@@ -248,10 +251,15 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
             self.report({"ERROR"}, "The active object is not a splat object")
             return {"CANCELLED"}
         try:
-            warnings = export_splats(obj, self.filepath,
-                                     depsgraph=context.evaluated_depsgraph_get(),
-                                     world_space=self.world_space,
-                                     forward_axis=self.forward_axis, up_axis=self.up_axis)
+            # One stage: the cursor's counter in the UI, a terminal line headless.
+            with preparing(context, "Exporting", f"{obj.name} to {Path(self.filepath).name}") \
+                    as progress:
+                progress(0.0, "")
+                warnings = export_splats(obj, self.filepath,
+                                         depsgraph=context.evaluated_depsgraph_get(),
+                                         world_space=self.world_space,
+                                         forward_axis=self.forward_axis, up_axis=self.up_axis)
+                progress(1.0, "")
         except (SplatFileError, splat_object.SplatDataError, OSError, ValueError) as error:
             self.report({"ERROR"}, f"Cannot export: {error}")
             return {"CANCELLED"}
