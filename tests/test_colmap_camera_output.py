@@ -143,3 +143,42 @@ def test_an_animation_across_sizes_says_which_frames_do_not_match(model, tmp_pat
     out = capfd.readouterr().out
     assert f"frame 2: camera {IMAGES[1][0]!r} recorded 48x72" in out
     assert "render its frames one by one" in out
+
+
+def test_import_is_a_staged_job_that_talks_and_cancels_cleanly(tmp_path, rng, capfd,
+                                                               monkeypatch):
+    bs.reset_scene()
+    synthetic_workspace(tmp_path / "ws", CAMERAS, IMAGES, rng=rng, n_points=50)
+    before = bs.scene_state()
+    # Esc while building (StagedJob.cancel closes the generator at its next poll)
+    steps = colmap_import.import_steps(tmp_path / "ws", align=False)
+    while next(steps)[0] != "building":
+        pass
+    assert bpy.data.collections  # half built
+    steps.close()
+    assert bs.scene_state() == before and not bpy.data.collections
+    # Esc while reading: the worker thread stops at its next progress report
+    stopped = []
+
+    def slow_read(*args, progress, **kwargs):
+        try:
+            while True:
+                progress(0.5, "undistorting")
+        except colmap_import.colmap.ColmapError:
+            stopped.append(True)
+            raise
+
+    monkeypatch.setattr(colmap_import.colmap, "read_colmap", slow_read)
+    steps = colmap_import.import_steps(tmp_path / "ws", align=False)
+    for _ in range(1000):  # the worker reports within a few polls, however loaded the machine
+        if next(steps) == ("reading", 0.5):
+            break
+    else:
+        pytest.fail("the reader never reported")
+    steps.close()
+    assert stopped == [True] and bs.scene_state() == before
+    monkeypatch.undo()
+    # headless, the operator prints a line per stage
+    assert bpy.ops.splat.import_colmap(directory=str(tmp_path / "ws")) == {"FINISHED"}
+    out = capfd.readouterr().out
+    assert "Importing COLMAP: reading" in out and "Importing COLMAP: building" in out
