@@ -115,3 +115,29 @@ def test_blender_command_is_registered_with_the_add_on():
 
     import bpy
     assert cli_command.is_registered() == hasattr(bpy.utils, "register_cli_command")
+
+
+def test_render_gives_each_frame_its_marker_cameras_size(tmp_path, rng):
+    """Portrait and landscape COLMAP cameras switched by markers: frame by frame, each image has
+    its own photo's size (a single animation render cannot change size)."""
+    import bpy_support as bs
+    from bpy_support import bpy
+    from colmap_helpers import synthetic_workspace
+
+    cameras = [("PINHOLE", 80, 60, [70.0, 61.0, 40.0, 30.0]),
+               ("PINHOLE", 48, 72, [50.0, 58.5, 24.0, 36.0])]
+    synthetic_workspace(tmp_path / "mixed", cameras, [("a.png", 0), ("b.png", 1), ("c.png", 0)],
+                        rng=rng, n_points=60)
+    scene_file = tmp_path / "mixed.blend"
+    assert cli.main(["import-colmap", str(tmp_path / "mixed"), "--out", str(scene_file),
+                     "--no-align"]) == 0
+    scene = bpy.context.scene
+    for frame, name in enumerate(("a.png", "b.png"), start=1):
+        scene.timeline_markers.new(name, frame=frame).camera = bpy.data.objects[name]
+    scene.render.engine = "SPLAT_GAUSSIANS"
+    bpy.ops.wm.save_as_mainfile(filepath=str(scene_file))
+    bs.reset_scene()
+    result = run("render", str(scene_file), "--frames", "1-2", "--out", str(tmp_path / "f_"))
+    assert result.returncode == 0, result.stderr
+    assert image_io.read_header(tmp_path / "f_0001.png").size(False) == (80, 60)
+    assert image_io.read_header(tmp_path / "f_0002.png").size(False) == (48, 72)
