@@ -10,7 +10,8 @@ process through `addon.cli.main`:
 2. `train scene.blend --out trained.blend` (CPU training; the splat object joins the scene);
 3. a mesh (a glossy monkey) is added with bpy, as a user would in the UI;
 4. `render final.blend --camera 008.jpg`: the held-out photo 008's camera, at its own size,
-   splats only and then with the monkey (Cycles, the splats composed by depth).
+   splats only and then with the monkey (Cycles, the splats composed by depth), under the
+   Standard view transform (splats look as trained).
 
 With `--docs` the pictures the README shows are written there (PNG): the photo, the splats
 rendered from its camera, and the final frame.
@@ -40,13 +41,33 @@ def verb(*args: str) -> None:
     print(f"({time.perf_counter() - start:.1f} s)", flush=True)
 
 
-def add_monkey(trained: Path, final: Path) -> None:
+def standard_view(trained: Path, out: Path) -> None:
+    """The trained scene under the Standard view transform: splats look as trained (README
+    "Colour"); Blender's default (AgX) would wash them out."""
     import bpy
 
     bpy.ops.wm.open_mainfile(filepath=str(trained))
+    bpy.context.scene.view_settings.view_transform = "Standard"
+    bpy.ops.wm.save_as_mainfile(filepath=str(out))
+
+
+def add_monkey(trained: Path, final: Path) -> None:
+    import math
+
+    import bpy
+    import mathutils
+
+    bpy.ops.wm.open_mainfile(filepath=str(trained))
     scene = bpy.context.scene
-    bpy.ops.mesh.primitive_monkey_add(size=0.9, location=(0.0, 0.0, 0.75))
+    # On the ground (z = 0 after alignment) between the scene's centre and the photo's camera,
+    # a little to the camera's right, turned to face it.
+    camera = bpy.data.objects[CAMERA]
+    towards = mathutils.Vector((camera.location.x, camera.location.y, 0.0)).normalized()
+    right = mathutils.Vector((towards.y, -towards.x, 0.0))
+    location = 1.3 * towards - 0.55 * right + mathutils.Vector((0.0, 0.0, 0.35))
+    bpy.ops.mesh.primitive_monkey_add(size=0.6, location=location)
     monkey = bpy.context.active_object
+    monkey.rotation_euler = (0.0, 0.0, math.atan2(towards.y, towards.x) + math.pi / 2)
     bpy.ops.object.shade_smooth()
     material = bpy.data.materials.new("Monkey")
     if material.node_tree is None:
@@ -73,15 +94,20 @@ def main() -> None:
     parser.add_argument("--downscale", default="1")
     parser.add_argument("--work", default="/tmp/walkthrough")
     parser.add_argument("--docs", default="", help="write the README's pictures here")
+    parser.add_argument("--reuse", action="store_true",
+                        help="keep the work folder's trained.blend (skip import and training)")
     args = parser.parse_args()
     work = Path(args.work).resolve()
     work.mkdir(parents=True, exist_ok=True)
 
-    verb("import-colmap", str(ROOT / "examples" / "demo_colmap"), "--out", str(work / "scene.blend"))
-    verb("train", str(work / "scene.blend"), "--out", str(work / "trained.blend"),
-         "--steps", args.steps, "--downscale", args.downscale, "--checkpoint",
-         str(work / "checkpoint.npz"))
-    verb("render", str(work / "trained.blend"), "--camera", CAMERA, "--engine", "SPLAT_GAUSSIANS",
+    if not (args.reuse and (work / "trained.blend").is_file()):
+        verb("import-colmap", str(ROOT / "examples" / "demo_colmap"), "--out",
+             str(work / "scene.blend"))
+        verb("train", str(work / "scene.blend"), "--out", str(work / "trained.blend"),
+             "--steps", args.steps, "--downscale", args.downscale, "--checkpoint",
+             str(work / "checkpoint.npz"))
+    standard_view(work / "trained.blend", work / "splats.blend")
+    verb("render", str(work / "splats.blend"), "--camera", CAMERA, "--engine", "SPLAT_GAUSSIANS",
          "--out", str(work / "splats_"))
     add_monkey(work / "trained.blend", work / "final.blend")
     verb("render", str(work / "final.blend"), "--camera", CAMERA, "--out", str(work / "final_"))
