@@ -389,6 +389,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m addon") -> in
         run(args)
     except KNOWN_ERRORS as error:
         message = str(error).strip() or type(error).__name__
+        message = message.removeprefix("Error: ")  # bpy.ops' RuntimeError repeats the level
         print(f"{prog} {args.verb}: error: {message}", file=sys.stderr, flush=True)
         return 1
     return 0
