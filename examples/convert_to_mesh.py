@@ -5,8 +5,11 @@
         --max-triangles 50000 --texture-size 1024 --proxy --out /tmp/mesh.blend
     blender --background --python examples/convert_to_mesh.py -- scene.ply --out mesh.blend
 
-Loads the .ply as a splat object, runs `bpy.ops.splat.convert_to_mesh`, packs the texture into
-the .blend and prints the triangle count, texture size and time per stage.
+Loads the .ply as a splat object, runs the conversion (`mesh_convert.convert_to_mesh`, what
+`bpy.ops.splat.convert_to_mesh` runs), packs the texture into the .blend and prints the
+triangle count, texture size and time per stage. Without the statistics, the command line does
+the same: `python -m addon convert-to-mesh scene.ply --out mesh.blend` (or `blender -c
+gaussian_splatting convert-to-mesh ...`; README "Command line").
 """
 
 from __future__ import annotations

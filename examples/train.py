@@ -10,6 +10,8 @@ With no --steps, training stops when done: when the held-out PSNR gains less tha
 Every 8th image (by name) is held out; held-out PSNR/SSIM is printed every --eval-every steps
 and at the end. --compact prunes negligible Gaussians and SH bands afterwards and reports size
 against PSNR. --checkpoint saves the full state there at the end (and --resume continues one).
+This is the Blender-free trainer with a benchmark's printout; `python -m addon train FOLDER
+--out out.ply` (or `blender -c gaussian_splatting train ...`) runs the Train operator instead.
 """
 
 from __future__ import annotations

@@ -147,7 +147,9 @@ def test_lossy_formats_round_trip_within_their_quantisation(rng, tmp_path, suffi
     g = random_gaussians(rng, 300, 3 if suffix == ".spz" else 0)
     obj = make_object(g, antialiased=True)
     out = tmp_path / f"out{suffix}"
-    assert bpy.ops.splat.export_splats(filepath=str(out)) == {"FINISHED"}
+    # axes Y/Z: the file in Blender's own frame, so the core writer sees `g` unchanged
+    assert bpy.ops.splat.export_splats(filepath=str(out), forward_axis="Y",
+                                       up_axis="Z") == {"FINISHED"}
     # exactly what the core writer makes of these Gaussians (its format tests hold the bounds)
     reference = tmp_path / f"ref{suffix}"
     if suffix == ".spz":
@@ -275,9 +277,10 @@ def test_export_after_transform_then_reimport_renders_the_same(rng, tmp_path):
     world = gathered().gaussians
     before = bs.render_scene(camera)
     out = tmp_path / "world.ply"
-    bpy.ops.splat.export_splats(filepath=str(out))
+    blender_frame = {"forward_axis": "Y", "up_axis": "Z"}  # no axis conversion either way
+    bpy.ops.splat.export_splats(filepath=str(out), **blender_frame)
     bpy.data.objects.remove(obj)
-    bpy.ops.splat.import_splats(filepath=str(out))
+    bpy.ops.splat.import_splats(filepath=str(out), **blender_frame)
     reimported = bpy.context.active_object
     assert as_np(reimported.matrix_world).tolist() == np.eye(4).tolist()
     assert bs.gaussians_equal(gathered().gaussians, world)

@@ -86,6 +86,33 @@ def has_recorded_output(camera_obj) -> bool:
     return camera_obj is not None and all(key in camera_obj for key in RECORDED_KEYS)
 
 
+def marker_camera(scene, frame: int):
+    """The camera Blender's markers bind at `frame` (the last marker at or before it, else the
+    first one; markers whose camera is hidden from renders do not count), or None without such
+    markers: Blender's own rule (BKE_scene_camera_switch_find), which it applies only when a
+    frame is evaluated, after render-start handlers run."""
+    best = first = None
+    for marker in scene.timeline_markers:
+        camera = marker.camera
+        if camera is None or camera.hide_render:
+            continue
+        if marker.frame <= frame and (best is None or marker.frame > best.frame):
+            best = marker
+        if first is None or marker.frame < first.frame:
+            first = marker
+    chosen = best or first
+    return chosen.camera if chosen is not None else None
+
+
+def recorded_output(camera_obj) -> tuple[int, int, int, float, float] | None:
+    """(width, height, percentage, pixel aspect x, y) recorded on a camera, or None."""
+    if not has_recorded_output(camera_obj):
+        return None
+    width, height = (int(v) for v in camera_obj[RESOLUTION_KEY])
+    aspect_x, aspect_y = (float(v) for v in camera_obj[PIXEL_ASPECT_KEY])
+    return width, height, int(camera_obj[PERCENTAGE_KEY]), aspect_x, aspect_y
+
+
 def apply_recorded_output(render, camera_obj) -> bool:
     """Set the scene's output size, percentage and pixel aspect from the camera's recorded
     ones. False (nothing changed) when the camera has none. Writes only what differs, so an
@@ -99,6 +126,7 @@ def apply_recorded_output(render, camera_obj) -> bool:
         render.resolution_x, render.resolution_y = width, height
     if render.resolution_percentage != percentage:
         render.resolution_percentage = percentage
-    if (render.pixel_aspect_x, render.pixel_aspect_y) != (aspect_x, aspect_y):
+    stored = np.float32((render.pixel_aspect_x, render.pixel_aspect_y))  # Blender keeps float32
+    if not np.array_equal(stored, np.float32((aspect_x, aspect_y))):
         render.pixel_aspect_x, render.pixel_aspect_y = aspect_x, aspect_y
     return True

@@ -13,20 +13,24 @@ What it builds, in one new collection (named after the workspace) linked to the 
   `colmap_image_name` (with subfolders), `colmap_image_id`, `colmap_camera_id`,
   `colmap_resolution` (width, height), `colmap_resolution_percentage`,
   `colmap_pixel_aspect` (x, y) and `colmap_photo` (the photo matching the camera; "" if
-  missing). Blender's render size is per scene, not per camera: `apply_camera_resolution()`
-  (or the "Set COLMAP camera" operator, or simply making the camera active in the UI: a
-  message-bus subscription does it) sets the scene's resolution and pixel aspect from them;
+  missing). Blender's render size is per scene, not per camera: making a camera the scene
+  camera, a render's start and a frame change (marker cameras) set the scene's resolution and
+  pixel aspect from them while the scene's `colmap_camera_output` switch is on (Output
+  Properties > Format; see "per-camera render settings" below); so do
+  `apply_camera_resolution()` and the "Set COLMAP camera" operator;
 - optionally the photos as camera background images (stretched over the camera frame, which
   they fit exactly);
 - the sparse points as a point cloud object with attributes `color` (sRGB bytes), `error`,
-  `track_length` and `colmap_point_id`, and a material that shows the colour;
+  `track_length` and `colmap_point_id`, and a material that shows the colour; shown in the
+  viewport but left out of final renders (`render_points=True` keeps them in);
 - optionally a camera that follows the images in name order, one frame each (exact on every
   frame when all images share one size; the scene takes the first image's resolution).
 
 The collection carries `colmap_transform` (16 floats, row-major 4x4 similarity from COLMAP's
 frame to Blender's world: identity unless aligned), `colmap_model_dir`, `colmap_image_dir`,
-`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment`, `colmap_missing` and
-`colmap_dropped` (what the reader left out as non-finite, with counts).
+`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment`, `colmap_missing`,
+`colmap_dropped` (what the reader left out as non-finite, with counts) and
+`colmap_warnings` (one a line, e.g. photos of an LLFF-style folder matched by sorted order).
 
 Bad input (see `addon.core.colmap`) raises `ColmapError` before anything is created; a failure
 while building removes everything built so far. The operator reports either as an error.
@@ -35,6 +39,7 @@ while building removes everything built so far. The operator reports either as a
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
 
 import bpy
@@ -43,27 +48,49 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 
 from ..core import colmap
 from ..core.cameras import camera_to_blender
-from .camera_adapter import apply_recorded_output, record_output_settings, set_camera, set_lens, to_matrix
+from ..core.jobs import StagedJob
+from .camera_adapter import (apply_recorded_output, marker_camera, record_output_settings,
+                             recorded_output, set_camera, set_lens, to_matrix)
+from .job_runner import JobOperator, OperatorJob, wants_background
 from .registration import register_classes, unregister_classes
 
 SENSOR_WIDTH = 36.0
 
 
 # -- per-camera render settings ----------------------------------------------------------------
+#
+# Blender keeps one output size and pixel aspect per scene; each COLMAP camera records its
+# photo's. They are applied, while the scene's `colmap_camera_output` switch is on, when:
+#   - a camera becomes the scene camera in the UI (message bus on Scene.camera);
+#   - a render starts (render_init: F12, `blender -b -f N`, scripts), for the camera the
+#     current frame's markers bind (Blender switches marker cameras after that handler);
+#   - the frame changes (frame_change_post: scrubbing past a marker that binds a camera).
+# An animation render keeps the size it started with for every frame (Blender's pipeline reads
+# it once), so during one nothing is changed; a frame whose camera recorded another size is
+# reported on the terminal instead (render such frames one by one: F12, `-f N`, or the
+# `render` command-line verb, which does).
+
+SWITCH = "colmap_camera_output"  # Scene property: the switch above
+_rendering = {"active": False, "warned": set()}
+
 
 def apply_camera_resolution(scene: bpy.types.Scene, camera_obj: bpy.types.Object | None = None) -> bool:
     """Set the scene's resolution, percentage and pixel aspect from an imported camera
-    (`camera_obj`, default the scene camera). False (nothing changed) for other cameras."""
+    (`camera_obj`, default the scene camera). False (nothing changed) for other cameras.
+    Applies whatever the scene's switch says (the handlers check it)."""
     return apply_recorded_output(scene.render, camera_obj if camera_obj is not None else scene.camera)
+
+
+def _switch_on(scene) -> bool:
+    return scene is not None and bool(getattr(scene, SWITCH, True))
 
 
 _MSGBUS_OWNER = object()
 
 
 def _on_scene_camera_changed() -> None:
-    context = bpy.context
-    scene = getattr(context, "scene", None)
-    if scene is not None:
+    scene = getattr(bpy.context, "scene", None)
+    if _switch_on(scene) and not _rendering["active"]:
         apply_camera_resolution(scene)
 
 
@@ -76,6 +103,52 @@ def _subscribe() -> None:
 @bpy.app.handlers.persistent
 def _on_load_post(*_args) -> None:
     _subscribe()
+
+
+@bpy.app.handlers.persistent
+def _on_render_init(scene, *_args) -> None:
+    if _switch_on(scene):
+        camera = marker_camera(scene, scene.frame_current) or scene.camera
+        apply_camera_resolution(scene, camera)
+    _rendering["active"], _rendering["warned"] = True, set()
+
+
+@bpy.app.handlers.persistent
+def _on_render_end(*_args) -> None:
+    _rendering["active"] = False
+
+
+@bpy.app.handlers.persistent
+def _on_frame_change(scene, *_args) -> None:
+    # Markers first: `Scene.frame_set` runs this handler before it switches the camera.
+    camera = marker_camera(scene, scene.frame_current) or scene.camera
+    if not _switch_on(scene) or camera is None:
+        return
+    if not _rendering["active"]:
+        apply_camera_resolution(scene, camera)
+        return
+    wanted, render = recorded_output(camera), scene.render
+    if wanted is None or camera.name in _rendering["warned"]:
+        return
+    current = (render.resolution_x, render.resolution_y, render.resolution_percentage,
+               render.pixel_aspect_x, render.pixel_aspect_y)
+    if not np.allclose(wanted, current, rtol=1e-6, atol=0.0):  # aspects are stored float32
+        _rendering["warned"].add(camera.name)
+        print(f"Gaussian Splatting: frame {scene.frame_current}: camera {camera.name!r} "
+              f"recorded {wanted[0]}x{wanted[1]} at {wanted[2]} % (pixel aspect {wanted[3]:g}:"
+              f"{wanted[4]:g}), but an animation renders every frame at the size it started "
+              f"with; render its frames one by one (F12, blender -b file.blend -f N, or "
+              f"blender -c gaussian_splatting render) to match its photo")
+
+
+_HANDLERS = (("load_post", _on_load_post), ("render_init", _on_render_init),
+             ("render_complete", _on_render_end), ("render_cancel", _on_render_end),
+             ("frame_change_post", _on_frame_change))
+
+
+def _draw_switch(self, context) -> None:
+    if context.scene is not None:
+        self.layout.prop(context.scene, SWITCH)
 
 
 # -- building ----------------------------------------------------------------------------------
@@ -217,36 +290,78 @@ def _animated_camera(name: str, scene_data: colmap.ColmapScene, collection, scen
     return obj
 
 
+STAGES = ("reading", "building")  # reading: the model, photos, undistortion (a worker thread)
+
+
 def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
-                  align: bool = True, up: str = "auto",
-                  scene_size: float = colmap.DEFAULT_SCENE_SIZE,
-                  cache_dir: str | os.PathLike | None = None, points: bool = True,
-                  backgrounds: bool = True, animated_camera: bool = False,
-                  set_scene_camera: bool = True, copy_photos: bool = True,
-                  scene: bpy.types.Scene | None = None, progress=None) -> bpy.types.Collection:
+                  progress=None, **options) -> bpy.types.Collection:
     """Import a COLMAP model or workspace into `scene` (default: the context's); returns the
-    new collection. `progress(fraction, message)` is called as the work goes. See the module
-    docstring; the other arguments are those of `addon.core.colmap.read_colmap`."""
-    scene = scene if scene is not None else bpy.context.scene
+    new collection. `progress(fraction, message)` is called as the work goes. Options: those
+    of `import_steps`."""
+    steps = import_steps(directory, image_folder, **options)
     report = progress or (lambda fraction, message: None)
-    data = colmap.read_colmap(directory, image_folder, cache_dir=cache_dir, align=align, up=up,
-                              scene_size=scene_size, copy_photos=copy_photos,
-                              progress=lambda f, m: report(0.8 * f, m))
+    try:
+        while True:
+            stage, fraction = next(steps)
+            report((STAGES.index(stage) + fraction) / len(STAGES), stage)
+    except StopIteration as done:
+        report(1.0, "done")
+        return done.value
+
+
+def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
+                 align: bool = True, up: str = "auto",
+                 scene_size: float = colmap.DEFAULT_SCENE_SIZE,
+                 cache_dir: str | os.PathLike | None = None, points: bool = True,
+                 render_points: bool = False, backgrounds: bool = True,
+                 animated_camera: bool = False, set_scene_camera: bool = True,
+                 copy_photos: bool = True, scene: bpy.types.Scene | None = None):
+    """The import as a generator of (stage, fraction) steps (`STAGES`) for `job_runner`; its
+    return value is the new collection. The Blender-free reading (model, photos, undistortion)
+    runs on a worker thread meanwhile; closing the generator stops it at its next photo and
+    removes whatever was built. The other arguments are those of `colmap.read_colmap`."""
+    scene = scene if scene is not None else bpy.context.scene
+    state = {"fraction": 0.0, "cancel": False}
+    outcome: dict = {}
+
+    def progress(fraction: float, message: str) -> None:
+        if state["cancel"]:
+            raise colmap.ColmapError("import cancelled")
+        state["fraction"] = fraction
+
+    def read() -> None:
+        try:
+            outcome["data"] = colmap.read_colmap(
+                directory, image_folder, cache_dir=cache_dir, align=align, up=up,
+                scene_size=scene_size, copy_photos=copy_photos, progress=progress)
+        except BaseException as error:  # handed to the main thread below
+            outcome["error"] = error
+
+    worker = threading.Thread(target=read, name="colmap-import", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(0.05)
+            yield "reading", state["fraction"]
+    finally:
+        if worker.is_alive():  # closed early: stop the reader and wait for it
+            state["cancel"] = True
+            worker.join()
+    if "error" in outcome:
+        raise outcome["error"]
     built = _Built()
     try:
-        collection = _build(data, scene, directory, points, backgrounds, animated_camera,
-                            set_scene_camera, built, lambda f, m: report(0.8 + 0.2 * f, m))
+        collection = yield from _build(outcome["data"], scene, directory, points, render_points,
+                                       backgrounds, animated_camera, set_scene_camera, built)
     except BaseException:
         built.remove_all()
         raise
-    # What the reader left out as non-finite, for the operator's report ("points3D: 2, ...").
-    collection["colmap_dropped"] = ", ".join(f"{k}: {v}" for k, v in data.dropped.items())
-    report(1.0, "done")
     return collection
 
 
-def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds: bool,
-           animated: bool, set_scene_camera: bool, built: _Built, report) -> bpy.types.Collection:
+def _build(data: colmap.ColmapScene, scene, directory, points: bool, render_points: bool,
+           backgrounds: bool, animated: bool, set_scene_camera: bool, built: _Built):
+    """Generator of ("building", fraction) steps; returns the new collection."""
     root = Path(directory)
     name = root.name or "COLMAP"
     if name in ("0", "sparse") and root.parent.name:
@@ -260,6 +375,9 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds
     collection["colmap_undistorted_dir"] = str(data.undistorted_dir or "")
     collection["colmap_alignment"] = data.alignment_info.get("method", "none")
     collection["colmap_missing"] = "\n".join(f"{k}: {v}" for k, v in data.missing.items())
+    collection["colmap_warnings"] = "\n".join(data.warnings)
+    # What the reader left out as non-finite, for the operator's report ("points3D: 2, ...").
+    collection["colmap_dropped"] = ", ".join(f"{k}: {v}" for k, v in data.dropped.items())
 
     clip = _clip_range(data)
     objects = []
@@ -287,14 +405,15 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds
             background.alpha = 1.0
         objects.append(obj)
         if k % 16 == 0:
-            report(0.7 * (k + 1) / len(data.images), f"camera {im.name}")
+            yield "building", 0.7 * (k + 1) / len(data.images)
 
     if points and len(data.points):
         size = np.median([np.linalg.norm(im.camera.centre - data.points.xyz.mean(axis=0))
                           for im in data.images])
-        _points_object(f"{collection.name} points", data.points, 0.002 * float(size),
-                       collection, scene, built)
-    report(0.8, "points")
+        cloud = _points_object(f"{collection.name} points", data.points, 0.002 * float(size),
+                               collection, scene, built)
+        cloud.hide_render = not render_points  # a guide for the viewport, not part of a frame
+    yield "building", 0.8
     if animated:
         _animated_camera(f"{collection.name} sequence", data, collection, scene, clip, built)
     if set_scene_camera and objects:
@@ -305,7 +424,7 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds
 
 # -- operators ---------------------------------------------------------------------------------
 
-class SPLAT_OT_import_colmap(bpy.types.Operator):
+class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
     """Import a COLMAP (or GLOMAP) reconstruction: cameras, photos, sparse points"""
 
     bl_idname = "splat.import_colmap"
@@ -329,6 +448,9 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
     scene_size: FloatProperty(name="Scene Size", default=colmap.DEFAULT_SCENE_SIZE, min=0.001,
                               description="Median camera distance from the centre after aligning")
     points: BoolProperty(name="Sparse Points", default=True)
+    render_points: BoolProperty(name="Render Points", default=False,
+                                description="Show the sparse points in final renders too (off: "
+                                            "viewport only)")
     backgrounds: BoolProperty(name="Photo Backgrounds", default=True,
                               description="Show each photo as its camera's background")
     animated_camera: BoolProperty(name="Animated Camera", default=False,
@@ -337,39 +459,48 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
                               description="Where undistorted photos go (empty: beside the "
                                           "input if writable, else a user cache folder)")
 
+    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"},
+                              description="Read on a worker thread with a modal timer (set by "
+                                          "invoke; scripts get a blocking run)")
+
     def invoke(self, context, event):
+        self.interactive = wants_background(context)
         context.window_manager.fileselect_add(self)
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        wm = context.window_manager
-        wm.progress_begin(0, 1000)
-        try:
-            collection = import_colmap(
-                self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
-                scene_size=self.scene_size, cache_dir=self.cache_dir or None,
-                points=self.points, backgrounds=self.backgrounds,
-                animated_camera=self.animated_camera, scene=context.scene,
-                progress=lambda f, m: wm.progress_update(int(1000 * f)))
-        except (colmap.ColmapError, OSError, ImportError) as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        finally:
-            wm.progress_end()
-        missing = collection["colmap_missing"].splitlines()
-        cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
-        if collection["colmap_dropped"]:
-            self.report({"WARNING"}, f"left out as non-finite (NaN or Inf) in the model: "
-                                     f"{collection['colmap_dropped']}")
-        if missing:
-            shown = ", ".join(line.split(":")[0] for line in missing[:5])
-            more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
-            self.report({"WARNING"},
-                        f"{len(missing)} of {cameras} photos missing or unusable in "
-                        f"{self.image_folder} ({shown}{more}): their cameras have no photo")
-        else:
-            self.report({"INFO"}, f"imported {cameras} cameras into '{collection.name}'")
-        return {"FINISHED"}
+        steps = import_steps(
+            self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
+            scene_size=self.scene_size, cache_dir=self.cache_dir or None, points=self.points,
+            render_points=self.render_points, backgrounds=self.backgrounds,
+            animated_camera=self.animated_camera, scene=context.scene)
+        image_folder = self.image_folder
+
+        def finish(running, write):
+            job = running.job
+            if job.error is not None:
+                return "ERROR", str(job.error), None
+            collection = job.result
+            if collection is None:
+                return "WARNING", "COLMAP import cancelled: nothing changed", None
+            for warning in collection["colmap_warnings"].splitlines():
+                self.report({"WARNING"}, warning)
+            if collection["colmap_dropped"]:
+                self.report({"WARNING"}, f"left out as non-finite (NaN or Inf) in the model: "
+                                         f"{collection['colmap_dropped']}")
+            missing = collection["colmap_missing"].splitlines()
+            cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
+            if missing:
+                shown = ", ".join(line.split(":")[0] for line in missing[:5])
+                more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
+                return ("WARNING", f"{len(missing)} of {cameras} photos missing or unusable in "
+                                   f"{image_folder} ({shown}{more}): their cameras have no "
+                                   f"photo", None)
+            return "INFO", f"imported {cameras} cameras into '{collection.name}'", None
+
+        key = f"colmap:{Path(self.directory).resolve()}"
+        return self.run_job(context, OperatorJob(key, "Importing COLMAP",
+                                                 StagedJob(steps, STAGES), finish))
 
 
 class SPLAT_OT_colmap_set_camera(bpy.types.Operator):
@@ -399,16 +530,31 @@ _CLASSES = (SPLAT_OT_import_colmap, SPLAT_OT_colmap_set_camera)
 
 def register() -> None:
     register_classes(_CLASSES)
+    if SWITCH not in bpy.types.Scene.bl_rna.properties:
+        setattr(bpy.types.Scene, SWITCH, BoolProperty(
+            name="Use COLMAP Camera Output", default=True,
+            description="Set the resolution and pixel aspect from each imported COLMAP camera's "
+                        "photo when it becomes the scene camera (also through markers) or a "
+                        "render starts"))
     bpy.types.TOPBAR_MT_file_import.remove(_menu_import)  # no-op unless registered before
     bpy.types.TOPBAR_MT_file_import.append(_menu_import)
-    if _on_load_post not in bpy.app.handlers.load_post:
-        bpy.app.handlers.load_post.append(_on_load_post)
+    bpy.types.RENDER_PT_format.remove(_draw_switch)
+    bpy.types.RENDER_PT_format.append(_draw_switch)
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler not in handlers:
+            handlers.append(handler)
     _subscribe()
 
 
 def unregister() -> None:
     bpy.msgbus.clear_by_owner(_MSGBUS_OWNER)
-    if _on_load_post in bpy.app.handlers.load_post:
-        bpy.app.handlers.load_post.remove(_on_load_post)
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler in handlers:
+            handlers.remove(handler)
+    bpy.types.RENDER_PT_format.remove(_draw_switch)
     bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
     unregister_classes(_CLASSES)
+    if SWITCH in bpy.types.Scene.bl_rna.properties:
+        delattr(bpy.types.Scene, SWITCH)

@@ -37,6 +37,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
+from ..core.axes import snap
 from ..core.gaussians import Gaussians
 from ..core.transform import transform_gaussians
 from . import splat_object
@@ -151,10 +152,13 @@ def _settings_for(evaluated, owner):
 
 
 def gather(depsgraph, *, objects=None, use_cache: bool = True,
-           all_sh_bands: bool = False) -> GatherResult:
+           all_sh_bands: bool = False, space: np.ndarray | None = None) -> GatherResult:
     """World-space splats of every visible splat geometry in `depsgraph` (or of `objects` and
     the instances they make). See the module docstring for what is read and what is cached.
-    `all_sh_bands` keeps every SH band the data holds, ignoring the objects' `sh_degree`."""
+    `all_sh_bands` keeps every SH band the data holds, ignoring the objects' `sh_degree`.
+    `space` (4x4, export's axis conversion) is applied after each world matrix, in the same
+    one transform; the product is snapped (`core.axes.snap`) so an import's axis conversion
+    undone comes back as the exact identity and the data unchanged, bit for bit."""
     start = time.perf_counter()
     wanted = None if objects is None else {o.original.session_uid for o in objects}
     batches: list[SplatBatch] = []
@@ -180,6 +184,8 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
         antialiased = False if settings is None else settings.antialiased
         color_space = "SRGB" if settings is None else settings.color_space
         matrix = np.array(instance.matrix_world, dtype=np.float64)
+        if space is not None:
+            matrix = snap(space @ matrix)
         identity = (evaluated.original.session_uid, owner.session_uid,
                     tuple(instance.persistent_id) if instance.is_instance else None,
                     evaluated.type)

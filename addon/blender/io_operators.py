@@ -16,6 +16,14 @@ matrix (positions, rotations, scales, and SH bands 1-3 rotated; a non-uniform sc
 each Gaussian's shape and rotates the SH by the polar rotation, see `addon.core.transform`).
 `world_space=False` writes the evaluated geometry in object space instead. .splat holds SH
 degree 0 only (higher bands are dropped, with a warning); .spz records the antialiased option.
+
+Axes (`forward_axis`, `up_axis`, as Blender's OBJ/glTF/PLY importers): which file axis becomes
+Blender's forward (+Y) and up (+Z); "AUTO" takes the format's default from the format table
+(`formats.registry`, forward Z and up -Y for every format today: the 3DGS/COLMAP frame is y
+down, so captures from upright photos stand upright). Import keeps the conversion as the
+object's transform (a -90 degree X rotation by default) and the data exactly as in the file;
+export applies the inverse after the world matrix in one transform (SH rotated with it), so an
+import then export with the same options writes the same numbers, bit for bit.
 """
 
 from __future__ import annotations
@@ -24,43 +32,59 @@ import os
 from pathlib import Path
 
 import bpy
-from bpy.props import BoolProperty, CollectionProperty, StringProperty
+from bpy.props import BoolProperty, CollectionProperty, EnumProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper, poll_file_object_drop
 
-from ..core import splat_io
+import numpy as np
+
+from ..core import axes, splat_io
+from ..core.formats import registry
 from ..core.formats.errors import SplatFileError
 from ..core.gaussians import Gaussians
+from ..core.transform import transform_gaussians
 from . import gather, splat_object
+from .camera_adapter import to_matrix
+from .job_runner import preparing
 from .registration import register_classes, unregister_classes
 
 FILTER_GLOB = "*.ply;*.splat;*.spz"
 
 
 def read_splat_file(filepath: str | os.PathLike) -> tuple[Gaussians, bool]:
-    """(Gaussians, antialiased) from a splat file; only .spz records the antialiased mode."""
-    path = Path(filepath)
-    if path.suffix.lower() == ".spz":
-        from ..core.formats import spz
+    """(Gaussians, antialiased) from a splat file; formats that do not record the antialiased
+    mode give False."""
+    return registry.read(Path(filepath))
 
-        packed = spz.read_packed(path)
-        return spz.unpack(packed, path), bool(packed.antialiased)
-    return splat_io.load(path), False
+
+def file_axes(filepath: str | os.PathLike, forward_axis: str | None = "AUTO",
+              up_axis: str | None = "AUTO") -> np.ndarray:
+    """The 4x4 taking the file's frame to Blender's for these options ("AUTO" or None: the
+    format's default, see `formats.registry.SplatFormat.axes`). ValueError for a bad pair."""
+    default_forward, default_up = registry.format_for(filepath).axes
+    forward = default_forward if forward_axis in (None, "AUTO") else forward_axis
+    up = default_up if up_axis in (None, "AUTO") else up_axis
+    return axes.axis_matrix4(forward, up)
 
 
 def import_splats(filepath: str | os.PathLike, *, name: str | None = None, collection=None,
-                  context=None) -> bpy.types.Object:
+                  context=None, forward_axis: str | None = "AUTO",
+                  up_axis: str | None = "AUTO") -> bpy.types.Object:
     """Load a splat file into a new splat object (in `collection`, by default the active one),
-    deselect everything else and make it active. Raises SplatFileError for a bad file, with the
-    scene unchanged."""
+    deselect everything else and make it active; the axis conversion becomes the object's
+    transform (see the module docstring). Raises SplatFileError for a bad file (ValueError
+    for bad axes), with the scene unchanged."""
     context = context or bpy.context
     path = Path(filepath)
+    matrix = file_axes(path, forward_axis, up_axis)
     gaussians, antialiased = read_splat_file(path)
     if collection is None:
         collection = getattr(context, "collection", None) or context.scene.collection
     obj = splat_object.create_splat_object(
         gaussians, name or path.stem, collection=collection, antialiased=antialiased,
         source_path=str(path))
+    obj.matrix_world = to_matrix(matrix)
     view_layer = context.view_layer
+    view_layer.update()  # a newly linked object shows in the layer's objects after an update
     for other in view_layer.objects:
         if other.select_get(view_layer=view_layer):
             other.select_set(False, view_layer=view_layer)
@@ -70,17 +94,22 @@ def import_splats(filepath: str | os.PathLike, *, name: str | None = None, colle
     return obj
 
 
-def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True) -> Gaussians:
+def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True,
+                        space: np.ndarray | None = None) -> Gaussians:
     """What `obj` renders as (evaluated, hidden vertices dropped, instances it makes included),
-    in world space or, with `world_space=False`, in its own space. Every SH band the data holds
-    is kept, whatever the object's `sh_degree` render option says."""
+    in world space or, with `world_space=False`, in its own space; then taken by the 4x4
+    `space` (export's axis conversion; see `gather.gather`). Every SH band the data holds is
+    kept, whatever the object's `sh_degree` render option says."""
     depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
     if not world_space:
         evaluated = obj.evaluated_get(depsgraph)
         if evaluated.type == "MESH" and evaluated.data.is_editmode:
-            return gather.edit_mode_gaussians(evaluated)
-        return splat_object.gaussians_from_data(evaluated.data)
-    result = gather.gather(depsgraph, objects=[obj], use_cache=False, all_sh_bands=True)
+            local = gather.edit_mode_gaussians(evaluated)
+        else:
+            local = splat_object.gaussians_from_data(evaluated.data)
+        return local if space is None else transform_gaussians(local, axes.snap(space))
+    result = gather.gather(depsgraph, objects=[obj], use_cache=False, all_sh_bands=True,
+                           space=space)
     if not result.batches:
         raise splat_object.SplatDataError(
             f"{obj.name!r} shows no splats (is it hidden, or do its modifiers remove the splat "
@@ -89,29 +118,33 @@ def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True) -> Gau
 
 
 def export_splats(obj, filepath: str | os.PathLike, *, depsgraph=None,
-                  world_space: bool = True) -> list[str]:
-    """Write `obj` (see `evaluated_gaussians`) to `filepath`; the format follows from the
-    extension. Returns warnings (e.g. SH bands a format cannot hold)."""
+                  world_space: bool = True, forward_axis: str | None = "AUTO",
+                  up_axis: str | None = "AUTO") -> list[str]:
+    """Write `obj` (see `evaluated_gaussians`) to `filepath`, Blender's frame taken to the
+    file's by the axis options (the inverse of import's); the format follows from the name.
+    Returns warnings (e.g. SH bands a format cannot hold)."""
     path = Path(filepath)
-    suffix = path.suffix.lower()
-    if suffix not in splat_io.SUFFIXES:
-        raise SplatFileError(path, f"unknown splat format {suffix or '(no extension)'!r}; "
-                                   f"expected one of {', '.join(splat_io.SUFFIXES)}")
+    fmt = registry.format_for(path)  # SplatFileError for an unknown ending
+    if not fmt.can_write:
+        raise SplatFileError(path, f"{fmt.name} files cannot be written")
     if not path.parent.is_dir():
         raise SplatFileError(path, f"folder {str(path.parent)!r} does not exist")
-    gaussians = evaluated_gaussians(obj, depsgraph, world_space=world_space)
-    warnings = []
-    if suffix == ".splat" and gaussians.degree > 0:
-        warnings.append(f".splat holds SH degree 0 only: bands 1-{gaussians.degree} were dropped")
-        gaussians = gaussians.with_degree(0)
-    if suffix == ".spz":
-        from ..core.formats import spz
+    space = np.linalg.inv(file_axes(path, forward_axis, up_axis))
+    gaussians = evaluated_gaussians(obj, depsgraph, world_space=world_space, space=space)
+    antialiased = bool(getattr(getattr(obj, "splat", None), "antialiased", False))
+    if not fmt.stores_antialiased:
+        antialiased = False  # the format cannot say it; nothing to warn about on export
+    return registry.write(gaussians, path, antialiased=antialiased)
 
-        antialiased = bool(getattr(getattr(obj, "splat", None), "antialiased", False))
-        spz.save(gaussians, path, antialiased=antialiased)
-    else:
-        splat_io.save(gaussians, path)
-    return warnings
+
+AXIS_ITEMS = [("AUTO", "Auto", "The file format's convention (3DGS .ply, .splat, .spz, SOG, "
+                               "glTF: forward Z, up -Y)")] + [
+    (name, name, "") for name in axes.AXES]
+
+
+def _axis_prop(which: str, blender_axis: str) -> EnumProperty:
+    return EnumProperty(name=which, items=AXIS_ITEMS, default="AUTO",
+                        description=f"File axis that is Blender's {which.lower()} ({blender_axis})")
 
 
 class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
@@ -127,6 +160,8 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
     files: CollectionProperty(type=bpy.types.OperatorFileListElement,
                               options={"HIDDEN", "SKIP_SAVE"})
     directory: StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
+    forward_axis: _axis_prop("Forward", "+Y")
+    up_axis: _axis_prop("Up", "+Z")
 
     def paths(self) -> list[Path]:
         names = [f.name for f in self.files if f.name]
@@ -145,19 +180,24 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
         if context.mode != "OBJECT" and context.active_object is not None:
             bpy.ops.object.mode_set(mode="OBJECT")
         loaded = []
-        for path in paths:
-            try:
-                gaussians, antialiased = read_splat_file(path)
-            except (SplatFileError, OSError) as error:
-                self.report({"ERROR"}, f"Cannot import: {error}")
-                return {"CANCELLED"}
-            loaded.append((path, gaussians, antialiased))
+        with preparing(context, "Importing splats", ", ".join(p.name for p in paths)) as progress:
+            for k, path in enumerate(paths):
+                progress(k / len(paths), "")
+                try:
+                    matrix = file_axes(path, self.forward_axis, self.up_axis)
+                    gaussians, antialiased = read_splat_file(path)
+                except (SplatFileError, OSError, ValueError) as error:
+                    self.report({"ERROR"}, f"Cannot import: {error}")
+                    return {"CANCELLED"}
+                loaded.append((path, gaussians, antialiased, matrix))
         objects = []
         try:
-            for path, gaussians, antialiased in loaded:
-                objects.append(splat_object.create_splat_object(
+            for path, gaussians, antialiased, matrix in loaded:
+                obj = splat_object.create_splat_object(
                     gaussians, path.stem, collection=context.collection or context.scene.collection,
-                    antialiased=antialiased, source_path=str(path)))
+                    antialiased=antialiased, source_path=str(path))
+                objects.append(obj)
+                obj.matrix_world = to_matrix(matrix)
         except Exception as error:  # nothing half made: remove what this call created
             for obj in objects:
                 mesh = obj.data
@@ -171,7 +211,7 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
         for obj in objects:
             obj.select_set(True)
         view_layer.objects.active = objects[-1]
-        total = sum(len(g) for _, g, _ in loaded)
+        total = sum(len(entry[1]) for entry in loaded)
         self.report({"INFO"}, f"Imported {total:,} splats from {len(loaded)} file(s)")
         return {"FINISHED"}
 
@@ -190,6 +230,8 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
         description="Apply the object's world transform (rotating the SH with it); off: write "
                     "the evaluated geometry in object space",
         default=True)
+    forward_axis: _axis_prop("Forward", "+Y")
+    up_axis: _axis_prop("Up", "+Z")
 
     @classmethod
     def poll(cls, context):
@@ -209,9 +251,15 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
             self.report({"ERROR"}, "The active object is not a splat object")
             return {"CANCELLED"}
         try:
-            warnings = export_splats(obj, self.filepath,
-                                     depsgraph=context.evaluated_depsgraph_get(),
-                                     world_space=self.world_space)
+            # One stage: the cursor's counter in the UI, a terminal line headless.
+            with preparing(context, "Exporting", f"{obj.name} to {Path(self.filepath).name}") \
+                    as progress:
+                progress(0.0, "")
+                warnings = export_splats(obj, self.filepath,
+                                         depsgraph=context.evaluated_depsgraph_get(),
+                                         world_space=self.world_space,
+                                         forward_axis=self.forward_axis, up_axis=self.up_axis)
+                progress(1.0, "")
         except (SplatFileError, splat_object.SplatDataError, OSError, ValueError) as error:
             self.report({"ERROR"}, f"Cannot export: {error}")
             return {"CANCELLED"}

@@ -243,11 +243,13 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
         views.extend(surface.render_views(gaussians, [cam], antialiased=gathered.antialiased))
         yield "render", (i + 1) / len(cams)
     stats["render_s"] = time.perf_counter() - t0
+    yield "fuse", 0.0  # each stage is announced as it starts (a headless line says what runs)
     t = time.perf_counter()
     volume = surface.fuse_tsdf([v.depth for v in views], [v.alpha for v in views], cams,
                                bounds, resolution)
     yield "fuse", 1.0
     stats["fuse_s"] = time.perf_counter() - t
+    yield "extract", 0.0
     t = time.perf_counter()
     vertices, faces = surface.extract_surface(volume)
     vertices, faces = surface.largest_components(vertices, faces, min_fraction=0.01)
@@ -257,14 +259,17 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
     stats["extract_s"] = time.perf_counter() - t
     stats["extracted_triangles"] = len(faces)
     yield "extract", 1.0
+    yield "decimate", 0.0
     t = time.perf_counter()
     vertices, faces = _decimate(vertices, faces, max_triangles)
     stats["decimate_s"] = time.perf_counter() - t
     yield "decimate", 1.0
+    yield "unwrap", 0.0
     t = time.perf_counter()
     corner_uvs = mesh_texture.unwrap(vertices, faces, texture_size)
     stats["unwrap_s"] = time.perf_counter() - t
     yield "unwrap", 1.0
+    yield "texture", 0.0
     t = time.perf_counter()
     texture = mesh_texture.project_texture(vertices, faces, views, texture_size,
                                            tolerance=2.0 * volume.grid.voxel,

@@ -83,14 +83,45 @@ class Photo:
     orientation: int  # EXIF orientation to apply to the stored pixels (1: none)
 
 
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr", ".webp", ".bmp")
+
+
+def renamed_photos(registered, image_dir: Path | None,
+                   warnings: list[str] | None) -> dict[str, Path] | str | None:
+    """LLFF-style folders (`images_4/image000.png`, ...) rename the photos in the sorted order
+    of the model's names. When none of the model's names is in `image_dir`: the photos mapped
+    in sorted order if their count is the model's (a warning appended to `warnings`), else the
+    reason they cannot be matched (a str). None when some names are there (nothing renamed)."""
+    if image_dir is None or not image_dir.is_dir() or any(
+            (image_dir / im.name).is_file() for im in registered):
+        return None
+    files = sorted(p for p in image_dir.iterdir()
+                   if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
+    if len(files) != len(registered):
+        return (f"no photo in {image_dir} has a model image's name, and its {len(files)} "
+                f"photos cannot stand for the {len(registered)} registered images in sorted "
+                f"order (the counts differ)")
+    if warnings is not None:
+        warnings.append(
+            f"{image_dir}: no photo has a model image's name; its {len(files)} photos were "
+            f"matched to the {len(registered)} registered images in sorted name order "
+            f"({files[0].name} is {registered[0].name}), as LLFF-style folders are made")
+    return {im.name: path for im, path in zip(registered, files)}
+
+
 def find_photos(registered, rec, image_dir: Path | None,
-                images_file: Path) -> tuple[dict[str, Photo], dict[str, str]]:
+                warnings: list[str] | None = None) -> tuple[dict[str, Photo], dict[str, str]]:
     """The photos of the `registered` images that fit their cameras, and why the others do not.
     Names were checked on reading (`checks.image_name`); a photo that is a link leading outside
     `image_dir` is not read (missing, with the reason)."""
     found, missing = {}, {}
+    renamed = renamed_photos(registered, image_dir, warnings)
+    if isinstance(renamed, str):
+        return found, {im.name: renamed for im in registered}
     for im in registered:
         src = image_dir / im.name if image_dir is not None else None
+        if renamed is not None:
+            src = renamed[im.name]
         if src is None or not src.is_file():
             missing[im.name] = "not found"
             continue

@@ -58,7 +58,8 @@ def read_colmap(path: str | os.PathLike, image_folder: str = "images", *,
     lap("read_model")
 
     image_dir = find_image_dir(path, model_dir, image_folder)
-    found, missing = find_photos(registered, rec, image_dir, images_file)
+    warnings: list[str] = []
+    found, missing = find_photos(registered, rec, image_dir, warnings)
     if not found and require_photos:
         where = image_dir if image_dir is not None else f"{image_folder} (no such folder beside {model_dir})"
         first = registered[0].name
@@ -105,7 +106,8 @@ def read_colmap(path: str | os.PathLike, image_folder: str = "images", *,
         images.append(ColmapImage(
             image_id=int(im.image_id), name=im.name, camera_id=int(im.camera_id), camera=camera,
             path=photo.source if as_is else None,
-            source_path=image_dir / im.name if image_dir is not None else None,
+            source_path=(photo.source if photo is not None else
+                         image_dir / im.name if image_dir is not None else None),
             points2D=undistort_points(intr, camera, xy), point3D_ids=ids))
     points = points_of(rec, points_file, dropped)
     lap("cameras_points")
@@ -128,7 +130,7 @@ def read_colmap(path: str | os.PathLike, image_folder: str = "images", *,
         model_dir=model_dir, image_dir=image_dir, image_folder=str(image_folder), images=images,
         points=points, missing=missing,
         camera_models={cid: intr.model for cid, intr in intrinsics.items()},
-        undistorted_dir=undistorted_dir, timings=timings,
+        undistorted_dir=undistorted_dir, timings=timings, warnings=warnings,
         dropped={what: n for what, n in dropped.items() if n})
     if align:
         scene = scene.aligned(up=up, scene_size=scene_size)

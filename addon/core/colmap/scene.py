@@ -62,6 +62,7 @@ class ColmapScene:
     timings: dict = field(default_factory=dict)  # seconds per step
     # What was left out as unusable (non-finite values), with counts: "points3D", "observations".
     dropped: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)  # for the user (e.g. photos matched by order)
 
     @property
     def with_photos(self) -> list[ColmapImage]:

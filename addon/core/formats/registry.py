@@ -69,6 +69,10 @@ class SplatFormat:
     quantisation: str  # what a save then load changes (details in the module docstring)
     needs: tuple[str, ...] = ()  # Python modules it imports, beyond numpy
     whole_name: bool = False  # `endings` are complete file names, not suffixes
+    # Default (forward, up) axes for import and export (`core.axes`): what stands the format's
+    # usual captures upright in Blender. Readers all return the 3DGS .ply frame (SPZ and glTF
+    # convert from their declared RUB frame), whose captures are y-down like COLMAP's.
+    axes: tuple[str, str] = ("Z", "-Y")
     notes: str = field(default="", compare=False)
 
     @property

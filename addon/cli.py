@@ -1,0 +1,395 @@
+"""The command line: one parser and one implementation per verb, for both entry points.
+
+    blender -c gaussian_splatting <verb> [options]    Blender 4.2+ with the extension enabled
+    python -m addon <verb> [options]                  this project's venv (the bpy wheel)
+
+Verbs (each has `--help`):
+    import-colmap FOLDER --out scene.blend             COLMAP cameras, photos and points
+    train FOLDER|scene.blend --out out.ply|out.blend   train Gaussians on the CPU
+    render scene.blend --out /tmp/frame_ [--frames 1-24]
+    convert-to-mesh in.ply|scene.blend --out mesh.blend
+    convert in.ply out.spz [--forward Z --up -Y]       splat file to splat file
+
+Every verb but `convert` runs Blender's own operators (the ones the menus run, with their
+defaults: an option left out here is the operator's default), headless: long jobs print a
+line per stage and every few seconds. `convert` needs no Blender at all. Exit status: 0 done,
+1 the work failed (the reason on stderr), 2 bad arguments.
+
+Parsing is Blender-free, so `--help` is instant; `bpy` is imported only by the verbs that need
+it (inside Blender that is Blender's own; in the venv the bpy wheel, with the add-on registered
+from this package).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+from .core import axes
+
+COMMAND_ID = "gaussian_splatting"  # `blender -c gaussian_splatting ...` (the extension's id)
+
+
+class CommandError(Exception):
+    """A verb cannot do its work: the message says why (exit status 1)."""
+
+
+# -- shared pieces ---------------------------------------------------------------------------
+
+def _axis(text: str) -> str:
+    if str(text).upper() == "AUTO":
+        return "AUTO"
+    try:
+        return axes.parse_axis(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _add_axes(parser: argparse.ArgumentParser, prefix: str = "", what: str = "the file") -> None:
+    dest = prefix.replace("-", "_")
+    parser.add_argument(f"--{prefix}forward", dest=f"{dest}forward", type=_axis, default="AUTO",
+                        metavar="AXIS", help=f"axis of {what} that is Blender's forward (+Y): "
+                        "X, Y, Z, -X, -Y, -Z or auto (the format's convention; default)")
+    parser.add_argument(f"--{prefix}up", dest=f"{dest}up", type=_axis, default="AUTO",
+                        metavar="AXIS", help=f"axis of {what} that is Blender's up (+Z) "
+                        "(default auto)")
+
+
+def _frames(text: str) -> tuple[int, int]:
+    try:
+        first, _, last = text.partition("-")
+        first_frame = int(first)
+        last_frame = int(last) if last else first_frame
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"frames {text!r}: expected N or FIRST-LAST") from None
+    if last_frame < first_frame:
+        raise argparse.ArgumentTypeError(f"frames {text!r}: the last is before the first")
+    return first_frame, last_frame
+
+
+def _blender():
+    """bpy with the add-on's operators registered (in the venv, from this package)."""
+    import bpy
+
+    if not hasattr(bpy.types, "SPLAT_OT_import_splats"):
+        from . import register
+        register()
+    return bpy
+
+
+def _empty_scene(bpy) -> None:
+    # The factory startup, emptied (preferences, and so the enabled extensions, are kept).
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    _blender()
+
+
+def _open(bpy, path: Path) -> None:
+    if not path.is_file():
+        raise CommandError(f"{path}: no such .blend file")
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    _blender()
+
+
+def _save(bpy, path: Path) -> None:
+    path = path.resolve()
+    if not path.parent.is_dir():
+        raise CommandError(f"{path}: folder {path.parent} does not exist")
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    print(f"saved {path}", flush=True)
+
+
+def _options(args: argparse.Namespace, names: Sequence[str]) -> dict:
+    """The operator options given on the command line (left out: the operator's default)."""
+    return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
+
+
+def _is_splat_file(path: Path) -> bool:
+    from .core.formats import registry
+    try:
+        registry.format_for(path)
+    except ValueError:
+        return False
+    return True
+
+
+def _splat_object(bpy, source: Path, object_name: str | None, forward: str, up: str):
+    """A splat object: imported from a splat file, or named (or the only one) in a .blend."""
+    from .blender import io_operators, splat_object
+
+    if source.suffix.lower() == ".blend":
+        _open(bpy, source)
+        candidates = [o for o in bpy.context.scene.objects if splat_object.is_splat_object(o)]
+        if object_name:
+            candidates = [o for o in candidates if o.name == object_name]
+        if len(candidates) != 1:
+            names = ", ".join(o.name for o in candidates) or "none"
+            raise CommandError(f"{source}: name the splat object with --object (splat objects: "
+                               f"{names})")
+        return candidates[0]
+    _empty_scene(bpy)
+    return io_operators.import_splats(source, forward_axis=forward, up_axis=up)
+
+
+def _activate(bpy, obj) -> None:
+    layer = bpy.context.view_layer
+    layer.update()
+    for other in layer.objects:
+        other.select_set(False)
+    obj.select_set(True)
+    layer.objects.active = obj
+
+
+# -- verbs -----------------------------------------------------------------------------------
+
+def _import_colmap(args: argparse.Namespace) -> None:
+    bpy = _blender()
+    _empty_scene(bpy)
+    options = _options(args, ("image_folder", "align", "scene_size", "points", "render_points",
+                              "backgrounds", "animated_camera", "cache_dir"))
+    if args.up_from is not None:
+        options["up_axis"] = args.up_from.upper()
+    bpy.ops.splat.import_colmap(directory=str(Path(args.folder).resolve()), **options)
+    _save(bpy, Path(args.out))
+
+
+def _train(args: argparse.Namespace) -> None:
+    bpy = _blender()
+    source = Path(args.source)
+    if source.suffix.lower() == ".blend":
+        _open(bpy, source)
+    else:
+        _empty_scene(bpy)
+        bpy.ops.splat.import_colmap(directory=str(source.resolve()),
+                                    **_options(args, ("image_folder",)))
+    from .blender import train_operator
+
+    collection = train_operator.find_colmap_collection(bpy.context, args.collection or "")
+    if collection is None:
+        raise CommandError(f"{source}: no single COLMAP scene to train (name it with "
+                           f"--collection)")
+    options = _options(args, ("steps", "max_gaussians", "sh_degree", "downscale", "seed",
+                              "threads", "antialiased", "compact", "resume", "checkpoint"))
+    if args.image_folder is not None and source.suffix.lower() == ".blend":
+        options["image_folder"] = args.image_folder
+    bpy.ops.splat.train(collection=collection.name, **options)
+    obj = collection.get(train_operator.OBJECT_KEY)
+    if obj is not None and bpy.data.objects.get(obj.name) != obj:
+        obj = None
+    out = Path(args.out)
+    if out.suffix.lower() == ".blend":
+        _save(bpy, out)
+        return
+    if obj is None:
+        raise CommandError("training made no splat object")
+    _export(bpy, obj, out, args.forward, args.up)
+
+
+def _export(bpy, obj, out: Path, forward: str, up: str) -> None:
+    from .blender import io_operators
+    for warning in io_operators.export_splats(obj, out, forward_axis=forward, up_axis=up):
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"wrote {out}", flush=True)
+
+
+def _render(args: argparse.Namespace) -> None:
+    bpy = _blender()
+    _open(bpy, Path(args.blend))
+    scene = bpy.context.scene
+    if args.camera:
+        camera = scene.objects.get(args.camera)
+        if camera is None or camera.type != "CAMERA":
+            raise CommandError(f"{args.blend}: no camera object named {args.camera!r}")
+        scene.camera = camera
+    if args.engine:
+        scene.render.engine = args.engine
+    first, last = args.frames or (scene.frame_current, scene.frame_current)
+    out = str(Path(args.out).resolve()) if args.out else scene.render.filepath
+    # Frame by frame, as stills: each frame gets its own camera's output size (markers).
+    for frame in range(first, last + 1):
+        scene.frame_set(frame)
+        scene.render.filepath = out
+        path = scene.render.frame_path(frame=frame)
+        scene.render.filepath = path
+        if bpy.ops.render.render(write_still=True) != {"FINISHED"}:
+            raise CommandError(f"frame {frame}: the render did not finish")
+        size = (scene.render.resolution_x * scene.render.resolution_percentage // 100,
+                scene.render.resolution_y * scene.render.resolution_percentage // 100)
+        camera = scene.camera.name if scene.camera is not None else "no camera"
+        print(f"frame {frame} ({camera}, {size[0]}x{size[1]}) -> {path}", flush=True)
+    scene.render.filepath = out
+
+
+def _convert_to_mesh(args: argparse.Namespace) -> None:
+    bpy = _blender()
+    obj = _splat_object(bpy, Path(args.source), args.object, args.forward, args.up)
+    _activate(bpy, obj)
+    options = _options(args, ("resolution", "max_triangles", "texture_size", "cameras",
+                              "view_count", "view_size", "proxy"))
+    bpy.ops.splat.convert_to_mesh(**options)
+    for image in bpy.data.images:
+        if image.source == "GENERATED" or image.is_dirty:
+            image.pack()
+    _save(bpy, Path(args.out))
+
+
+def _convert(args: argparse.Namespace) -> None:
+    """File to file without Blender: read, take the input's frame to Blender's and Blender's
+    to the output's (one rotation, snapped: the identity leaves the data untouched), write."""
+    from .core.formats import registry
+    from .core.transform import transform_gaussians
+
+    source, target = Path(args.input), Path(args.output)
+    if not target.parent.is_dir():
+        raise CommandError(f"{target}: folder {target.parent} does not exist")
+
+    def frame(path: Path, forward: str, up: str):
+        default_forward, default_up = registry.format_for(path).axes
+        return axes.axis_matrix4(default_forward if forward == "AUTO" else forward,
+                                 default_up if up == "AUTO" else up)
+
+    import numpy as np
+
+    into_blender = frame(source, args.forward, args.up)
+    out_of_blender = np.linalg.inv(frame(target, args.out_forward, args.out_up))
+    gaussians, antialiased = registry.read(source)
+    gaussians = transform_gaussians(gaussians, axes.snap(out_of_blender @ into_blender))
+    for warning in registry.write(gaussians, target, antialiased=antialiased):
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"{source} -> {target}: {len(gaussians):,} splats", flush=True)
+
+
+# -- the parser ------------------------------------------------------------------------------
+
+def build_parser(prog: str) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=prog, description="Gaussian Splatting for Blender, from the command line.",
+        epilog="Each verb has --help. Options left out take the operator's default (README).")
+    verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+    p = verbs.add_parser("import-colmap", help="COLMAP cameras, photos and points to a .blend",
+                         description="Import a COLMAP (or GLOMAP) workspace or model folder into "
+                                     "an empty scene and save it as a .blend.")
+    p.add_argument("folder", help="COLMAP workspace (with sparse/0) or model folder")
+    p.add_argument("--out", required=True, help="the .blend to write")
+    p.add_argument("--images", dest="image_folder", help="image folder beside the model: "
+                   "images (default), images_2, images_4, images_8, or an absolute path")
+    p.add_argument("--no-align", dest="align", action="store_false", default=None,
+                   help="keep COLMAP's frame (default: stand the scene upright, centred, scaled)")
+    p.add_argument("--up-from", choices=("auto", "cameras"), help="how the up direction is "
+                   "found when aligning (default auto: cameras' horizon and the ground)")
+    p.add_argument("--scene-size", type=float, help="median camera distance after aligning")
+    p.add_argument("--no-points", dest="points", action="store_false", default=None,
+                   help="leave the sparse points out")
+    p.add_argument("--render-points", action="store_true", default=None,
+                   help="show the sparse points in final renders too (default: viewport only)")
+    p.add_argument("--no-backgrounds", dest="backgrounds", action="store_false", default=None,
+                   help="no photos as camera backgrounds")
+    p.add_argument("--animated-camera", action="store_true", default=None,
+                   help="also a camera that follows the photos, one frame each")
+    p.add_argument("--cache-dir", help="where undistorted photos go")
+    p.set_defaults(run=_import_colmap)
+
+    p = verbs.add_parser("train", help="train Gaussians from a COLMAP scene",
+                         description="Train Gaussians on the CPU from a COLMAP folder (imported "
+                                     "first) or a .blend holding an imported COLMAP scene; "
+                                     "write the splats (.ply, .spz, ...) or save a .blend.")
+    p.add_argument("source", help="COLMAP folder, or a .blend with an imported COLMAP scene")
+    p.add_argument("--out", required=True, help="splat file (.ply, .spz, ...) or .blend")
+    p.add_argument("--collection", help="the COLMAP collection in the .blend (default: the only one)")
+    p.add_argument("--images", dest="image_folder", help="image folder (images_4, ...)")
+    p.add_argument("--steps", type=int, help="total optimisation steps")
+    p.add_argument("--max-gaussians", type=int, help="the Gaussian budget")
+    p.add_argument("--sh-degree", type=int, choices=range(4), help="SH bands to train")
+    p.add_argument("--downscale", type=float, help="divide the photos' size by this")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--threads", type=int, help="0: every core")
+    p.add_argument("--antialiased", action="store_true", default=None,
+                   help="train for the antialiased (Mip) render mode")
+    p.add_argument("--compact", action="store_true", default=None,
+                   help="prune negligible Gaussians and SH bands afterwards")
+    p.add_argument("--checkpoint", help="checkpoint file")
+    p.add_argument("--resume", action="store_true", default=None,
+                   help="continue from the checkpoint")
+    _add_axes(p, what="the written splat file")
+    p.set_defaults(run=_train)
+
+    p = verbs.add_parser("render", help="render frames of a .blend, each at its camera's size",
+                         description="Render frames of a .blend as stills, one by one, so each "
+                                     "frame gets its own camera's recorded output size and "
+                                     "pixel aspect (COLMAP cameras, markers); splats composed "
+                                     "with the meshes as in F12.")
+    p.add_argument("blend", help="the .blend to render")
+    p.add_argument("--out", help="output path prefix, # for the frame number as in Blender "
+                   "(default: the scene's output path)")
+    p.add_argument("--frames", type=_frames, help="N or FIRST-LAST (default: the current frame)")
+    p.add_argument("--camera", help="camera object to render from (default: the scene's)")
+    p.add_argument("--engine", help="render engine id (default: the scene's)")
+    p.set_defaults(run=_render)
+
+    p = verbs.add_parser("convert-to-mesh", help="splats to a textured mesh in a .blend",
+                         description="Convert splats (a splat file, or a splat object in a "
+                                     ".blend) to a textured triangle mesh and save a .blend "
+                                     "with the texture packed.")
+    p.add_argument("source", help="splat file or .blend")
+    p.add_argument("--out", required=True, help="the .blend to write")
+    p.add_argument("--object", help="the splat object in a .blend (default: the only one)")
+    p.add_argument("--resolution", type=int, help="volume cells along the longest side")
+    p.add_argument("--max-triangles", type=int, help="triangle budget")
+    p.add_argument("--texture-size", type=int, help="texture width and height")
+    p.add_argument("--cameras", choices=("AUTO", "COLMAP", "SPHERE"), type=str.upper)
+    p.add_argument("--view-count", type=int, help="cameras on the sphere")
+    p.add_argument("--view-size", type=int, help="largest side of each depth render")
+    p.add_argument("--proxy", action="store_true", default=None,
+                   help="make the mesh a shadow catcher and collider for the splats")
+    _add_axes(p, what="the splat file")
+    p.set_defaults(run=_convert_to_mesh)
+
+    p = verbs.add_parser("convert", help="splat file to splat file (no Blender needed)",
+                         description="Read a splat file and write it in the format the output "
+                                     "name says, converting axes: the input's --forward/--up "
+                                     "to Blender's frame, Blender's to the output's "
+                                     "--out-forward/--out-up (SH rotated with it). With the "
+                                     "defaults the data keeps its frame.")
+    p.add_argument("input")
+    p.add_argument("output")
+    _add_axes(p, what="the input")
+    _add_axes(p, prefix="out-", what="the output")
+    p.set_defaults(run=_convert)
+    return parser
+
+
+AXIS_FLAGS = ("--forward", "--up", "--out-forward", "--out-up")
+
+
+def _join_negative_axes(argv: list[str]) -> list[str]:
+    """`--up -Y` as `--up=-Y`: argparse takes a value starting with '-' for an option."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in AXIS_FLAGS and arg.upper() in ("-X", "-Y", "-Z"):
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
+KNOWN_ERRORS: tuple[type[BaseException], ...] = (CommandError, ValueError, OSError, RuntimeError)
+
+
+def main(argv: Sequence[str] | None = None, prog: str = "python -m addon") -> int:
+    """Run one verb; returns the exit status (never raises for bad input or a failed job)."""
+    parser = build_parser(prog)
+    try:
+        args = parser.parse_args(_join_negative_axes(list(sys.argv[1:] if argv is None else argv)))
+    except SystemExit as exit_:  # --help (0) or bad arguments (2): argparse printed why
+        return int(exit_.code or 0)
+    run: Callable[[argparse.Namespace], None] = args.run
+    try:
+        run(args)
+    except KNOWN_ERRORS as error:
+        message = str(error).strip() or type(error).__name__
+        message = message.removeprefix("Error: ")  # bpy.ops' RuntimeError repeats the level
+        print(f"{prog} {args.verb}: error: {message}", file=sys.stderr, flush=True)
+        return 1
+    return 0
