@@ -61,6 +61,7 @@ def test_every_writable_format_round_trips_through_the_table(rng: np.random.Gene
     back, antialiased = registry.read(path)
     assert antialiased == fmt.stores_antialiased
     assert len(back) == 40 and back.degree == fmt.max_sh_degree
-    order = np.lexsort(g.means.T)  # some formats reorder (Morton order): compare as sets
-    got = np.lexsort(back.means.T)
-    np.testing.assert_allclose(back.means[got], g.means[order], atol=0.02)
+    # Some formats reorder (Morton order): every Gaussian must come back near one of the originals.
+    distances = np.linalg.norm(back.means[:, None, :] - g.means[None, :, :], axis=2)
+    assert distances.min(axis=1).max() < 0.02
+    assert len(set(distances.argmin(axis=1))) == 40

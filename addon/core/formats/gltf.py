@@ -66,7 +66,7 @@ FLOAT, BYTE, UBYTE, SHORT, USHORT = 5126, 5120, 5121, 5122, 5123
 COMPONENTS = {FLOAT: ("<f4", 4), BYTE: ("<i1", 1), UBYTE: ("<u1", 1), SHORT: ("<i2", 2), USHORT: ("<u2", 2)}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 ARRAY_BUFFER = 34962
-MAX_JSON_BYTES = 256 << 20
+MAX_JSON_BYTES = 1 << 31  # a .gltf with its buffer embedded as base64 (about 4/3 of a .glb)
 MAX_NODE_DEPTH = 64
 GENERATOR = "Gaussian Splatting for Blender"
 
