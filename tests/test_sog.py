@@ -298,10 +298,23 @@ def test_bad_bundles(small_sog: Path, tmp_path: Path) -> None:
         sog.load(truncated)
 
 
-def test_missing_openimageio_is_named(small_sog: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_deflated_bundle_reads(small_sog: Path, tmp_path: Path) -> None:
+    bundle = tmp_path / "deflated.sog"
+    with zipfile.ZipFile(bundle, "w", zipfile.ZIP_DEFLATED) as archive:
+        for path in small_sog.iterdir():
+            archive.write(path, path.name)
+    a, b = sog.load(bundle), sog.load(small_sog)
+    for name, value in a.arrays().items():
+        np.testing.assert_array_equal(value, getattr(b, name), err_msg=name)
+
+
+def test_missing_openimageio_is_named(small_sog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "OpenImageIO", None)
     with pytest.raises(SplatFileError, match="'OpenImageIO'"):
         sog.load(small_sog)
+    with pytest.raises(SplatFileError, match="'OpenImageIO'"):
+        sog.save(Gaussians.empty(), tmp_path / "x.sog")
+    assert not (tmp_path / "x.sog").exists()
 
 
 @pytest.fixture()
