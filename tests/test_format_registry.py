@@ -45,6 +45,7 @@ def test_patterns_and_filter() -> None:
     glob = registry.filter_glob().split(";")
     assert "*.sog" in glob and "meta.json" in glob and "*.ply" in glob and len(glob) == len(set(glob))
     assert "lod-meta.json" not in registry.filter_glob(registry.export_formats())
+    assert registry.file_extensions().split(";") == [".ply", ".splat", ".spz", ".sog", ".json", ".glb", ".gltf"]
     for fmt in registry.FORMATS:
         assert 0 <= fmt.max_sh_degree <= 3 and fmt.quantisation and fmt.can_read
 
