@@ -25,9 +25,9 @@ images compress better), so a round trip returns them reordered; `morton_order(m
 order. Image size W = 4 ceil(sqrt(n) / 4), H = 4 ceil(n / W / 4), as splat-transform.
 
 Quantisation (write then read):
-    position   within half a 16-bit step of the per-axis range in the log domain: |dn| <=
-               (max - min) / 131070, so |dx| <= (|x| + 1) (exp|dn| - 1), about 1.5e-5 (|x| + 1)
-               for a scene within +-e^1 ... i.e. 0.02 mm near the origin of a 2 m scene
+    position   within half a 16-bit step of the per-axis range in the log domain, |dn| <=
+               (max - min) / 131070, so |dx| <= (|x| + 1) |dn| to first order: 3.7e-5 (|x| + 1)
+               for a scene within +-10 units
     rotation   the three stored components within sqrt(2)/255/2 = 2.8e-3, the derived one
                within about 4e-3 (plus the sign of q, which is the same rotation)
     log scale, DC colour  the nearest of 256 codebook entries, chosen by optimal 1D k-means
