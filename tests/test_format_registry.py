@@ -45,6 +45,7 @@ def test_patterns_and_filter() -> None:
     glob = registry.filter_glob().split(";")
     assert "*.sog" in glob and "meta.json" in glob and "*.ply" in glob and len(glob) == len(set(glob))
     assert "lod-meta.json" not in registry.filter_glob(registry.export_formats())
+    assert registry.file_extensions().split(";") == [".ply", ".splat", ".spz", ".sog", ".json", ".glb", ".gltf"]
     for fmt in registry.FORMATS:
         assert 0 <= fmt.max_sh_degree <= 3 and fmt.quantisation and fmt.can_read
 
@@ -61,6 +62,7 @@ def test_every_writable_format_round_trips_through_the_table(rng: np.random.Gene
     back, antialiased = registry.read(path)
     assert antialiased == fmt.stores_antialiased
     assert len(back) == 40 and back.degree == fmt.max_sh_degree
-    order = np.lexsort(g.means.T)  # some formats reorder (Morton order): compare as sets
-    got = np.lexsort(back.means.T)
-    np.testing.assert_allclose(back.means[got], g.means[order], atol=0.02)
+    # Some formats reorder (Morton order): every Gaussian must come back near one of the originals.
+    distances = np.linalg.norm(back.means[:, None, :] - g.means[None, :, :], axis=2)
+    assert distances.min(axis=1).max() < 0.02
+    assert len(set(distances.argmin(axis=1))) == 40

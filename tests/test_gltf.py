@@ -323,3 +323,24 @@ def test_huge_count_is_refused_before_allocating(tmp_path: Path) -> None:
                      + struct.pack("<II", len(binary), 0x004E4942) + binary)
     with pytest.raises(SplatFileError, match="do not fit"):
         gltf.load(path)
+
+
+def test_corrupted_files_raise_only_splat_file_errors(rng: np.random.Generator, tmp_path: Path) -> None:
+    g = random_gaussians(rng, 9, 1)
+    gltf.save(g, tmp_path / "a.glb")
+    gltf.save(g, tmp_path / "b.gltf")
+    sources = [(tmp_path / "a.glb").read_bytes(), (tmp_path / "b.gltf").read_bytes()]
+    alphabet = list(b'0123456789 ,.-"[]{}:eE')
+    for i in range(300):
+        data = bytearray(sources[i % 2])
+        if i % 3 == 0:
+            data = data[:rng.integers(0, len(data))]
+        json_end = data.find(b'"buffers"') if i % 2 else min(len(data), 2000)
+        for _ in range(rng.integers(1, 5) if data else 0):  # JSON-ish bytes in the JSON
+            data[rng.integers(0, max(1, min(json_end, len(data))))] = rng.choice(alphabet)
+        path = tmp_path / ("fuzz.glb" if i % 2 == 0 else "fuzz.gltf")
+        path.write_bytes(bytes(data))
+        try:
+            gltf.load(path)
+        except SplatFileError:
+            pass

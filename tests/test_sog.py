@@ -244,6 +244,7 @@ def edit_meta(folder: Path, change) -> Path:
     (lambda m: m["scales"].update(codebook=[0.0] * 300), "at most 256"),
     (lambda m: m["scales"].update(codebook=[0.0]), "beyond its 1-entry codebook"),
     (lambda m: m["sh0"].update(codebook=["x"] * 256), "sh0.codebook"),
+    (lambda m: m["shN"].update(codebook=[1e300] * 256), "beyond float32"),
     (lambda m: m["quats"].update(files=["../../etc/passwd"]), "relative path inside"),
     (lambda m: m["quats"].update(files=["missing.webp"]), "missing image 'missing.webp'"),
     (lambda m: m["quats"].update(files=["sh0.webp"]), "mode byte outside 252..255"),
@@ -298,10 +299,23 @@ def test_bad_bundles(small_sog: Path, tmp_path: Path) -> None:
         sog.load(truncated)
 
 
-def test_missing_openimageio_is_named(small_sog: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_deflated_bundle_reads(small_sog: Path, tmp_path: Path) -> None:
+    bundle = tmp_path / "deflated.sog"
+    with zipfile.ZipFile(bundle, "w", zipfile.ZIP_DEFLATED) as archive:
+        for path in small_sog.iterdir():
+            archive.write(path, path.name)
+    a, b = sog.load(bundle), sog.load(small_sog)
+    for name, value in a.arrays().items():
+        np.testing.assert_array_equal(value, getattr(b, name), err_msg=name)
+
+
+def test_missing_openimageio_is_named(small_sog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "OpenImageIO", None)
     with pytest.raises(SplatFileError, match="'OpenImageIO'"):
         sog.load(small_sog)
+    with pytest.raises(SplatFileError, match="'OpenImageIO'"):
+        sog.save(Gaussians.empty(), tmp_path / "x.sog")
+    assert not (tmp_path / "x.sog").exists()
 
 
 @pytest.fixture()
@@ -343,3 +357,37 @@ def test_lod_errors(lod_copy: Path) -> None:
     with pytest.raises(SplatFileError, match="bad JSON") as error:
         sog_lod.load(lod_copy)
     assert str(lod_copy) in str(error.value)
+
+
+def test_corrupted_files_raise_only_splat_file_errors(small_sog_original: Path, rng: np.random.Generator,
+                                                      tmp_path: Path) -> None:
+    meta = (small_sog_original / "meta.json").read_bytes()
+    images = {p.name: p.read_bytes() for p in small_sog_original.glob("*.webp")}
+    sog.save(sog.load(small_sog_original), tmp_path / "a.sog")
+    bundle = (tmp_path / "a.sog").read_bytes()
+    folder = tmp_path / "fuzz"
+    alphabet = list(b'0123456789 ,.-"[]{}:eE')
+    for i in range(120):
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir()
+        for name, data in images.items():
+            (folder / name).write_bytes(data)
+        data = bytearray(meta if i % 3 else bundle)
+        if i % 4 == 0:
+            data = data[:rng.integers(0, len(data))]
+        for _ in range(rng.integers(1, 5) if data else 0):
+            data[rng.integers(0, len(data))] = rng.choice(alphabet)
+        if i % 3:
+            (folder / "meta.json").write_bytes(bytes(data))
+            victim = folder / sorted(images)[i % len(images)]
+            image = bytearray(victim.read_bytes())
+            image[rng.integers(0, len(image))] ^= 0xFF  # a damaged image too
+            victim.write_bytes(bytes(image))
+            target = folder
+        else:
+            target = tmp_path / "fuzz.sog"
+            target.write_bytes(bytes(data))
+        try:
+            sog.load(target)
+        except SplatFileError:
+            pass

@@ -50,7 +50,7 @@ from ..transform import transform_gaussians
 from ..atomic import atomic_write
 from .errors import SplatFileError
 from .frames import rdf_to_rub
-from .json_file import parse_object
+from .json_file import malformed, parse_object
 from .quaternions import unit_quaternions
 
 __all__ = ["load", "save", "EXTENSION", "SPZ_EXTENSION", "attribute_names"]
@@ -66,7 +66,7 @@ FLOAT, BYTE, UBYTE, SHORT, USHORT = 5126, 5120, 5121, 5122, 5123
 COMPONENTS = {FLOAT: ("<f4", 4), BYTE: ("<i1", 1), UBYTE: ("<u1", 1), SHORT: ("<i2", 2), USHORT: ("<u2", 2)}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 ARRAY_BUFFER = 34962
-MAX_JSON_BYTES = 256 << 20
+MAX_JSON_BYTES = 1 << 31  # a .gltf with its buffer embedded as base64 (about 4/3 of a .glb)
 MAX_NODE_DEPTH = 64
 GENERATOR = "Gaussian Splatting for Blender"
 
@@ -287,10 +287,12 @@ def _accessor(path: Path, document: dict, buffers: list[bytes], index: Any, name
     start = view_offset + offset
     if stride == element:
         values = np.frombuffer(buffers[buffer], dtype, count * width, start).reshape(count, width)
-    else:  # interleaved: rows of `stride` bytes, the element at their start
-        rows = np.frombuffer(buffers[buffer] + bytes(stride), np.uint8, count * stride, start)
-        values = np.ascontiguousarray(rows.reshape(count, stride)[:, :element]).view(dtype)
-    values = values.astype(np.float64)
+    else:  # interleaved: an element every `stride` bytes (all inside `needed`, checked above)
+        raw = np.frombuffer(buffers[buffer], np.uint8, needed - offset, start)
+        rows = np.lib.stride_tricks.as_strided(raw, (count, element), (stride, 1), writeable=False)
+        values = np.ascontiguousarray(rows).view(dtype)
+    with np.errstate(invalid="ignore"):  # NaN payloads: refused by the finiteness check after
+        values = values.astype(np.float64)
     if accessor.get("normalized") and component != FLOAT:
         top = {BYTE: 127.0, UBYTE: 255.0, SHORT: 32767.0, USHORT: 65535.0}[component]
         values = np.maximum(values / top, -1.0)
@@ -392,6 +394,11 @@ def _instances(path: Path, document: dict) -> list[tuple[int, np.ndarray]]:
 def load(path: str | os.PathLike) -> Gaussians:
     """Read every KHR_gaussian_splatting primitive of a `.glb` / `.gltf` into one `Gaussians`."""
     path = Path(path)
+    with malformed(path, "glTF"):
+        return _load(path)
+
+
+def _load(path: Path) -> Gaussians:
     data = _read_bytes(path)
     if data[:4] == b"glTF":
         document, binary = _split_glb(path, data)

@@ -19,7 +19,7 @@ from ..gaussians import Gaussians
 from .errors import SplatFileError
 
 __all__ = ["SplatFormat", "FORMATS", "format_for", "read", "write", "import_patterns",
-           "export_formats", "filter_glob", "SplatFileError"]
+           "export_formats", "filter_glob", "file_extensions", "SplatFileError"]
 
 
 def _module(name: str):
@@ -180,6 +180,16 @@ def import_patterns() -> tuple[str, ...]:
 
 def export_formats() -> tuple[SplatFormat, ...]:
     return tuple(f for f in FORMATS if f.can_write)
+
+
+def file_extensions() -> str:
+    """What Blender's FileHandler `bl_file_extensions` takes (".ply;.sog;.json;..."): the last
+    suffix of every readable name ending; a dropped `.json` still goes through `format_for`."""
+    suffixes: dict[str, None] = {}
+    for fmt in FORMATS:
+        if fmt.can_read:
+            suffixes.update(dict.fromkeys(Path(e).suffix or e for e in fmt.endings))
+    return ";".join(suffixes)
 
 
 def filter_glob(formats: tuple[SplatFormat, ...] | None = None) -> str:

@@ -25,9 +25,9 @@ images compress better), so a round trip returns them reordered; `morton_order(m
 order. Image size W = 4 ceil(sqrt(n) / 4), H = 4 ceil(n / W / 4), as splat-transform.
 
 Quantisation (write then read):
-    position   within half a 16-bit step of the per-axis range in the log domain: |dn| <=
-               (max - min) / 131070, so |dx| <= (|x| + 1) (exp|dn| - 1), about 1.5e-5 (|x| + 1)
-               for a scene within +-e^1 ... i.e. 0.02 mm near the origin of a 2 m scene
+    position   within half a 16-bit step of the per-axis range in the log domain, |dn| <=
+               (max - min) / 131070, so |dx| <= (|x| + 1) |dn| to first order: 3.7e-5 (|x| + 1)
+               for a scene within +-10 units
     rotation   the three stored components within sqrt(2)/255/2 = 2.8e-3, the derived one
                within about 4e-3 (plus the sign of q, which is the same rotation)
     log scale, DC colour  the nearest of 256 codebook entries, chosen by optimal 1D k-means
@@ -59,7 +59,7 @@ from . import webp
 from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook
 from .errors import SplatFileError
-from .json_file import parse_object
+from .json_file import malformed, parse_object
 from .morton import morton_order
 from .quaternions import smallest_three
 
@@ -214,6 +214,8 @@ def _codebook(path: Path, meta: dict, key: str) -> np.ndarray:
     book = _numbers(path, _field(path, meta, key, "codebook"), f"{key}.codebook")
     if len(book) > 256:
         raise _fail(path, f"bad {key}.codebook in meta.json: {len(book)} entries, at most 256")
+    if np.abs(book).max() > np.finfo(np.float32).max:
+        raise _fail(path, f"bad {key}.codebook in meta.json: values beyond float32")
     return book
 
 
@@ -298,7 +300,11 @@ def _decode(path: Path, source: _Source) -> tuple[Gaussians, SogInfo]:
     dc, logits = _decode_sh0(path, meta, source, count)
     rest = _decode_sh_rest(path, meta, source, count) if meta.get("shN") else np.zeros((count, 0, 3))
     sh = np.concatenate([dc[:, None, :], rest], axis=1)
-    gaussians = Gaussians(means, log_scales, quats, logits, sh)
+    with np.errstate(over="ignore"):
+        gaussians = Gaussians(means, log_scales, quats, logits, sh)
+    bad = gaussians.non_finite()
+    if bad is not None:  # every input was checked; this is the net under those checks
+        raise _fail(path, f"non-finite values in decoded {bad}")
     info = SogInfo(count, gaussians.degree, bool(meta.get("antialias", False)),
                    int(meta["shN"]["count"]) if meta.get("shN") else 0)
     return gaussians, info
@@ -312,14 +318,15 @@ def _with_source(path: str | os.PathLike, action: Callable[[Path, _Source], Any]
     if path.suffix.lower() != ".sog":
         if not path.is_file():
             raise _fail(path, "no such SOG meta.json")
-        return action(path, _Source(path, path.parent))
+        with malformed(path, "SOG"):
+            return action(path, _Source(path, path.parent))
     try:
         bundle = zipfile.ZipFile(path)
     except FileNotFoundError:
         raise _fail(path, "no such file") from None
     except (zipfile.BadZipFile, OSError, EOFError) as e:
         raise _fail(path, f"not a .sog bundle (a ZIP file): {e}") from None
-    with bundle, tempfile.TemporaryDirectory(prefix="sog-") as scratch:
+    with bundle, tempfile.TemporaryDirectory(prefix="sog-") as scratch, malformed(path, "SOG"):
         return action(path, _Source(path, path.parent, bundle, Path(scratch)))
 
 
@@ -348,7 +355,8 @@ def load_chunk(meta_path: Path, root: Path) -> Gaussians:
     """One chunk of a LOD set: a folder SOG whose meta.json is `meta_path`; errors name `root`."""
     if not meta_path.is_file():
         raise _fail(root, f"missing chunk {meta_path}")
-    return _decode(meta_path, _Source(meta_path, meta_path.parent))[0]
+    with malformed(meta_path, "SOG"):
+        return _decode(meta_path, _Source(meta_path, meta_path.parent))[0]
 
 
 # ------------------------------------------------------------------------------------------

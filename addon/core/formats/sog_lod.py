@@ -21,7 +21,7 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from .errors import SplatFileError
-from .json_file import parse_object
+from .json_file import malformed, parse_object
 from .sog import MAX_COUNT, load_chunk
 
 __all__ = ["load", "levels", "LOD_META"]
@@ -91,6 +91,11 @@ def _runs(path: Path, index: dict[str, Any], level: int) -> list[tuple[int, int,
 def load(path: str | os.PathLike, level: int = 0, *, environment: bool = True) -> Gaussians:
     """All chunks of one LOD `level` (0, the finest, by default), plus the environment splats."""
     path = Path(path)
+    with malformed(path, "lod-meta.json"):
+        return _load(path, level, environment)
+
+
+def _load(path: Path, level: int, environment: bool) -> Gaussians:
     index = _read_index(path)
     if not 0 <= level < index["lodLevels"]:
         raise SplatFileError(path, f"no LOD level {level}: the set has levels 0..{index['lodLevels'] - 1}")
