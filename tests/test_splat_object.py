@@ -122,7 +122,9 @@ def test_import_operator_creates_active_object(rng, tmp_path):
 def test_file_handler_and_menus_are_registered():
     handler = bpy.types.SPLAT_FH_splats
     assert handler.is_registered
-    assert set(handler.bl_file_extensions.split(";")) == {".ply", ".splat", ".spz"}
+    # Every readable format from the one table (a dropped .json goes through format_for).
+    assert set(handler.bl_file_extensions.split(";")) == \
+        {".ply", ".splat", ".spz", ".sog", ".json", ".glb", ".gltf"}
     assert handler.bl_import_operator == "splat.import_splats"
     for name in ("import_splats", "export_splats", "crop", "select_by", "clean_up", "join",
                  "apply_transform"):

@@ -37,7 +37,7 @@ from bpy_extras.io_utils import ExportHelper, ImportHelper, poll_file_object_dro
 
 import numpy as np
 
-from ..core import axes, splat_io
+from ..core import axes
 from ..core.formats import registry
 from ..core.formats.errors import SplatFileError
 from ..core.gaussians import Gaussians
@@ -47,7 +47,8 @@ from .camera_adapter import to_matrix
 from .job_runner import preparing
 from .registration import register_classes, unregister_classes
 
-FILTER_GLOB = "*.ply;*.splat;*.spz"
+IMPORT_GLOB = registry.filter_glob()
+EXPORT_GLOB = registry.filter_glob(registry.export_formats())
 
 
 def read_splat_file(filepath: str | os.PathLike) -> tuple[Gaussians, bool]:
@@ -148,7 +149,7 @@ def _axis_prop(which: str, blender_axis: str) -> EnumProperty:
 
 
 class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
-    """Import Gaussian splats (.ply, .splat, .spz) as a splat object"""
+    """Import Gaussian splats (.ply, .spz, .splat, .sog, .glb, ...) as a splat object"""
 
     bl_idname = "splat.import_splats"
     bl_label = "Import Gaussian Splats"
@@ -156,7 +157,7 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
 
     # SKIP_SAVE: a drop sets it; a stale remembered path must not turn File > Import into a popup
     filepath: StringProperty(subtype="FILE_PATH", options={"SKIP_SAVE", "HIDDEN"})
-    filter_glob: StringProperty(default=FILTER_GLOB, options={"HIDDEN"})
+    filter_glob: StringProperty(default=IMPORT_GLOB, options={"HIDDEN"})
     files: CollectionProperty(type=bpy.types.OperatorFileListElement,
                               options={"HIDDEN", "SKIP_SAVE"})
     directory: StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
@@ -217,14 +218,14 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
 
 
 class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
-    """Export the active splat object (evaluated, in world space) as .ply, .splat or .spz"""
+    """Export the active splat object (evaluated, in world space) in any format that writes splats"""
 
     bl_idname = "splat.export_splats"
     bl_label = "Export Gaussian Splats"
     bl_options = {"REGISTER"}  # writes a file, changes nothing to undo
 
     filename_ext = ".ply"
-    filter_glob: StringProperty(default=FILTER_GLOB, options={"HIDDEN"})
+    filter_glob: StringProperty(default=EXPORT_GLOB, options={"HIDDEN"})
     world_space: BoolProperty(
         name="World Space",
         description="Apply the object's world transform (rotating the SH with it); off: write "
@@ -238,9 +239,10 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
         return splat_object.is_splat_object(context.active_object)
 
     def check(self, context):
-        # Keep any of the three extensions the user typed; add .ply otherwise.
+        # Keep any ending a format writes (".sog", "meta.json", ...); add .ply otherwise.
         path = self.filepath
-        if os.path.basename(path) and Path(path).suffix.lower() not in splat_io.SUFFIXES:
+        name = os.path.basename(path).lower()
+        if name and not any(f.matches(name) for f in registry.export_formats()):
             self.filepath = bpy.path.ensure_ext(path, self.filename_ext)
             return True
         return False
@@ -273,7 +275,7 @@ class SPLAT_FH_splats(bpy.types.FileHandler):
     bl_idname = "SPLAT_FH_splats"
     bl_label = "Gaussian Splats"
     bl_import_operator = "splat.import_splats"
-    bl_file_extensions = ".ply;.splat;.spz"
+    bl_file_extensions = registry.file_extensions()  # .json: format_for then decides
 
     @classmethod
     def poll_drop(cls, context):
@@ -281,11 +283,11 @@ class SPLAT_FH_splats(bpy.types.FileHandler):
 
 
 def _menu_import(self, context):
-    self.layout.operator(SPLAT_OT_import_splats.bl_idname, text="Gaussian Splats (.ply, .splat, .spz)")
+    self.layout.operator(SPLAT_OT_import_splats.bl_idname, text="Gaussian Splats (.ply, .spz, .sog, .glb, ...)")
 
 
 def _menu_export(self, context):
-    self.layout.operator(SPLAT_OT_export_splats.bl_idname, text="Gaussian Splats (.ply, .splat, .spz)")
+    self.layout.operator(SPLAT_OT_export_splats.bl_idname, text="Gaussian Splats (.ply, .spz, .sog, .glb, ...)")
 
 
 CLASSES = (SPLAT_OT_import_splats, SPLAT_OT_export_splats, SPLAT_FH_splats)
