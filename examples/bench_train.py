@@ -1,5 +1,6 @@
 """Training benchmark: held-out PSNR against training seconds and against Gaussian count, per
-densification strategy, on ../shared/data/cup (images_4, 200x150) and beer (images_8, 90x160).
+densification strategy, on ../shared/data/cup (images_4, 200x150) and beer (images_8, 88x156
+after undistortion), and with --scenes demo on the embedded demo COLMAP scene (120x90).
 
     .venv/bin/python examples/bench_train.py [--scenes cup beer] [--strategies default mcmc] \
         [--steps 2000] [--eval-every 250] [--threads 1] [--plot docs/train_curves.png]
@@ -32,11 +33,14 @@ from addon.core.render import render  # noqa: E402
 from addon.core.train import Trainer, TrainConfig, ply_bytes, psnr  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
-SCENES = {"cup": "images_4", "beer": "images_8"}
+# name: (COLMAP folder, image folder, further downscale)
+SCENES = {"cup": (DATA / "cup", "images_4", 1), "beer": (DATA / "beer", "images_8", 1),
+          "demo": (ROOT / "examples" / "demo_colmap", "images", 4)}
 
 
 def load(scene: str) -> ColmapDataset:
-    dataset = ColmapDataset(read_colmap(DATA / scene, image_folder=SCENES[scene]))
+    folder, images, downscale = SCENES[scene]
+    dataset = ColmapDataset(read_colmap(folder, image_folder=images), downscale=downscale)
     dataset.preload()  # decoding photos is not training time
     return dataset
 
@@ -159,8 +163,8 @@ def parse_variant(text: str) -> tuple[str, dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
-    parser.add_argument("--strategies", nargs="+", default=["default", "mcmc"])
+    parser.add_argument("--scenes", nargs="+", default=["cup", "beer"], choices=list(SCENES))
+    parser.add_argument("--strategies", nargs="*", default=["default", "mcmc"])
     parser.add_argument("--variant", action="append", default=[], metavar="LABEL:KEY=VALUE,...",
                         help="one more curve with TrainConfig overrides, e.g. "
                              "c2f:coarse_levels=2,coarse_until=1000 (repeatable)")

@@ -26,6 +26,13 @@ def logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
 
+def _dc_column(sh: np.ndarray) -> np.ndarray:
+    """The DC coefficients of (N, K, 3) float32 SH as an (N,) view of 12-byte items: numpy
+    copies a strided column of such items about 2.5x faster than the (N, 3) float slice."""
+    n = sh.shape[0]
+    return np.ascontiguousarray(sh).reshape(n, -1).view(np.dtype((np.void, 12)))[:, 0]
+
+
 class GaussianParameters:
     """`params[name]` (float32, C-contiguous, in `Gaussians` layout) and `moments[name]`, the
     Adam pair (exp_avg, exp_avg_sq) shaped like it."""
@@ -60,20 +67,22 @@ class GaussianParameters:
 
     def _adam_sh(self, grad: np.ndarray, lr_dc: float, lr_rest: float, step: int,
                  threads: int) -> None:
-        # Adam is elementwise: one pass over all coefficients at the rest rate, then DC again
-        # from its saved state at its own rate. The DC rows are 3 of 3K floats per Gaussian, so
-        # this costs far less than splitting the arrays apart and back every step, and every
-        # element gets exactly the update a separate DC array would.
+        # Adam is elementwise and its moments do not depend on the rate: one pass over every
+        # coefficient at the rest rate, then DC again from copies of its old state at its own
+        # rate, and only the DC values written back (the moments already agree). The DC rows
+        # are 3 of 3K floats per Gaussian: far cheaper than splitting the arrays apart and back
+        # every step, and every element gets exactly the update a separate DC array would.
         sh, (m, v) = self.params["sh"], self.moments["sh"]
         if not sh.size:
             return
         if sh.shape[1] == 1:
             tk.adam_step(sh, grad, m, v, lr=lr_dc, step=step, threads=threads)
             return
-        dc = [a[:, 0].copy() for a in (sh, grad, m, v)]  # copies, even where N = 1
+        dc = [_dc_column(a).copy() for a in (sh, grad, m, v)]
         tk.adam_step(sh, grad, m, v, lr=lr_rest, step=step, threads=threads)
-        tk.adam_step(dc[0], dc[1], dc[2], dc[3], lr=lr_dc, step=step, threads=threads)
-        sh[:, 0], m[:, 0], v[:, 0] = dc[0], dc[2], dc[3]
+        dc_params, dc_grad, dc_m, dc_v = (c.view(np.float32) for c in dc)
+        tk.adam_step(dc_params, dc_grad, dc_m, dc_v, lr=lr_dc, step=step, threads=threads)
+        _dc_column(sh)[:] = dc[0]
 
     # -- row edits (densification) ------------------------------------------------------------
     def rows(self, index: np.ndarray) -> dict[str, np.ndarray]:

@@ -187,6 +187,7 @@ class Trainer:
     def _view(self, view: int, level: int) -> tuple[Camera, np.ndarray]:
         camera, image = self.dataset.cameras[view], self.dataset.image(view)
         if level == 0:
+            self._coarse.clear()  # past the coarse steps: free the small copies
             return camera, image
         key = (view, level)
         if key not in self._coarse:
@@ -240,8 +241,8 @@ class Trainer:
     def _gain_has_stalled(self) -> bool:
         """Record a check; True when the last two intervals each gained less than the threshold
         per minute (a single slow interval, e.g. across an opacity reset, does not stop it)."""
-        views = self.dataset.test_indices or self.dataset.train_indices[:: max(
-            1, len(self.dataset.train_indices) // 8)][:8]
+        train = self.dataset.train_indices
+        views = self.dataset.test_indices or train[::max(1, len(train) // 8)][:8]
         self.checks.append((self.seconds, self.evaluate(views).psnr))
         if len(self.checks) < 3:
             return False
