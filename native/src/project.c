@@ -2,6 +2,7 @@
  * antialiasing compensation), its SH colour, and the exact extent of its alpha >= 1/255 footprint.
  * Per-Gaussian math runs in double: it costs O(N), keeps scenes far from the origin exact, and
  * leaves float32 only for the compositor's per-pixel work. */
+#include <float.h>
 #include <math.h>
 #include <stdatomic.h>
 #include <string.h>
@@ -54,7 +55,9 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
     double p[3];
     sc_to_camera(v, mean, p);
     const double z = p[2];
-    if (!(z >= j->opt->near)) return 0;
+    /* Screen values are float32: a depth beyond its range (a camera translation near 1e38)
+     * would be stored as inf, so such a Gaussian is culled, never valid. */
+    if (!(z >= j->opt->near) || !(z <= FLT_MAX)) return 0;
 
     /* EWA Jacobian with x/z and y/z clamped to the guard band (inside J only). */
     const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
@@ -100,6 +103,7 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
 
     s->x = (float)(fx * p[0] / z + cx);
     s->y = (float)(fy * p[1] / z + cy);
+    if (!isfinite(s->x) || !isfinite(s->y)) return 0; /* beyond float32: off screen, culled */
     s->ca = (float)(c / det);
     s->cb = (float)(-b / det);
     s->cc = (float)(a / det);
