@@ -180,3 +180,51 @@ def test_training_failing_mid_run_leaves_no_half_object_nor_checkpoint(tmp_path,
     assert (bs.scene_state(), _data_counts(), _settings(scene)) == (before, counts, settings)
     assert set(collection.keys()) == keys
     assert not checkpoint.exists() and list(tmp_path.iterdir()) == []
+
+
+def _failing_render(monkeypatch, tmp_path):
+    """A scene of splats and meshes whose splat composite fails during F12, writing to
+    tmp/out.png where a previous render lies."""
+    from addon.blender import render_hooks
+    from test_render_with_meshes import build_scene
+
+    scene, *_ = build_scene(np.random.default_rng(5), "BLENDER_WORKBENCH", n=100)
+    settings = scene.render.image_settings
+    settings.media_type, settings.file_format, settings.color_mode = "IMAGE", "PNG", "RGBA"
+    scene.render.filepath = str(tmp_path / "out")
+    bpy.ops.render.render()  # a first render sets the compositor bridge up (that stays, by design)
+    (tmp_path / "out.png").write_bytes(b"the previous render")
+    monkeypatch.setattr(render_hooks, "compose", _fails_on_call(1, render_hooks.compose))
+    return scene
+
+
+def _render_settings(scene) -> tuple:
+    r = scene.render
+    return (r.filepath, r.use_render_cache, r.resolution_x, r.resolution_y, r.film_transparent,
+            r.image_settings.file_format, r.image_settings.color_mode, r.use_compositing,
+            scene.view_settings.view_transform, scene.camera.name)
+
+
+def test_failed_render_changes_no_setting(monkeypatch, tmp_path):
+    scene = _failing_render(monkeypatch, tmp_path)
+    before, objects = _render_settings(scene), bs.scene_state()
+    try:
+        bpy.ops.render.render(write_still=True)
+    except RuntimeError:
+        pass
+    assert _render_settings(scene) == before and bs.scene_state() == objects
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]  # no temporary left
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "when the splat composite fails, F12 reports the error but Blender still saves the frame "
+    "(meshes only) over out.png: the fix belongs to render_hooks / compositor_bridge (owned "
+    "elsewhere): make the render fail (engine.error / cancel the write) so nothing is saved"))
+def test_failed_render_keeps_the_previous_file(monkeypatch, tmp_path):
+    scene = _failing_render(monkeypatch, tmp_path)
+    try:
+        bpy.ops.render.render(write_still=True)
+    except RuntimeError:
+        pass
+    assert (tmp_path / "out.png").read_bytes() == b"the previous render"
+    assert scene.render.filepath == str(tmp_path / "out")
