@@ -28,27 +28,33 @@ build() {  # build <name> <sanitizer flags>
     rm -rf native/build native/*.egg-info "$out/tmp"
 }
 
+run() {  # run <name> <sanitizer runtime> <pytest arguments...>: the tests on build <name>
+    local name=$1 runtime=$2
+    shift 2
+    local out="$PWD/build/sanitize/$name"
+    local options="halt_on_error=1:log_path=$out/report"
+    (
+        export PYTHONPATH="$out"
+        export LD_PRELOAD="$($CC -print-file-name="$runtime") $($CC -print-file-name=libstdc++.so.6)"
+        export ASAN_OPTIONS="$options:detect_leaks=0:abort_on_error=1:allocator_may_return_null=1"
+        export UBSAN_OPTIONS="$options:print_stacktrace=1"
+        export TSAN_OPTIONS="$options:second_deadlock_stack=1:report_signal_unsafe=0"
+        "$PY" -c "import splatcore; assert splatcore.__file__.startswith('$out'), splatcore.__file__" &&
+            "$PY" -m pytest -q -p no:cacheprovider "$@"
+    ) || { cat "$out"/report.* 2>/dev/null; exit 1; }
+}
+
 NATIVE_TESTS=(tests/test_render_reference.py tests/test_backward.py tests/test_train_kernels.py
               tests/test_bad_input.py tests/test_hard_cases.py tests/test_threads.py)
 
 if [ "$which" = all ] || [ "$which" = asan ]; then
     echo "sanitize: AddressSanitizer + UndefinedBehaviorSanitizer"
     build asan "-fsanitize=address,undefined -fno-sanitize-recover=all"
-    PYTHONPATH="build/sanitize/asan" \
-    LD_PRELOAD="$($CC -print-file-name=libasan.so) $($CC -print-file-name=libstdc++.so.6)" \
-    ASAN_OPTIONS="detect_leaks=0:halt_on_error=1:abort_on_error=1:allocator_may_return_null=1:log_path=$PWD/build/sanitize/asan/report" \
-    UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1:log_path=$PWD/build/sanitize/asan/report" \
-        "$PY" -m pytest -q -p no:cacheprovider "${NATIVE_TESTS[@]}" tests/test_fuzz.py \
-        || { cat build/sanitize/asan/report.* 2>/dev/null; exit 1; }
+    run asan libasan.so "${NATIVE_TESTS[@]}" tests/test_fuzz.py
 fi
-
 if [ "$which" = all ] || [ "$which" = tsan ]; then
     echo "sanitize: ThreadSanitizer"
     build tsan "-fsanitize=thread"
-    PYTHONPATH="build/sanitize/tsan" \
-    LD_PRELOAD="$($CC -print-file-name=libtsan.so) $($CC -print-file-name=libstdc++.so.6)" \
-    TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:report_signal_unsafe=0:log_path=$PWD/build/sanitize/tsan/report" \
-        "$PY" -m pytest -q -p no:cacheprovider tests/test_threads.py \
-        || { cat build/sanitize/tsan/report.* 2>/dev/null; exit 1; }
+    run tsan libtsan.so tests/test_threads.py tests/test_train_kernels.py
 fi
 echo "sanitize: clean"
