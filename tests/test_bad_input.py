@@ -308,3 +308,46 @@ def test_api_camera_rejects():
         Camera(viewmat, 0, 20, 10, 6, W, H)
     with pytest.raises(ValueError, match="4x4"):
         Camera(np.eye(3), 20, 20, 10, 6, W, H)
+
+
+def test_native_messages_fill_in_their_numbers(splatcore):
+    """PyErr_Format knows no %g: these messages used to read "got %g" (issue 14)."""
+    cases = [(dict(near=float("nan")), "near must be finite and >= 0, got nan"),
+             (dict(near=-0.5), "got -0.5"),
+             (dict(viewmat=np.diag([2.0, 1.0, 1.0, 1.0])), r"it is off by 3"),
+             (dict(intrinsics=np.array([-20.0, 20.0, W / 2, H / 2])), "got fx=-20 fy=20")]
+    for change, message in cases:
+        with pytest.raises(ValueError, match=message) as info:
+            splatcore.project(*project_args(**change))
+        assert "%" not in str(info.value)
+    image = np.zeros((8, 8, 3), np.float32)
+    with pytest.raises(ValueError, match=r"got 1\.5") as info:
+        splatcore.l1_ssim(image, image, 1.5, 0, np.zeros_like(image))
+    assert "%" not in str(info.value)
+
+
+@pytest.mark.parametrize("threads", [2**31, 2**64, -1])
+def test_huge_thread_counts_are_a_value_error(splatcore, scene, threads):
+    """threads=2**31 used to be an OverflowError from argument parsing."""
+    g, cam = scene
+    with pytest.raises(ValueError, match="threads must be >= 0"):
+        api.render(g, cam, threads=threads)
+    with pytest.raises(ValueError, match="threads must be >= 0"):
+        splatcore.project(*project_args(threads=threads))
+    image = np.zeros((8, 8, 3), np.float32)
+    with pytest.raises(ValueError, match="threads must be >= 0"):
+        splatcore.l1_ssim(image, image, 0.2, threads, np.zeros_like(image))
+
+
+def test_depth_beyond_float32_is_never_valid(scene):
+    """A camera translation beyond float32's range used to give valid Gaussians of infinite
+    depth; they are culled now, and the render is empty."""
+    g, _ = scene
+    viewmat = np.eye(4)
+    viewmat[2, 3] = 1e39
+    cam = Camera(viewmat, 20, 20, W / 2, H / 2, W, H)
+    projection = api.project(g, cam)
+    assert not projection.valid.any()
+    assert np.isfinite(projection.depth).all() and np.isfinite(projection.xy).all()
+    rgb, alpha, depth = api.render(g, cam)
+    assert not alpha.any() and np.isinf(depth).all()

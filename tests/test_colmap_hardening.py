@@ -202,3 +202,13 @@ def test_non_utf8_image_name_is_a_named_error(shared_data, tmp_path):
     assert raw[name_at:name_at + 1].isascii()
     _patch_binary(images, name_at, b"\xff")
     _timed_error(r"images\.bin: image \d+: its name is not UTF-8", work, cache_dir=tmp_path / "c")
+
+
+@pytest.mark.parametrize("name, offset, what", [("frames.bin", 8 + 64, "data ids cannot fit"),
+                                                ("rigs.bin", 8 + 4, "sensors cannot fit")])
+def test_lying_counts_in_rigs_and_frames_fail_fast(shared_data, tmp_path, name, offset, what):
+    """Found by tests/test_fuzz.py: a frame's data-id count of 2^32 - 1 hung pycolmap's reader."""
+    work = _workspace(shared_data, tmp_path)
+    _patch_binary(work / "sparse" / "0" / name, offset, struct.pack("<I", 2**32 - 1))
+    _timed_error(rf"{name}: corrupt COLMAP binary file at byte \d+: 4294967295 {what}", work,
+                 cache_dir=tmp_path / "c", copy_photos=False)

@@ -9,6 +9,7 @@
 #ifndef SPLATCORE_INTERNAL_H
 #define SPLATCORE_INTERNAL_H
 
+#include <float.h>
 #include <math.h>
 #include <string.h>
 
@@ -238,7 +239,9 @@ static inline int sc_ewa_project(const sc_gaussians *g, int64_t i, const sc_came
     const double *v = cam->world_to_camera;
     sc_to_camera(v, mean, e->p);
     const double z = e->p[2];
-    if (!(z >= near)) return 0;
+    /* Screen values are float32: a depth beyond its range (a camera translation near 1e38)
+     * would be stored as inf, so such a Gaussian is culled, never valid. */
+    if (!(z >= near) || !(z <= FLT_MAX)) return 0;
 
     /* EWA Jacobian with x/z and y/z clamped to the guard band (inside J only). */
     const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;

@@ -7,14 +7,41 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "splatcore.h"
 
-enum { MAX_SIDE = 32768 };
+enum { MAX_SIDE = 32768, MAX_THREADS = 4096 };
 static const long long MAX_PIXELS = 1LL << 27;
+
+/* A ValueError whose message may hold floating-point conversions: PyErr_Format knows none
+ * (it prints "%g" literally), so the message is formatted by C's vsnprintf first. */
+static void value_error(const char *format, ...) {
+    char message[512];
+    va_list args;
+    va_start(args, format);
+    PyOS_vsnprintf(message, sizeof message, format, args);
+    va_end(args);
+    PyErr_SetString(PyExc_ValueError, message);
+}
+
+/* "O&" converter for `threads`: any Python int; out of 0..MAX_THREADS is a ValueError (an
+ * "i" format would make 2**31 an OverflowError). */
+static int parse_threads(PyObject *obj, void *out) {
+    int overflow = 0;
+    const long long value = PyLong_AsLongLongAndOverflow(obj, &overflow);
+    if (value == -1 && PyErr_Occurred()) return 0;
+    if (overflow || value < 0 || value > MAX_THREADS) {
+        PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores) and at most %d, got %R",
+                     (int)MAX_THREADS, obj);
+        return 0;
+    }
+    *(int *)out = (int)value;
+    return 1;
+}
 static const long long MAX_GAUSSIANS = 0x7fffffffLL;
 
 /* Which arrays a call holds, so every exit path can release them. */
@@ -151,14 +178,12 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
             worst = fmax(worst, fabs(dot - (r == c)));
         }
     if (worst > 1e-4) {
-        PyErr_Format(PyExc_ValueError,
-                     "world_to_camera must be rigid (orthonormal rotation, last row 0 0 0 1); "
-                     "it is off by %g", worst);
+        value_error("world_to_camera must be rigid (orthonormal rotation, last row 0 0 0 1); "
+                    "it is off by %g", worst);
         return -1;
     }
     if (!(intr[0] > 0) || !(intr[1] > 0)) {
-        PyErr_Format(PyExc_ValueError, "focal lengths must be positive, got fx=%g fy=%g", intr[0],
-                     intr[1]);
+        value_error("focal lengths must be positive, got fx=%g fy=%g", intr[0], intr[1]);
         return -1;
     }
     if (width <= 0 || height <= 0 || width > MAX_SIDE || height > MAX_SIDE ||
@@ -169,7 +194,7 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
         return -1;
     }
     if (!(near >= 0) || !isfinite(near)) {
-        PyErr_Format(PyExc_ValueError, "near must be finite and >= 0, got %g", near);
+        value_error("near must be finite and >= 0, got %g", near);
         return -1;
     }
     if (threads < 0) {
@@ -222,9 +247,9 @@ static PyObject *py_project(PyObject *self, PyObject *args) {
     PyObject *objs[7], *outs[6];
     int sh_degree, width, height, antialiased, threads;
     double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpiOOOOOO:project", &objs[0], &objs[1], &objs[2],
+    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOO:project", &objs[0], &objs[1], &objs[2],
                           &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
-                          &near, &antialiased, &threads, &outs[0], &outs[1], &outs[2], &outs[3],
+                          &near, &antialiased, parse_threads, &threads, &outs[0], &outs[1], &outs[2], &outs[3],
                           &outs[4], &outs[5]))
         return NULL;
     buffers b = {.count = 0};
@@ -342,9 +367,9 @@ static PyObject *py_render(PyObject *self, PyObject *args) {
     PyObject *objs[7], *background, *mesh_rgba, *mesh_depth, *outs[3];
     int sh_degree, width, height, antialiased, threads;
     double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpiOOOOOO:render", &objs[0], &objs[1], &objs[2],
+    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOO:render", &objs[0], &objs[1], &objs[2],
                           &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
-                          &near, &antialiased, &threads, &background, &mesh_rgba, &mesh_depth,
+                          &near, &antialiased, parse_threads, &threads, &background, &mesh_rgba, &mesh_depth,
                           &outs[0], &outs[1], &outs[2]))
         return NULL;
     buffers b = {.count = 0};
@@ -408,9 +433,9 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
     PyObject *objs[7], *background, *outs[6];
     int sh_degree, width, height, antialiased, threads;
     double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpiOOOOOOO:render_train", &objs[0], &objs[1],
+    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOOO:render_train", &objs[0], &objs[1],
                           &objs[2], &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width,
-                          &height, &near, &antialiased, &threads, &background, &outs[0],
+                          &height, &near, &antialiased, parse_threads, &threads, &background, &outs[0],
                           &outs[1], &outs[2], &outs[3], &outs[4], &outs[5]))
         return NULL;
     buffers b = {.count = 0};
@@ -498,10 +523,10 @@ static PyObject *py_backward(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *state_obj, *objs[5], *d_objs[3], *outs[7];
     int threads;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOiOOOOOOO:backward", &state_obj, &objs[0], &objs[1],
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOO&OOOOOOO:backward", &state_obj, &objs[0], &objs[1],
                           &objs[2], &objs[3], &objs[4], &d_objs[0], &d_objs[1], &d_objs[2],
-                          &threads, &outs[0], &outs[1], &outs[2], &outs[3], &outs[4], &outs[5],
-                          &outs[6]))
+                          parse_threads, &threads, &outs[0], &outs[1], &outs[2], &outs[3],
+                          &outs[4], &outs[5], &outs[6]))
         return NULL;
     const sc_train_state *state = get_state(state_obj);
     if (!state) return NULL;
@@ -572,11 +597,11 @@ static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
     PyObject *image_obj, *target_obj, *grad_obj;
     double lambda;
     int threads;
-    if (!PyArg_ParseTuple(args, "OOdiO:l1_ssim", &image_obj, &target_obj, &lambda, &threads,
+    if (!PyArg_ParseTuple(args, "OOdO&O:l1_ssim", &image_obj, &target_obj, &lambda, parse_threads, &threads,
                           &grad_obj))
         return NULL;
     if (!(lambda >= 0.0 && lambda <= 1.0)) {
-        PyErr_Format(PyExc_ValueError, "lambda_dssim must be in [0, 1], got %g", lambda);
+        value_error("lambda_dssim must be in [0, 1], got %g", lambda);
         return NULL;
     }
     if (threads < 0) {
@@ -653,16 +678,15 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
     sc_adam_options o;
     long long step;
     int threads;
-    if (!PyArg_ParseTuple(args, "OOOOddddLi:adam", &objs[0], &objs[1], &objs[2], &objs[3], &o.lr,
-                          &o.beta1, &o.beta2, &o.eps, &step, &threads))
+    if (!PyArg_ParseTuple(args, "OOOOddddLO&:adam", &objs[0], &objs[1], &objs[2], &objs[3], &o.lr,
+                          &o.beta1, &o.beta2, &o.eps, &step, parse_threads, &threads))
         return NULL;
     o.step = step;
-    if (!isfinite(o.lr) || o.lr < 0) return PyErr_Format(PyExc_ValueError, "lr must be finite and >= 0, got %g", o.lr);
+    if (!isfinite(o.lr) || o.lr < 0) return value_error("lr must be finite and >= 0, got %g", o.lr), NULL;
     if (!(o.beta1 >= 0 && o.beta1 < 1) || !(o.beta2 >= 0 && o.beta2 < 1))
-        return PyErr_Format(PyExc_ValueError, "beta1 and beta2 must be in [0, 1), got %g, %g",
-                            o.beta1, o.beta2);
+        return value_error("beta1 and beta2 must be in [0, 1), got %g, %g", o.beta1, o.beta2), NULL;
     if (!(o.eps > 0) || !isfinite(o.eps))
-        return PyErr_Format(PyExc_ValueError, "eps must be finite and > 0, got %g", o.eps);
+        return value_error("eps must be finite and > 0, got %g", o.eps), NULL;
     if (step < 1) return PyErr_Format(PyExc_ValueError, "step must be >= 1 (the first update is 1), got %lld", step);
     if (threads < 0)
         return PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);

@@ -2,6 +2,7 @@
  * antialiasing compensation), its SH colour, and the exact extent of its alpha >= 1/255 footprint.
  * Per-Gaussian math runs in double: it costs O(N), keeps scenes far from the origin exact, and
  * leaves float32 only for the compositor's per-pixel work. */
+#include <float.h>
 #include <math.h>
 #include <stdatomic.h>
 #include <string.h>
@@ -46,6 +47,7 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
 
     s->x = (float)sc_pixel_x(cam, &e);
     s->y = (float)sc_pixel_y(cam, &e);
+    if (!isfinite(s->x) || !isfinite(s->y)) return 0; /* beyond float32: off screen, culled */
     s->ca = (float)(c / det);
     s->cb = (float)(-b / det);
     s->cc = (float)(a / det);

@@ -35,13 +35,18 @@ Alignment (`align=True` or `ColmapScene.aligned()`): rotate so that the scene st
 
 Bad input raises `ColmapError` (a `ValueError`) naming the file and the problem. Binary models
 are checked structurally before pycolmap reads them: a corrupt count in a .bin file otherwise
-makes pycolmap allocate gigabytes or loop for minutes.
+makes pycolmap allocate gigabytes or loop for minutes. Cameras are checked (sides 1..65536,
+finite parameters, positive focal lengths) before pycolmap sees them; image names must be UTF-8
+and stay inside the image folder, and nothing is read or written outside the image and cache
+folders, links included; points and observations with NaN or Inf are dropped and counted in
+`ColmapScene.dropped`.
 
 Blender-free: numpy, pycolmap and OpenImageIO only.
 
-The package, one job per module: `model` finds and checks the model and its photos and reads
-it; `undistort` maps distorted cameras to pinhole; `cache` holds the undistorted copies;
-`alignment` the similarities; `scene` the data; `reader` puts them together. Everything public
+The package, one job per module: `model` finds the model and its photos and reads it; `checks`
+holds what a model from a stranger must pass (sizes, parameters, names that stay inside their
+folders, finite values); `undistort` maps distorted cameras to pinhole; `cache` holds the
+undistorted copies; `alignment` the similarities; `scene` the data; `reader` puts them together. Everything public
 is re-exported here (`from addon.core import colmap; colmap.read_colmap(...)`).
 """
 

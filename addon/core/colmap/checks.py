@@ -116,9 +116,35 @@ def check_binary_model(model_dir: Path) -> None:
         if off > size:
             fail(name, off - 8 * n - 8, f"a track of {n} observations cannot fit in the file")
 
-    for name, record in (("rigs.bin", 16), ("frames.bin", 68)):
-        if (model_dir / name).is_file():
-            counted(name, record, "entries")
+    # COLMAP 4's rigs and frames (optional): their inner counts hang pycolmap when they lie.
+    name = "rigs.bin"
+    if (model_dir / name).is_file():
+        buf, count = counted(name, 8, "rigs")
+        off = 8
+        for _ in range(count):  # rig id, sensor count, reference sensor, then the others
+            if off + 8 > len(buf):
+                fail(name, off, "file ends early")
+            sensors = struct.unpack_from("<I", buf, off + 4)[0]
+            if sensors * 9 > len(buf) - off:
+                fail(name, off, f"{sensors} sensors cannot fit in the rest of the file")
+            off += 16 if sensors else 8
+            for _ in range(max(0, sensors - 1)):  # type, id, has pose, [pose: 7 doubles]
+                if off + 9 > len(buf):
+                    fail(name, off, "file ends early")
+                off += 9 + (56 if buf[off + 8] else 0)
+        if off > len(buf):
+            fail(name, off, "file ends early")
+    name = "frames.bin"
+    if (model_dir / name).is_file():
+        buf, count = counted(name, 68, "frames")
+        off = 8
+        for _ in range(count):  # frame id, rig id, pose (7 doubles), data ids of 16 bytes
+            if off + 68 > len(buf):
+                fail(name, off, "file ends early")
+            data_ids = struct.unpack_from("<I", buf, off + 64)[0]
+            off += 68 + 16 * data_ids
+            if off > len(buf):
+                fail(name, off - 16 * data_ids, f"{data_ids} data ids cannot fit in the file")
 
 
 def check_text_cameras(path: Path) -> None:

@@ -99,6 +99,7 @@ def read_colmap(path: str | os.PathLike, image_folder: str = "images", *,
         xy = np.array([p.xy for p in observations], np.float64).reshape(-1, 2)
         ids = np.array([p.point3D_id for p in observations], np.uint64)
         check_point_ids(ids, images_file)
+        xy = undistort_points(intr, camera, xy)  # non-finite where the undistortion fails, too
         usable = np.isfinite(xy).all(axis=1)
         dropped["observations"] += int(np.count_nonzero(~usable))
         xy, ids = xy[usable], ids[usable].astype(np.int64)
@@ -108,7 +109,7 @@ def read_colmap(path: str | os.PathLike, image_folder: str = "images", *,
             path=photo.source if as_is else None,
             source_path=(photo.source if photo is not None else
                          image_dir / im.name if image_dir is not None else None),
-            points2D=undistort_points(intr, camera, xy), point3D_ids=ids))
+            points2D=xy, point3D_ids=ids))
     points = points_of(rec, points_file, dropped)
     lap("cameras_points")
 

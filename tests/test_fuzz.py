@@ -1,0 +1,61 @@
+"""Fixed-seed mutation fuzzing of every file reader (issue 14), in the normal suite.
+
+For each reader, MUTANTS mutants of a small seed file (bit flips, interesting integers and
+floats, truncations, runs deleted or repeated, header and text-number edits, mutations inside
+the gzip stream or the v4 table of contents) each run in a forked child with a memory and a time
+limit (scripts/fuzz.py), so a crash or hang fails this test instead of killing the run. Every
+mutant must either load something sane (finite, consistent shapes) or be refused with a
+SplatFileError / ColmapError naming the file. Longer campaigns, with the real files as seeds:
+`.venv/bin/python scripts/fuzz.py --minutes 30`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import pytest
+
+from scripts import fuzz
+
+MUTANTS = 200  # per reader: ~0.03 s each on one core
+READERS = ("ply", "ply_ascii", "compressed_ply", "splat", "spz2", "spz3", "spz4", "colmap_bin",
+           "colmap_txt")
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
+                                reason="forked children with rlimits: Linux only")
+
+
+@pytest.fixture(scope="module")
+def seeds():
+    return {s.reader: s for s in fuzz.small_seeds(seed=14)}
+
+
+@pytest.mark.parametrize("reader", READERS)
+def test_mutants_load_sanely_or_are_refused_by_name(seeds, reader):
+    start = time.perf_counter()
+    tally = fuzz.campaign([seeds[reader]], MUTANTS, seed=1400 + READERS.index(reader),
+                          memory_mb=1024, seconds=20)
+    print(f"\n{tally.table()}\n{reader}: {MUTANTS} mutants in {time.perf_counter() - start:.1f} s")
+    assert sum(tally.counts[reader].values()) == MUTANTS
+    details = [f"{kind}: {outcome.text.strip()[-600:]}" for _, _, _, outcome in tally.findings
+               for kind in [outcome.kind]]
+    assert not tally.findings, "\n\n".join(details[:5])
+    # the mutations reach past the first check: some mutants still load, many are refused
+    assert tally.counts[reader].get("refused", 0) > MUTANTS // 10
+
+
+def test_a_crash_and_a_hang_are_findings_not_a_dead_run():
+    """The harness itself: a child killed by a signal or running past its time limit is
+    reported, and the test run goes on."""
+    crash = fuzz.Seed("ply", "a.ply", {"a.ply": b""})
+    original = fuzz._load
+    try:
+        fuzz._load = lambda reader, folder, name: __import__("os").kill(__import__("os").getpid(), 11)
+        assert fuzz.run_one("ply", crash.files, "a.ply").kind == "crash"
+        fuzz._load = lambda reader, folder, name: time.sleep(5)
+        assert fuzz.run_one("ply", crash.files, "a.ply", seconds=1).kind == "hang"
+        fuzz._load = lambda reader, folder, name: bytearray(4 << 30)
+        assert fuzz.run_one("ply", crash.files, "a.ply", memory_mb=256).kind == "memory"
+    finally:
+        fuzz._load = original
