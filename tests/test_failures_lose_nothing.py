@@ -15,7 +15,7 @@ import pytest
 
 from addon.blender import io_operators, mesh_convert, splat_object
 from addon.core import splat_io
-from addon.core.formats import atomic
+from addon.core import atomic
 from scenes import random_gaussians
 
 
@@ -85,13 +85,11 @@ def test_export_failing_at_each_stage_leaves_the_old_file(scene, tmp_path, monke
     broken = types.SimpleNamespace(**{name: getattr(real, name) for name in dir(real)
                                       if not name.startswith("__")})
     if stage == "write":
-        real_fdopen = real.fdopen
-
-        def fdopen(fd, mode):
-            f = real_fdopen(fd, mode)
+        def failing_open(name, mode):
+            f = open(name, mode)
             f.write = _fails_on_call(1, lambda data: len(data))
             return f
-        broken.fdopen = fdopen
+        monkeypatch.setattr(atomic, "open", failing_open, raising=False)  # shadows the builtin
     elif stage == "sync":
         broken.fsync = _fails_on_call(1, real.fsync)
     else:
