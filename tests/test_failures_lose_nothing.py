@@ -151,12 +151,8 @@ def test_colmap_import_failing_while_building_leaves_nothing(scene, monkeypatch)
     assert (bs.scene_state(), _data_counts(), _settings(scene)) == (before, counts, settings)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "train_operator.finish_training writes the last good snapshot into a new splat object when a "
-    "step fails (and keeps what the periodic updates made): the fix belongs to train_operator "
-    "(owned elsewhere): on job.error, write nothing and remove the object this run created"))
 def test_training_failing_mid_run_leaves_no_half_object_nor_checkpoint(tmp_path, monkeypatch):
-    from addon.blender import train_operator
+    from addon.blender import job_runner, train_operator
     from addon.core import train
     demo = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
     bs.reset_scene()
@@ -174,10 +170,36 @@ def test_training_failing_mid_run_leaves_no_half_object_nor_checkpoint(tmp_path,
                                 max_gaussians=5000, sh_degree=0, downscale=8.0, threads=2,
                                 update_every=10)
     finally:
-        train_operator.stop_all()
+        job_runner.stop_all()
     assert (bs.scene_state(), _data_counts(), _settings(scene)) == (before, counts, settings)
     assert set(collection.keys()) == keys
     assert not checkpoint.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_training_failing_on_a_trained_object_puts_its_splats_back(tmp_path, monkeypatch):
+    from addon.blender import job_runner, splat_object, train_operator
+    from addon.core import train
+    demo = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
+    bs.reset_scene()
+    assert bpy.ops.splat.import_colmap(directory=str(demo), image_folder="images", align=True,
+                                       backgrounds=False) == {"FINISHED"}
+    collection = next(c for c in bpy.data.collections if train_operator.is_colmap_collection(c))
+    options = dict(collection=collection.name, max_gaussians=5000, sh_degree=0, downscale=8.0,
+                   threads=2, update_every=5)
+    assert bpy.ops.splat.train(checkpoint=str(tmp_path / "first.npz"), steps=10,
+                               **options) == {"FINISHED"}
+    obj = collection[train_operator.OBJECT_KEY]
+    trained = splat_object.gaussians_from_data(obj.data, drop_hidden=False)
+    steps = obj["splat_trained_steps"]
+    monkeypatch.setattr(train.Trainer, "train_step", _fails_on_call(12, train.Trainer.train_step))
+    try:
+        with pytest.raises(RuntimeError, match="injected"):
+            bpy.ops.splat.train(checkpoint=str(tmp_path / "second.npz"), steps=40, **options)
+    finally:
+        job_runner.stop_all()
+    assert collection[train_operator.OBJECT_KEY] == obj
+    assert bs.gaussians_equal(splat_object.gaussians_from_data(obj.data, drop_hidden=False), trained)
+    assert obj["splat_trained_steps"] == steps
 
 
 def _failing_render(monkeypatch, tmp_path):

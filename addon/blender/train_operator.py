@@ -222,13 +222,47 @@ def train_request(collection, config: TrainConfig | None = None, *, image_folder
         update_every=update_every, compact=compact)
 
 
-def finish_training(request: TrainRequest, job: TrainingJob, *,
-                    write: bool = True) -> tuple[str, str, object]:
+class SceneBefore:
+    """The collection's splat object as it was before a run, so that a run that fails leaves
+    the scene as it found it: no half-trained object (periodic updates included)."""
+
+    def __init__(self, collection_name: str) -> None:
+        self.name = collection_name
+        collection = bpy.data.collections.get(collection_name)
+        obj = _alive(collection.get(OBJECT_KEY)) if collection is not None else None
+        self.obj = obj if obj is not None and splat_object.is_splat_object(obj) else None
+        self.gaussians = (splat_object.gaussians_from_data(obj.data, drop_hidden=False)
+                          if self.obj is not None else None)
+        self.steps = self.obj.get("splat_trained_steps") if self.obj is not None else None
+
+    def restore(self) -> None:
+        collection = bpy.data.collections.get(self.name)
+        obj = _alive(collection.get(OBJECT_KEY)) if collection is not None else None
+        if obj is not None and obj != self.obj:  # made by the failed run
+            mesh = obj.data
+            bpy.data.objects.remove(obj)
+            if mesh is not None and not mesh.users:
+                bpy.data.meshes.remove(mesh)
+            del collection[OBJECT_KEY]
+        elif obj is not None and self.gaussians is not None:
+            replace_gaussians(obj, self.gaussians)
+            if self.steps is None:
+                obj.pop("splat_trained_steps", None)
+            else:
+                obj["splat_trained_steps"] = self.steps
+
+
+def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = True,
+                    before: SceneBefore | None = None) -> tuple[str, str, object]:
     """Main thread, after the job: the object gets the final Gaussians (unless not `write`),
-    the collection the checkpoint path. Returns (level, message, object or None)."""
+    the collection the checkpoint path; after a failure, the object goes back to `before`.
+    Returns (level, message, object or None)."""
     snapshot = job.final
     collection = bpy.data.collections.get(request.source.name)
-    if snapshot is not None and job.trainer is not None and write:
+    if job.error is not None and before is not None:
+        before.restore()
+        obj = before.obj
+    elif snapshot is not None and job.trainer is not None and write:
         obj = write_splats(request.source.name, snapshot[1],
                            antialiased=job.trainer.config.antialiased, step=snapshot[0])
     else:
@@ -242,7 +276,8 @@ def finish_training(request: TrainRequest, job: TrainingJob, *,
         first = str(job.error).splitlines()[0] if str(job.error) else type(job.error).__name__
         if job.trainer is None:
             return "ERROR", f"Training could not start: {first}", obj
-        return "ERROR", f"Training failed at step {p.step}: {first}", obj
+        return "ERROR", (f"Training failed at step {p.step}: {first} (the splat object is as it "
+                         f"was before this run)"), obj
     if obj is not None and p.evaluation is not None and p.evaluation.views:
         obj["splat_heldout_psnr"] = p.evaluation.psnr
         obj["splat_heldout_ssim"] = p.evaluation.ssim
@@ -272,6 +307,7 @@ def training_job(request: TrainRequest) -> OperatorJob:
     """The request as the job runner runs it: the job (not started), and what the main thread
     does with its snapshots and its end."""
     name = request.source.name
+    before = SceneBefore(name)
 
     def target():
         collection = bpy.data.collections.get(name)
@@ -281,7 +317,7 @@ def training_job(request: TrainRequest) -> OperatorJob:
         write_splats(name, gaussians, antialiased=request.config.antialiased, step=step)
 
     def finish(running, write):
-        return finish_training(request, running.job, write=write)
+        return finish_training(request, running.job, write=write, before=before)
 
     return OperatorJob(f"train:{name}", "Training", request.job(), finish, apply, target)
 
@@ -293,9 +329,10 @@ def train_colmap_collection(collection, config: TrainConfig | None = None,
     `train_request` (image_folder, downscale, test_every, checkpoint, resume, checkpoint_every,
     update_every, compact). Raises on bad input or a failure."""
     request = train_request(collection, config, **options)
+    before = SceneBefore(collection.name)
     job = request.job(progress)
     job.run()
-    return finish_training(request, job)[2]
+    return finish_training(request, job, before=before)[2]
 
 
 # -- operators ------------------------------------------------------------------------------------
