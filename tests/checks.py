@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-# Rendered images (DESIGN.md, "Rendering semantics"): the native float32 renderer matches the
+# Rendered images (docs/conventions.md, "Rendering semantics"): the native float32 renderer matches the
 # float64 reference to 1e-4 absolute on colours and alpha, and expected depth to 1e-4 relative,
 # except at `ambiguous` pixels (a threshold within float32 rounding, see reference.render),
 # which must be rare: under 1% of the image (or 4 pixels in a tiny image). A float32 NumPy

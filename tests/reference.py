@@ -1,6 +1,6 @@
 """Float64 NumPy reference of the forward renderer: the slow, obviously-correct twin.
 
-This mirrors DESIGN.md ("Rendering semantics", "Compositing with meshes") and the semantics
+This mirrors docs/conventions.md ("Rendering semantics", "Compositing with meshes") and the semantics
 stated in `addon/core/render.py`, step by step, in float64, with no tiles, no bounding boxes
 and no cleverness; the native module `splatcore` is held against it. Readability beats speed:
 it is vectorised over pixels and loops over the Gaussians in depth order.

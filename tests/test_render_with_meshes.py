@@ -5,7 +5,7 @@ a camera 6 units away; 32x24 pixels (Cycles CPU at 4 samples, or Workbench throu
 OpenGL). The expected image is computed here, independently of the add-on's render path: the
 same scene is rendered to a multilayer EXR (whose view layer holds Blender's own mesh colour
 and depth), the splats are composed with that by `addon.core.render` (the native compositor),
-in display sRGB as DESIGN.md asks, and the result is encoded as Blender's "Standard" view
+in display sRGB as docs/conventions.md asks, and the result is encoded as Blender's "Standard" view
 transform writes 8-bit PNG. The written file must match it to 1/255.
 """
 

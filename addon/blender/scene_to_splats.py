@@ -20,7 +20,7 @@ What it does:
    device, samples, denoising, film, resolution, percentage, pixel aspect, output path and
    format, the scene camera, objects' render visibility, the splat compositing switch) is put
    back afterwards, also after an error; the temporary camera is removed.
-4. Colour: Cycles writes premultiplied scene-linear RGBA; the targets are display sRGB (DESIGN
+4. Colour: Cycles writes premultiplied scene-linear RGBA; the targets are display sRGB (docs/conventions.md,
    "Colour": splats hold display sRGB, like splats trained on photos), converted with
    `addon.core.colour.display_from_linear` (the sRGB transfer curve on the straight colour, the
    "Standard" view transform) and clipped to [0, 1] (straight colour; premultiplied: [0, alpha]).

@@ -1,7 +1,7 @@
 """Splats composed with a mesh render, in Blender's colour conventions (no bpy).
 
 `compose()` takes what Blender rendered (premultiplied scene-linear RGBA and planar depth, rows
-top to bottom) and returns the exact composite of DESIGN.md "Compositing with meshes", again as
+top to bottom) and returns the exact composite of docs/conventions.md "Compositing with meshes", again as
 premultiplied scene-linear RGBA: per pixel, the Gaussians in front of the mesh surface, the
 mesh weighted by the transmittance left, then the Gaussians behind it (`addon.core.render`).
 

@@ -1,6 +1,6 @@
 """The Gaussians container: a struct of float32 arrays, exactly as the native kernels take them.
 
-Layout (see DESIGN.md, "Conventions"):
+Layout (see docs/conventions.md, "Gaussians in memory"):
     means           (N, 3)  world-space centres
     log_scales      (N, 3)  natural log of the per-axis standard deviations
     quats           (N, 4)  rotation as w, x, y, z; need not be normalised (normalised on use;

@@ -20,7 +20,7 @@ black lines when mip-mapping).
 
 Texture orientation: row 0 is v = 0 (the bottom of the image, as Blender stores pixels); flip
 rows for top-down file formats. Colours are those of the splats, i.e. display sRGB for splats
-trained on photos (DESIGN, "Colour"): save the texture as an 8-bit sRGB image so that Blender
+trained on photos (docs/conventions.md, "Colour"): save the texture as an 8-bit sRGB image so that Blender
 converts it to scene linear on load; under the Standard view transform the mesh then shows the
 splat colours (exactly so for an emission shader; a lit Principled BSDF adds shading).
 """

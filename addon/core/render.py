@@ -1,6 +1,6 @@
 """The renderer's Python API: `render()` and `project()` over the native module `splatcore`.
 
-Semantics are the reference 3DGS rasterizer's (DESIGN.md, "Rendering semantics"); the float64
+Semantics are the reference 3DGS rasterizer's (docs/conventions.md, "Rendering semantics"); the float64
 NumPy twin in `tests/reference.py` is what the native code is held against.
 
 Layers, front to back, per pixel:

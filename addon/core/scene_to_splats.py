@@ -17,7 +17,7 @@ training; splats -> a mesh texture is `mesh_texture`.)
   must match the targets' alpha too: where a target is transparent no colour is free, and the
   Gaussians learn to be absent rather than black. Evaluation afterwards is over black.
 
-Colours are display sRGB in [0, 1], like photos (DESIGN "Colour"); converting Blender's
+Colours are display sRGB in [0, 1], like photos (docs/conventions.md, "Colour"); converting Blender's
 scene-linear renders to that is `addon.core.colour.display_from_linear`.
 """
 

@@ -10,7 +10,7 @@ gradient and moment arrays are allocated once per Gaussian count and reused):
     for name, param in gaussians.arrays().items():
         adam_step(param, grads.arrays()[name], m[name], v[name], lr=lrs[name], step=t)
 
-Semantics (DESIGN.md, "Rendering semantics"; the gradient conventions at the piecewise
+Semantics (docs/conventions.md, "Rendering semantics"; the gradient conventions at the piecewise
 boundaries are listed in native/include/splatcore.h, "training"):
 - `render_train` renders exactly what `addon.core.render.render` renders without a mesh layer
   (bit-identical images) and keeps, in a `TrainState`, what the backward needs: the projected

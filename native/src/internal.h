@@ -15,7 +15,7 @@
 
 #include "splatcore.h"
 
-/* The reference constants (DESIGN.md, "Rendering semantics"). */
+/* The reference constants (docs/conventions.md, "Rendering semantics"). */
 #define SC_ALPHA_MIN (1.0f / 255.0f) /* a Gaussian is skipped at a pixel below this alpha */
 #define SC_ALPHA_MAX 0.99f           /* alpha is clamped to this */
 #define SC_T_MIN 1e-4f               /* stop before transmittance would fall below this */
