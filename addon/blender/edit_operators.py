@@ -39,7 +39,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProp
 from ..core.cleanup import FloaterMasks, floater_masks, sigmoid
 from ..core.transform import transform_gaussians
 from . import splat_object
-from .registration import register_classes, unregister_classes
+from .registration import module_registration
 
 
 def target_objects(context) -> list:
@@ -514,14 +514,4 @@ _MENUS = (("VIEW3D_MT_object", _menu), ("VIEW3D_MT_edit_mesh", _menu),
           ("VIEW3D_MT_select_edit_mesh", _select_menu))
 
 
-def register() -> None:
-    register_classes(CLASSES)
-    for menu, function in _MENUS:
-        getattr(bpy.types, menu).remove(function)
-        getattr(bpy.types, menu).append(function)
-
-
-def unregister() -> None:
-    for menu, function in _MENUS:
-        getattr(bpy.types, menu).remove(function)
-    unregister_classes(CLASSES)
+register, unregister = module_registration(CLASSES, menus=_MENUS)

@@ -45,7 +45,7 @@ from ..core.transform import transform_gaussians
 from . import gather, splat_object
 from .camera_adapter import to_matrix
 from .job_runner import preparing
-from .registration import register_classes, unregister_classes
+from .registration import module_registration
 
 IMPORT_GLOB = registry.filter_glob()
 EXPORT_GLOB = registry.filter_glob(registry.export_formats())
@@ -293,15 +293,5 @@ def _menu_export(self, context):
 CLASSES = (SPLAT_OT_import_splats, SPLAT_OT_export_splats, SPLAT_FH_splats)
 
 
-def register() -> None:
-    register_classes(CLASSES)
-    bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
-    bpy.types.TOPBAR_MT_file_export.remove(_menu_export)
-    bpy.types.TOPBAR_MT_file_import.append(_menu_import)
-    bpy.types.TOPBAR_MT_file_export.append(_menu_export)
-
-
-def unregister() -> None:
-    bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
-    bpy.types.TOPBAR_MT_file_export.remove(_menu_export)
-    unregister_classes(CLASSES)
+register, unregister = module_registration(
+    CLASSES, menus=[("TOPBAR_MT_file_import", _menu_import), ("TOPBAR_MT_file_export", _menu_export)])

@@ -45,14 +45,13 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty
 
 from ..core.cameras import Camera
-from ..core.gaussians import Gaussians
 from ..core import surface, mesh_texture
 from ..core.surface import Cancelled
 from ..core.jobs import StagedJob
 from . import gather, splat_object
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, wants_background
-from .registration import register_classes, unregister_classes
+from .registration import module_registration
 
 CAMERA_MODES = ("AUTO", "COLMAP", "SPHERE")
 SOURCE_KEY = "splat_source"
@@ -417,16 +416,4 @@ def _menu(self, context):
 CLASSES = (SPLAT_OT_convert_to_mesh,)
 
 
-def register() -> None:
-    register_classes(CLASSES)
-    menu = getattr(bpy.types, "VIEW3D_MT_object_convert", None)
-    if menu is not None:
-        menu.remove(_menu)
-        menu.append(_menu)
-
-
-def unregister() -> None:
-    menu = getattr(bpy.types, "VIEW3D_MT_object_convert", None)
-    if menu is not None:
-        menu.remove(_menu)
-    unregister_classes(CLASSES)
+register, unregister = module_registration(CLASSES, menus=[("VIEW3D_MT_object_convert", _menu)])

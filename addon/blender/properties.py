@@ -19,7 +19,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from .registration import add_pointer, register_classes, remove_pointer, unregister_classes
+from .registration import module_registration
 
 COLOR_SPACES = [
     ("SRGB", "sRGB (display)", "Colours are display sRGB, as splats trained on photos are: the "
@@ -95,11 +95,5 @@ class OBJECT_PT_splat(bpy.types.Panel):
 CLASSES = (SplatObjectSettings, OBJECT_PT_splat)
 
 
-def register() -> None:
-    register_classes(CLASSES)
-    add_pointer(bpy.types.Object, "splat", SplatObjectSettings)
-
-
-def unregister() -> None:
-    remove_pointer(bpy.types.Object, "splat")
-    unregister_classes(CLASSES)
+register, unregister = module_registration(
+    CLASSES, pointers=[(bpy.types.Object, "splat", SplatObjectSettings)])

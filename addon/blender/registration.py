@@ -32,3 +32,31 @@ def add_pointer(owner, name: str, group) -> None:
 def remove_pointer(owner, name: str) -> None:
     if name in owner.bl_rna.properties:
         delattr(owner, name)
+
+
+def module_registration(classes=(), *, pointers=(), menus=()):
+    """`register`, `unregister` for a module that registers `classes`, hangs PropertyGroups on
+    types (`pointers`: (owner type, name, group) triples) and appends draw functions to menus
+    (`menus`: (menu type name, draw) pairs; a menu this Blender lacks is skipped). Both are
+    harmless to call twice."""
+
+    def register() -> None:
+        register_classes(classes)
+        for owner, name, group in pointers:
+            add_pointer(owner, name, group)
+        for menu_name, draw in menus:
+            menu = getattr(bpy.types, menu_name, None)
+            if menu is not None:
+                menu.remove(draw)  # no-op unless registered before
+                menu.append(draw)
+
+    def unregister() -> None:
+        for menu_name, draw in menus:
+            menu = getattr(bpy.types, menu_name, None)
+            if menu is not None:
+                menu.remove(draw)
+        for owner, name, _group in pointers:
+            remove_pointer(owner, name)
+        unregister_classes(classes)
+
+    return register, unregister
