@@ -42,6 +42,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 
 from ..core import colmap
 from ..core.cameras import camera_to_blender
+from . import dependencies
 from .registration import register_classes, unregister_classes
 
 SENSOR_WIDTH = 36.0
@@ -259,6 +260,8 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
     """Import a COLMAP model or workspace into `scene` (default: the context's); returns the
     new collection. `progress(fraction, message)` is called as the work goes. See the module
     docstring; the other arguments are those of `addon.core.colmap.read_colmap`."""
+    for module in ("pycolmap", "OpenImageIO"):  # the model, and the photos
+        dependencies.require(module, "Importing a COLMAP scene")
     scene = scene if scene is not None else bpy.context.scene
     report = progress or (lambda fraction, message: None)
     data = colmap.read_colmap(directory, image_folder, cache_dir=cache_dir, align=align, up=up,
