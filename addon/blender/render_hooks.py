@@ -351,11 +351,11 @@ class SplatRenderEngine(bpy.types.RenderEngine):
                 self._render_splats_only(depsgraph)
         except Exception as error:  # report, never crash the render job
             traceback.print_exc()
-            message = f"Gaussian splats: the splats could not be composed: {error}"
-            self.report({"ERROR"}, message)
-            self.error_set(message)
-            fail_render(bpy.data.scenes.get(_state.scene or "") or depsgraph.scene, message,
-                        started=True)
+            message = f"the splats could not be composed: {error}"
+            self.report({"ERROR"}, f"Gaussian splats: {message}")
+            self.error_set(f"Gaussian splats: {message}")
+            fail_render(bpy.data.scenes.get(_state.scene or "") or depsgraph.scene,
+                        str(error) if str(error) in _state.errors else message, "compose")
 
     def _compose_for_bridge(self) -> None:
         start = time.perf_counter()
@@ -378,6 +378,8 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         if frame is not None and frame.frame != main.frame_current:
             print(f"Gaussian splats: the splats were gathered at frame {frame.frame}, the render "
                   f"is of frame {main.frame_current}")
+        if _state.errors:  # the render already failed (and was cancelled if it could be)
+            raise RuntimeError(_state.errors[-1])
         if frame is None and settings.enabled and main.render.engine != ENGINE_ID:
             raise RuntimeError(f"no splats were gathered for scene {main.name!r}, view layer "
                                f"{layer_name!r} (the render's frame_change_post handler did "
@@ -486,15 +488,18 @@ def written_file(scene) -> str | None:
 # them. Python cannot cancel a render directly; Blender cancels one itself when the scene it
 # renders has no camera ("Cannot render, no camera": the render stops, nothing is written,
 # `bpy.ops.render.render` reports the error and returns CANCELLED, `blender -b -a` exits 1).
-# So a failure found before the meshes render (render_init: a missing module, a bridge that
-# is not set up; frame_change_post: splats that cannot be gathered) clears the scene's camera
-# for this render; `render_complete`/`render_cancel` put it back. That is done in background
+# So a failure found when the render starts (render_init: a missing module, a bridge that is
+# not set up) clears the scene's camera for this render; `render_complete`/`render_cancel` put
+# it back. (Later, from frame_change_post, the camera has already been evaluated: a failure to
+# gather the splats is recorded there and fails the compose step.) That is done in background
 # renders only, which run on the main thread: an interactive render runs its handlers in the
 # render job's thread, where changing data is unsafe, so there the error is reported in the
 # window when the render ends and written files of failed frames are deleted.
 # A failure while composing (the helper engine, after the meshes rendered) is too late for the
 # camera: in background Blender it raises Blender's own break signal (SIGINT, what Ctrl+C does:
-# the render is cancelled and nothing is written); elsewhere the frame's files are deleted.
+# the render is cancelled and nothing is written; Blender ends the process on a second one,
+# exit code 2); where Blender has no such handler (the `bpy` module) the frame's written files
+# are deleted and `last_errors()` says why.
 
 def _blender_handles_sigint() -> bool:
     """Blender's command-line break handler is installed (not Python's or the default one)."""
@@ -502,17 +507,19 @@ def _blender_handles_sigint() -> bool:
     return bpy.app.background and signal.getsignal(signal.SIGINT) is None
 
 
-def fail_render(scene, message: str, *, started: bool = False) -> None:
-    """Make the current render of `scene` fail with `message` (see above). `started`: the
-    meshes have rendered already (the compose step failed)."""
-    print(f"Gaussian splats: ERROR: {message}", flush=True)
-    _state.errors.append(message)
+def fail_render(scene, message: str, stage: str) -> None:
+    """Make the current render of `scene` fail with `message` (see above). `stage`: "init"
+    (render_init, before the meshes render: the camera can still stop it), "frame" (while
+    Blender prepares the frame: recorded, the compose step fails with it) or "compose"."""
+    if message not in _state.errors:
+        print(f"Gaussian splats: ERROR: {message}", flush=True)
+        _state.errors.append(message)
     if scene is None:
         return
     _state.failed_frames.add(scene.frame_current)
-    if not bpy.app.background:
+    if not bpy.app.background or stage == "frame":
         return
-    if not started:
+    if stage == "init":
         if scene.name not in _state.camera_restore and scene.camera is not None:
             _state.camera_restore[scene.name] = scene.camera
             scene.camera = None
@@ -571,7 +578,7 @@ def _on_render_init(scene, _depsgraph=None) -> None:
             print(f"Gaussian splats: compositor bridge set up for scene {scene.name!r}")
         blockers = _render_blockers(scene)
         if blockers:
-            fail_render(scene, "; ".join(blockers))
+            fail_render(scene, "; ".join(blockers), "init")
             return
         if render_result_image() is None or _state.force_cache_file:
             # `blender -b -a`: no Render Result image to read the render from; the render
@@ -580,7 +587,7 @@ def _on_render_init(scene, _depsgraph=None) -> None:
             scene.render.use_render_cache = True
     except Exception as error:
         traceback.print_exc()
-        fail_render(scene, f"cannot prepare the splat composite: {error}")
+        fail_render(scene, f"cannot prepare the splat composite: {error}", "init")
 
 
 @persistent
@@ -600,7 +607,7 @@ def _on_frame_change(scene, depsgraph=None) -> None:
         frame = capture_frame(scene, depsgraph)
     except Exception as error:
         traceback.print_exc()
-        fail_render(scene, f"the splats could not be gathered: {error}")
+        fail_render(scene, f"the splats could not be gathered: {error}", "frame")
         return
     _state.frames[(scene.name, depsgraph.view_layer.name)] = frame
 
@@ -637,7 +644,7 @@ def _on_render_write(scene, _depsgraph=None) -> None:
     except Exception as error:
         traceback.print_exc()
         fail_render(scene, f"the splat passes could not be added to the file: {error}",
-                    started=True)
+                    "compose")
         _remove_failed_file(scene)
 
 
