@@ -719,6 +719,8 @@ def _on_depsgraph_update(scene, depsgraph) -> None:
     if not bpy.app.background:
         name = scene.name
         bpy.app.timers.register(lambda: _set_up_later(name), first_interval=0.0)
+    elif _SET_UP_AT_RENDER:
+        return  # the render sets it up (a script's scene changes nothing before)
     elif bridge.helper_scene(create=False) is None:
         bridge.helper_scene()
         _helper_made_for.add(scene.name)

@@ -25,6 +25,12 @@ from . import compositor_bridge as bridge
 from .registration import register_classes, unregister_classes
 
 
+def _viewport_switch(settings, context) -> None:
+    """The splat object's own display follows whether the add-on draws it (`viewport`)."""
+    from . import viewport
+    viewport.on_switch_changed(settings, context)
+
+
 class SplatRenderSettings(bpy.types.PropertyGroup):
     enabled: BoolProperty(
         name="Composite Splats",
@@ -56,7 +62,7 @@ class SplatRenderSettings(bpy.types.PropertyGroup):
                     "(layer \"Splats\")",
         default=True)
     viewport: BoolProperty(
-        name="Show in Viewport",
+        name="Show in Viewport", update=_viewport_switch,
         description="Draw splat objects in the 3D viewport (Solid and Material Preview)",
         default=True)
     viewport_coarse_pixels: IntProperty(
