@@ -3,16 +3,16 @@ and holds what a real Blender wrote against the native composite computed here.
 
     python tests/real_blender/check.py make SPLATS.npz
     python tests/real_blender/check.py render WRITTEN.png MESHES.exr SPLATS.npz
-    python tests/real_blender/check.py viewport SHOT.png VIEW.json MESHES.exr SPLATS.npz
+    python tests/real_blender/check.py viewport SPLATS_SHOT.png PLAIN_SHOT.png VIEW.json SPLATS.npz
 
 `render`: WRITTEN (an 8-bit PNG from F12 or `-a`) must equal, within 1/255, the splats composed
 by the native compositor with the meshes Blender rendered alone (MESHES, a multilayer EXR of the
 same frame with Composite Splats off), encoded as the "Standard" view transform writes it.
 The camera is the one `scene.py` builds.
 
-`viewport`: a screenshot of the UI (see `viewport_shot.py`) against the same composite, at the
-viewport's own camera and size (VIEW: what the UI recorded). Prints the figures; fails when the
-splats are not there (see `viewport_figures`).
+`viewport`: screenshots of the UI (`viewport_shot.py`: with the add-on's drawing and without)
+against the native render at the viewport's own camera (VIEW: what the UI recorded). Prints
+the figures; fails when they are off (see `viewport_figures`).
 """
 
 from __future__ import annotations

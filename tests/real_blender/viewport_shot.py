@@ -46,6 +46,11 @@ def set_up() -> None:
         bpy.ops.screen.screen_full_area(use_hide_panels=True)
     bpy.ops.object.select_all(action="DESELECT")
     bpy.context.scene.camera.hide_set(True)  # the view looks from behind it
+    if os.environ.get("SPLAT_EDIT_MODE"):  # Edit Mode must still show every point
+        splats = bpy.data.objects["Splats"]
+        bpy.context.view_layer.objects.active = splats
+        splats.select_set(True)
+        bpy.ops.object.mode_set(mode="EDIT")
     display = os.environ.get("SPLAT_DISPLAY_TYPE")  # experiments: the splat object's display
     if display:
         bpy.data.objects["Splats"].display_type = display
@@ -103,7 +108,8 @@ def state_step():
 def wait_until_rested():
     window, area, region = view3d()
     image = viewport.renderer.result(region.as_pointer())
-    if image is None or image.coarse or viewport.renderer.busy():
+    compiling = bpy.app.is_job_running("SHADER_COMPILATION")  # Material Preview's shaders
+    if image is None or image.coarse or viewport.renderer.busy() or compiling:
         if time.monotonic() - record.setdefault("_t0", time.monotonic()) > 60:
             errors.append("no full-resolution viewport image within 60 s")
             return None
@@ -111,6 +117,22 @@ def wait_until_rested():
         return 0.5
     record.pop("_t0", None)
     return None
+
+
+def settled_shot(path: str):
+    """A step: screenshot every second until two in a row are the same (EEVEE compiles its
+    shaders and converges for a while), at most 60 s."""
+    state = {"previous": None, "t0": time.monotonic()}
+
+    def step():
+        shot(path)
+        data = open(path, "rb").read()
+        if data == state["previous"] or time.monotonic() - state["t0"] > 60:
+            return None
+        state["previous"] = data
+        view3d()[1].tag_redraw()
+        return 1.0
+    return step
 
 
 def add_shading(shading: str) -> None:
@@ -121,27 +143,23 @@ def add_shading(shading: str) -> None:
         area.tag_redraw()
         return None
 
-    def take_splats():
-        time.sleep(0.3)
+    def record_view():
         window, area, region = view3d()
         rv3d = area.spaces.active.region_3d
         record["region"] = [region.width, region.height]
         record["view_matrix"] = [list(r) for r in rv3d.view_matrix]
         record["window_matrix"] = [list(r) for r in rv3d.window_matrix]
         record["version"] = list(bpy.app.version)
-        shot(os.path.join(OUT, f"{shading.lower()}_splats.png"))
+        return None
+
+    def splats_off():
         bpy.context.scene.splat_render.viewport = False
-        area.tag_redraw()
+        view3d()[1].tag_redraw()
         return None
 
-    def take_plain():
-        shot(os.path.join(OUT, f"{shading.lower()}_plain.png"))
-        return None
-
-    steps.extend([configure, wait_until_rested, lambda: 1.0 if not record.setdefault(
-        f"_{shading}", True) else None, take_splats, lambda: 1.0 if record.setdefault(
-        f"__{shading}", False) is False and not record.update({f"__{shading}": True}) else None,
-        take_plain])
+    steps.extend([configure, wait_until_rested, record_view,
+                  settled_shot(os.path.join(OUT, f"{shading.lower()}_splats.png")),
+                  splats_off, settled_shot(os.path.join(OUT, f"{shading.lower()}_plain.png"))])
 
 
 def original_draw_errors():
