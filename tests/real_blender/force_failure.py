@@ -1,6 +1,7 @@
 """Runs inside a real Blender before a render: makes the splat composite fail on purpose.
 
     blender -b FILE.blend --python force_failure.py -a -- KIND
+    blender -b FILE.blend --python force_failure.py -- KIND --still OUT_PREFIX   (F12)
 
 KIND: `module` (the native module cannot be imported: found when the render starts), `gather`
 (the splats cannot be read: found while Blender prepares the frame), `compose` (the native
@@ -41,4 +42,12 @@ def main(kind: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[sys.argv.index("--") + 1])
+    args = sys.argv[sys.argv.index("--") + 1:]
+    main(args[0])
+    if "--still" in args:  # F12 (render_still.py) with the failure in place
+        import os
+        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+        import render_still
+        code = render_still.main(args[args.index("--still") + 1])
+        sys.stdout.flush()
+        os._exit(code)

@@ -46,14 +46,11 @@ def set_up() -> None:
         bpy.ops.screen.screen_full_area(use_hide_panels=True)
     bpy.ops.object.select_all(action="DESELECT")
     bpy.context.scene.camera.hide_set(True)  # the view looks from behind it
-    if os.environ.get("SPLAT_EDIT_MODE"):  # Edit Mode must still show every point
+    if os.environ.get("SPLAT_EDIT_MODE"):  # a look at Edit Mode (its points must show)
         splats = bpy.data.objects["Splats"]
         bpy.context.view_layer.objects.active = splats
         splats.select_set(True)
         bpy.ops.object.mode_set(mode="EDIT")
-    display = os.environ.get("SPLAT_DISPLAY_TYPE")  # experiments: the splat object's display
-    if display:
-        bpy.data.objects["Splats"].display_type = display
 
 
 def aim() -> None:
@@ -90,7 +87,8 @@ steps: list = []
 def state_step():
     try:
         if not steps:
-            json.dump({**record, "errors": errors + viewport.renderer.errors},
+            json.dump({**{k: v for k, v in record.items() if not k.startswith("_")},
+                       "errors": errors + viewport.renderer.errors},
                       open(os.path.join(OUT, "view.json"), "w"), indent=1)
             bpy.ops.wm.quit_blender()
             return None
@@ -119,17 +117,22 @@ def wait_until_rested():
     return None
 
 
-def settled_shot(path: str):
-    """A step: screenshot every second until two in a row are the same (EEVEE compiles its
-    shaders and converges for a while), at most 60 s."""
-    state = {"previous": None, "t0": time.monotonic()}
+def settled_shot(path: str, at_least: float = 0.0):
+    """A step: screenshot every second until three in a row are the same, and `at_least`
+    seconds have passed since the shading was set (EEVEE draws meshes white while it compiles
+    their shaders, with no job to wait for on 5.2), at most 90 s."""
+    state = {"previous": None, "same": 0, "t0": None}
 
     def step():
+        now = time.monotonic()
+        state["t0"] = state["t0"] or now
         shot(path)
         data = open(path, "rb").read()
-        if data == state["previous"] or time.monotonic() - state["t0"] > 60:
-            return None
+        state["same"] = state["same"] + 1 if data == state["previous"] else 0
         state["previous"] = data
+        if (state["same"] >= 2 and now - record["_shading_set"] >= at_least) \
+                or now - state["t0"] > 90:
+            return None
         view3d()[1].tag_redraw()
         return 1.0
     return step
@@ -139,6 +142,7 @@ def add_shading(shading: str) -> None:
     def configure():
         window, area, region = view3d()
         area.spaces.active.shading.type = shading
+        record["_shading_set"] = time.monotonic()
         bpy.context.scene.splat_render.viewport = True
         area.tag_redraw()
         return None
@@ -157,12 +161,13 @@ def add_shading(shading: str) -> None:
         view3d()[1].tag_redraw()
         return None
 
+    compile_time = 20.0 if shading == "MATERIAL" else 0.0
     steps.extend([configure, wait_until_rested, record_view,
-                  settled_shot(os.path.join(OUT, f"{shading.lower()}_splats.png")),
+                  settled_shot(os.path.join(OUT, f"{shading.lower()}_splats.png"), compile_time),
                   splats_off, settled_shot(os.path.join(OUT, f"{shading.lower()}_plain.png"))])
 
 
-def original_draw_errors():
+def catch_draw_errors():
     """Count exceptions raised by the draw handler (Blender prints and swallows them)."""
     real = viewport.draw_view
 
@@ -177,27 +182,9 @@ def original_draw_errors():
     viewport.draw_view = checked
 
 
-original_draw_errors()
+catch_draw_errors()
 
 
-def probe_depth():
-    """Experiments: the depth buffer at a few pixels at POST_VIEW."""
-    import gpu
-    region = bpy.context.region
-    fb = gpu.state.active_framebuffer_get()
-    points = [(region.width // 2, region.height // 2), (region.width // 4, region.height // 2),
-              (10, 10)]
-    record["depth_probe"] = [(x, y, list(fb.read_depth(x, y, 1, 1).to_list())) for x, y in points]
-    window, area, reg = view3d()
-    image = viewport.renderer.result(reg.as_pointer())
-    if image is not None:
-        h, w = image.depth.shape
-        record["splat_depth"] = [float(image.depth[int(y * h / region.height), int(x * w / region.width)])
-                                 for x, y in points]
-
-
-if os.environ.get("SPLAT_PROBE_DEPTH"):
-    bpy.types.SpaceView3D.draw_handler_add(probe_depth, (), "WINDOW", "POST_VIEW")
 steps.extend([lambda: (set_up(), None)[1], lambda: (aim(), None)[1]])
 for name in SHADINGS:
     add_shading(name)
