@@ -182,6 +182,12 @@ class RENDER_PT_splats(bpy.types.Panel):
         sub.active = settings.viewport
         sub.prop(settings, "viewport_resolution")
         sub.prop(settings, "viewport_coarse_pixels")
+        errors = render_hooks.last_errors()
+        if errors:  # the last render failed: say why where the settings are
+            box = layout.box()
+            box.label(text="The last render failed:", icon="ERROR")
+            for line in errors[-1].split("; "):
+                box.label(text=line)
         stats = render_hooks.last_stats
         if stats.get("total_ms"):
             box = layout.box()

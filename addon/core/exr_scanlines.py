@@ -7,7 +7,8 @@ channels, compression NONE, ZIPS or ZIP (zlib is in Python's standard library). 
 (tiles, deep data, PIZ, DWA...) raises `ValueError` naming the file and what it holds.
 
 `read_channels(path)` returns every channel of every part, full channel name -> (H, W) float32,
-rows top to bottom, as `exr.read_channels` (OpenImageIO) does.
+rows top to bottom, as `exr.read_channels` (OpenImageIO) does (uncompressed FLOAT channels as
+read-only views of the file's bytes, with row strides: copy them to write).
 """
 
 from __future__ import annotations
@@ -71,6 +72,25 @@ def _undo_zip(chunk: bytes, size: int) -> bytes:
     return out.tobytes()
 
 
+def _uncompressed_view(data: bytes, multipart: bool, offsets: np.ndarray, y0: int,
+                       height: int, row_dtype: np.dtype) -> np.ndarray | None:
+    """Uncompressed scanlines stored one after another in increasing y (as Blender writes
+    them): the rows as one view of the file's bytes, no per-line work; None otherwise."""
+    head = 12 if multipart else 8
+    stride = head + row_dtype.itemsize
+    start = int(offsets[0])
+    if len(offsets) != height or start + stride * height > len(data) or \
+            not np.array_equal(offsets, start + stride * np.arange(height, dtype=np.uint64)):
+        return None
+    chunk = np.dtype([("head", "<i4", (head // 4,)), ("row", row_dtype)])
+    chunks = np.frombuffer(data, chunk, height, start)
+    ys = chunks["head"][:, -2]
+    sizes = chunks["head"][:, -1]
+    if not (np.array_equal(ys, y0 + np.arange(height)) and (sizes == row_dtype.itemsize).all()):
+        return None
+    return chunks["row"]
+
+
 def read_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Every channel of every part: full channel name -> (H, W) float32, rows top to bottom."""
     with open(path, "rb") as f:
@@ -110,6 +130,12 @@ def read_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for index, (compression, y0, width, height, channels, lines, offsets) in enumerate(parts):
         row_dtype = np.dtype([(f"c{i}", _TYPES[t], (width,)) for i, (_, t, _, _) in enumerate(channels)])
+        image = _uncompressed_view(data, multipart, offsets, y0, height, row_dtype) \
+            if compression == 0 else None
+        if image is not None:  # views of the file's bytes (FLOAT), no copy
+            for i, (name, _, _, _) in enumerate(channels):
+                out[name] = image[f"c{i}"].astype(np.float32, copy=False)
+            continue
         image = np.empty(height, row_dtype)
         for offset in offsets:
             at = int(offset) + (4 if multipart else 0)
