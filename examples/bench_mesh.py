@@ -103,7 +103,7 @@ def psnr(a, b) -> float:
 
 def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, folder):
     from addon.blender import mesh_convert
-    from addon.core import surface, texture_bake
+    from addon.core import surface, mesh_texture
     from addon.core.render import render
 
     bounds = surface.splat_bounds(gaussians)
@@ -129,12 +129,12 @@ def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, fold
         v, f = mesh_convert._decimate(v, f, budget)
         t["decimate"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        uvs = texture_bake.unwrap(v, f, tex)
+        uvs = mesh_texture.unwrap(v, f, tex)
         t["unwrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        baked = texture_bake.bake_texture(v, f, views, tex, tolerance=2 * volume.grid.voxel,
-                                          corner_uvs=uvs)
-        t["bake"] = time.perf_counter() - t0
+        baked = mesh_texture.project_texture(v, f, views, tex, tolerance=2 * volume.grid.voxel,
+                                             corner_uvs=uvs)
+        t["texture"] = time.perf_counter() - t0
         depth_err, miss, psnrs = [], [], []
         for k, (cam, rgb, alpha, depth) in enumerate(tests):
             md = surface.zbuffer_depth(v, f, cam)
@@ -153,14 +153,14 @@ def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, fold
 
 HEADER = (f"{'scene':<6} {'res':>4} {'extracted':>9} {'tris':>6} {'tex':>5} {'depth err %':>11} "
           f"{'miss %':>6} {'PSNR dB':>7} | {'render':>6} {'fuse':>5} {'extract':>7} "
-          f"{'decim':>5} {'unwrap':>6} {'bake':>5} {'total s':>7}")
+          f"{'decim':>5} {'unwrap':>6} {'proj':>5} {'total s':>7}")
 
 
 def print_row(row, flush=False):
     name, res, extracted, tris, tex, derr, miss, p, t = row
     print(f"{name:<6} {res:>4} {extracted:>9} {tris:>6} {tex:>5} {derr:>11.3f} {miss:>6.2f} "
           f"{p:>7.2f} | {t['render']:>6.2f} {t['fuse']:>5.2f} {t['extract']:>7.2f} "
-          f"{t['decimate']:>5.2f} {t['unwrap']:>6.2f} {t['bake']:>5.2f} {sum(t.values()):>7.2f}",
+          f"{t['decimate']:>5.2f} {t['unwrap']:>6.2f} {t['texture']:>5.2f} {sum(t.values()):>7.2f}",
           flush=flush)
 
 

@@ -56,7 +56,7 @@ def main() -> None:
     args = parser.parse_args()
     addon.register()
     from addon.blender import compositor_bridge, render_hooks, splat_object
-    from addon.core.render import cpu_count
+    from addon.core.native import cpu_count
 
     out = tempfile.mkdtemp(prefix="bench-render-")
     sets = [("file", p) for p in args.splats] + [("random", n) for n in args.random]

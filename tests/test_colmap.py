@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from addon.core import colmap, photos
+from addon.core import colmap, image_io
 from addon.core.colmap import ColmapError, read_colmap
 from addon.core.dataset import ColmapDataset, split_indices
 from tests.colmap_helpers import (colmap_own_residuals, project,
@@ -120,7 +120,7 @@ def test_beer_partial_images_8_and_undistortion_cache(shared_data, tmp_path):
             assert im.path is None
         else:
             assert im.path == folder / "images" / im.name
-            header = photos.read_header(im.path)
+            header = image_io.read_header(im.path)
             assert (header.width, header.height) == (cam.width, cam.height)
     # The undistorted workspace is a COLMAP model of pinhole cameras that re-projects as ours.
     again = read_colmap(folder, "images", cache_dir=tmp_path / "unused")
@@ -172,9 +172,9 @@ def test_undistorted_photo_agrees_with_pycolmap(shared_data, tmp_path):
     assert (their_cam.width, their_cam.height) == (im.camera.width, im.camera.height)
     np.testing.assert_allclose(their_cam.params, [im.camera.fx, im.camera.fy, im.camera.cx,
                                                   im.camera.cy], rtol=1e-12)
-    intr = colmap._pinhole_of(cam, pycolmap.UndistortCameraOptions())
+    intr = colmap.pinhole_of(cam, pycolmap.UndistortCameraOptions())
     x, y = colmap.undistortion_map(intr, im.camera, (720, 1280))
-    ours = photos.remap_bilinear(photos.read_pixels(im.source_path), x, y)
+    ours = image_io.remap_bilinear(image_io.read_pixels(im.source_path), x, y)
     diff = np.abs(ours.astype(float) - theirs.to_array().astype(float))
     print(f"undistorted photo vs pycolmap.undistort_image: mean |diff| {diff.mean():.3f}, "
           f"99th percentile {np.percentile(diff, 99):.1f}, max {diff.max():.0f} (of 255)")
@@ -217,7 +217,7 @@ def test_every_camera_model(tmp_path, rng, fmt):
         else:
             assert im.path == scene.undistorted_dir / "images" / im.name
         # The photo (undistorted where needed) shows the texture along each pixel's ray.
-        got = photos.to_float(photos.read_pixels(im.path))
+        got = image_io.to_float(image_io.read_pixels(im.path))
         assert got.shape == (cam.height, cam.width, 3)
         u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
         want = texture((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy)
@@ -254,14 +254,14 @@ def test_photo_bit_depths_orientation_and_downscaled_folder(tmp_path, rng):
 
     def writer(path, pixels):
         if path.suffix == ".exr":
-            photos.write_pixels(path, pixels.astype(np.float16))
+            image_io.write_pixels(path, pixels.astype(np.float16))
         else:
-            photos.write_pixels(path, np.round(pixels * 65535).astype(np.uint16)
+            image_io.write_pixels(path, np.round(pixels * 65535).astype(np.uint16)
                                 if path.suffix == ".png" else np.round(pixels * 255).astype(np.uint8))
 
     rec = synthetic_workspace(tmp_path / "w", cameras, images, rng=rng, photo_writer=writer)
     # d.jpg: store it sideways with EXIF orientation 6 (display = rotate 90 degrees clockwise)
-    upright = photos.read_pixels(tmp_path / "w" / "images" / "d.jpg")
+    upright = image_io.read_pixels(tmp_path / "w" / "images" / "d.jpg")
     spec = oiio.ImageSpec(upright.shape[0], upright.shape[1], 3, "uint8")
     spec.attribute("Orientation", 6)
     stored = np.ascontiguousarray(np.rot90(upright, k=1))
@@ -269,17 +269,17 @@ def test_photo_bit_depths_orientation_and_downscaled_folder(tmp_path, rng):
     out.open(str(tmp_path / "w" / "images" / "d.jpg"), spec)
     out.write_image(stored)
     out.close()
-    turned = photos.read_pixels(tmp_path / "w" / "images" / "d.jpg", orientation=6)
+    turned = image_io.read_pixels(tmp_path / "w" / "images" / "d.jpg", orientation=6)
     assert turned.shape == upright.shape  # JPEG again: equal up to compression
     assert np.abs(turned.astype(int) - upright).mean() < 2
 
     scene = read_colmap(tmp_path / "w", cache_dir=tmp_path / "cache")
-    kinds = {im.name: photos.read_pixels(im.path).dtype for im in scene.images}
+    kinds = {im.name: image_io.read_pixels(im.path).dtype for im in scene.images}
     assert kinds == {"a.png": np.uint16, "b.exr": np.float16, "c.png": np.uint16,
                      "d.jpg": np.uint8, "e.png": np.uint16}
     d = scene.image("d.jpg")
     assert d.path == scene.undistorted_dir / "images" / "d.jpg"  # an upright copy
-    got = photos.read_pixels(d.path)
+    got = image_io.read_pixels(d.path)
     assert got.shape == upright.shape and np.abs(got.astype(int) - upright).mean() < 2
     c = scene.image("c.png")
     assert c.path == tmp_path / "w" / "images" / "c.png"  # pinhole, upright: used as it is
@@ -287,10 +287,10 @@ def test_photo_bit_depths_orientation_and_downscaled_folder(tmp_path, rng):
     # images_2 with only three photos, made by halving the originals (OpenImageIO, box)
     half = tmp_path / "w" / "images_2"
     for name in ("a.png", "c.png", "d.jpg"):
-        full = photos.read_pixels(tmp_path / "w" / "images" / name,
+        full = image_io.read_pixels(tmp_path / "w" / "images" / name,
                                   orientation=6 if name == "d.jpg" else 1)
         size = (full.shape[1] // 2, full.shape[0] // 2)
-        photos.write_pixels(half / name, photos.read_pixels(
+        image_io.write_pixels(half / name, image_io.read_pixels(
             tmp_path / "w" / "images" / name, orientation=6 if name == "d.jpg" else 1, size=size))
     small = read_colmap(tmp_path / "w", "images_2", cache_dir=tmp_path / "cache")
     assert sorted(small.missing) == ["b.exr", "e.png"]
@@ -485,7 +485,7 @@ def test_dataset_cup_lazy_and_quick(shared_data):
         assert (a.width, a.height) == (b.width, b.height) == (200, 150)
         assert (a.fx, a.cx, a.cy) == pytest.approx((b.fx, b.cx, b.cy), rel=1e-12)
         mine = small.image(i)
-        theirs = photos.to_float(photos.read_pixels(folder4.with_photos[i].path))
+        theirs = image_io.to_float(image_io.read_pixels(folder4.with_photos[i].path))
         assert np.abs(mine - theirs).mean() < 0.03
     for i in range(10):
         small.image(i)

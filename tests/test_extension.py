@@ -1,7 +1,7 @@
 """The extension zip, installed the way a user (or a render-farm image) installs it, then used.
 
-1. `scripts/build_extension.py` builds the zip (manifest at its root, the add-on package, the
-   native wheel under wheels/).
+1. `scripts/build_extension.py` builds the linux-x64 zip (manifest at its root, the add-on
+   package, the native wheel and the dependencies' wheels under wheels/).
 2. A fresh Blender process (the bpy wheel) with its own user folder installs it with
    `bpy.ops.extensions.package_install_files(..., enable_on_install=True)`, builds a scene with
    the extension's operators (splats, a cube, a camera), saves it and the preferences.
@@ -21,6 +21,7 @@ import json
 import subprocess
 import sys
 import textwrap
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -91,17 +92,18 @@ FARM = textwrap.dedent("""
     ext = sys.modules[bpy.types.SPLAT_OT_import_splats.__module__.rsplit(".", 2)[0]]
     from importlib import import_module
     core = ext.__name__ + ".core"
-    exr, render_mod, colour = (import_module(core + m) for m in (".exr", ".render", ".colour"))
+    exr_layers, render_mod, colour = (import_module(core + m)
+                                      for m in (".exr_layers", ".render", ".colour"))
     gather = import_module(ext.__name__ + ".blender.gather")
-    hooks = import_module(ext.__name__ + ".blender.render_hooks")
+    cameras = import_module(ext.__name__ + ".blender.camera_adapter")
     errors = []
     for frame in (1, 2):
         scene.frame_set(frame)
-        channels = exr.read_channels({out!r} + f"/layers_{{frame:04d}}.exr")
-        mesh = exr.find_pass(channels, "ViewLayer", "Combined", "RGBA")
-        depth = exr.find_pass(channels, "ViewLayer", "Depth", "Z")[..., 0]
+        channels = exr_layers.read_channels({out!r} + f"/layers_{{frame:04d}}.exr")
+        mesh = exr_layers.find_pass(channels, "ViewLayer", "Combined", "RGBA")
+        depth = exr_layers.find_pass(channels, "ViewLayer", "Depth", "Z")[..., 0]
         depsgraph = bpy.context.evaluated_depsgraph_get()
-        camera = hooks.blender_camera(scene.camera.evaluated_get(depsgraph), scene.render)
+        camera = cameras.camera_of(scene.camera.evaluated_get(depsgraph), scene.render)
         result = render_mod.render(gather.gather(depsgraph).gaussians, camera,
                                    mesh_rgba=colour.display_from_linear(mesh), mesh_depth=depth)
         rgba = colour.linear_from_display(
@@ -126,17 +128,20 @@ def run(script: str, user: Path, *args: str) -> dict:
 
 def test_install_the_zip_and_render_like_a_farm_node(rng, tmp_path):
     dist = tmp_path / "dist"
-    subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"), "--out",
-                    str(dist), "--wheel-dir", str(tmp_path / "wheels")], check=True,
-                   capture_output=True, timeout=300)
-    (zip_path,) = dist.glob("gaussian_splatting-*.zip")
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"), "--platform",
+                    "linux-x64", "--python", "3.11", "--out", str(dist)], check=True,
+                   capture_output=True, timeout=600)
+    (zip_path,) = dist.glob("gaussian_splatting-*-linux_x64.zip")
     with zipfile.ZipFile(zip_path) as archive:
         names = set(archive.namelist())
-        manifest = archive.read("blender_manifest.toml").decode()
+        manifest = tomllib.loads(archive.read("blender_manifest.toml").decode())
     assert {"blender_manifest.toml", "__init__.py", "blender/render_hooks.py",
             "core/render.py"} <= names
-    (wheel,) = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
-    assert f'wheels = ["./{wheel}"]' in manifest and "platforms = [" in manifest
+    wheels = {n for n in names if n.startswith("wheels/") and n.endswith(".whl")}
+    assert sorted(manifest["wheels"]) == sorted(f"./{n}" for n in wheels)
+    assert manifest["platforms"] == ["linux-x64"]
+    for module in ("splatcore", "pycolmap", "openimageio", "xatlas", "zstandard"):
+        assert any(n.startswith(f"wheels/{module}-") for n in wheels), (module, wheels)
     assert not any("__pycache__" in n for n in names)
 
     splats = tmp_path / "splats.ply"

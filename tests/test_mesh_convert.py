@@ -8,7 +8,9 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender import gather, mesh_convert, splat_object
+from types import SimpleNamespace
+
+from addon.blender import gather, job_runner, mesh_convert, splat_object
 from addon.core import surface
 from addon.core.surface import Cancelled
 from test_surface import sphere_gaussians
@@ -32,10 +34,16 @@ def _splat_sphere():
 SMALL = dict(resolution=24, max_triangles=600, texture_size=64, view_count=16, view_size=48)
 
 
-def test_operator_converts_the_active_splat_object():
+def test_operator_converts_the_active_splat_object(capsys):
     obj = _splat_sphere()
     result = bpy.ops.splat.convert_to_mesh(**SMALL)
     assert result == {"FINISHED"}
+    # Headless, the terminal gets a line per stage (job_runner), then the report.
+    lines = capsys.readouterr().out.splitlines()
+    stages = [line.split(":")[1].split("(")[0].strip() for line in lines
+              if line.startswith("Converting to mesh: ")]
+    assert stages == list(mesh_convert.STAGES) + ["done"]
+    assert "triangles" in lines[-1]
     mesh_obj = bpy.context.view_layer.objects.active
     assert mesh_obj is not obj and mesh_obj.type == "MESH"
     assert mesh_obj[mesh_convert.SOURCE_KEY] == obj
@@ -107,3 +115,50 @@ def test_cancel_leaves_nothing_behind():
         mesh_convert.convert_to_mesh(obj, cancel=cancel, **SMALL)
     assert bs.scene_state() == before
     assert (len(bpy.data.images), len(bpy.data.materials)) == (images, materials)
+
+
+class _Harness(job_runner.JobOperator):
+    """The runner's modal half without an Operator (no window: events are made by hand)."""
+
+    def __init__(self, key: str) -> None:
+        self._key = key
+        self.reports: list = []
+
+    def report(self, level, message) -> None:
+        self.reports.append((level, message))
+
+
+def test_modal_conversion_steps_on_timer_ticks_and_esc_leaves_nothing(monkeypatch):
+    monkeypatch.setattr(job_runner, "STAGE_BUDGET", 0.0)  # one step per tick
+    obj = _splat_sphere()
+    before = bs.scene_state()
+    tick = SimpleNamespace(type="TIMER", value="NOTHING")
+
+    def start():
+        stats: dict = {}
+        steps = mesh_convert.convert_job(obj, stats=stats, **SMALL)
+        job = job_runner.OperatorJob(
+            "mesh:test", "Converting to mesh", mesh_convert.StagedJob(steps, mesh_convert.STAGES),
+            lambda running, write: ("INFO", "done", running.job.result))
+        job_runner.RUNNING[job.key] = job
+        job.job.start()
+        return job, _Harness(job.key)
+
+    job, harness = start()
+    for _ in range(2):  # a step of work each: "render" 0, then the first view
+        assert harness.modal(bpy.context, tick) == {"PASS_THROUGH"}
+    assert 0 < job.progress.fraction < 1 and job.progress.message in mesh_convert.STAGES
+    assert harness.modal(bpy.context, SimpleNamespace(type="ESC", value="PRESS")) == \
+        {"RUNNING_MODAL"}
+    assert harness.modal(bpy.context, tick) == {"FINISHED"}
+    assert job.job.progress().phase == "cancelled" and job.key not in job_runner.RUNNING
+    assert bs.scene_state() == before
+
+    job, harness = start()
+    result = None
+    for _ in range(10_000):
+        result = harness.modal(bpy.context, tick)
+        if result != {"PASS_THROUGH"}:
+            break
+    assert result == {"FINISHED"} and job.job.result.type == "MESH"
+    assert bpy.context.view_layer.objects.active == job.job.result

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from addon.blender import compositor_bridge, gather, mesh_convert, splat_object
-from addon.core import exr
+from addon.core import exr_layers
 from addon.core.composite import apply_shadow_catcher
 from addon.core.gaussians import Gaussians
 
@@ -84,11 +84,11 @@ def render_layers(scene, path) -> dict:
     settings.color_depth = "32"
     scene.render.filepath = str(path)
     assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
-    channels = exr.read_channels(f"{path}.exr")
-    return {"composite": exr.find_pass(channels, "Composite", "Combined", "RGBA"),
-            "mesh": exr.find_pass(channels, "ViewLayer", "Combined", "RGBA"),
-            "shadow": exr.find_pass(channels, "ViewLayer", "Shadow Catcher", "RGB"),
-            "splats": exr.find_pass(channels, "Splats", "Combined", "RGBA")}
+    channels = exr_layers.read_channels(f"{path}.exr")
+    return {"composite": exr_layers.find_pass(channels, "Composite", "Combined", "RGBA"),
+            "mesh": exr_layers.find_pass(channels, "ViewLayer", "Combined", "RGBA"),
+            "shadow": exr_layers.find_pass(channels, "ViewLayer", "Shadow Catcher", "RGB"),
+            "splats": exr_layers.find_pass(channels, "Splats", "Combined", "RGBA")}
 
 
 @pytest.fixture(autouse=True)

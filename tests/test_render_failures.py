@@ -175,7 +175,7 @@ def test_exr_reader_matches_openimageio(rng, tmp_path):
     scene.render.image_settings.exr_codec = "ZIP"
     scene.splat_render.enabled = False
     assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
-    from addon.core import exr
+    from addon.core import exr_layers as exr
     want = exr.read_channels(tmp_path / "frame.exr")
     got = exr_scanlines.read_channels(tmp_path / "frame.exr")
     assert sorted(got) == sorted(want)

@@ -18,8 +18,8 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender import compositor_bridge, render_hooks, splat_object
-from addon.core import exr
+from addon.blender import camera_adapter, compositor_bridge, render_hooks, splat_object
+from addon.core import exr_layers
 from addon.core.render import render
 from scenes import random_gaussians
 from standard_view import (decode, encode, native_composite, premultiplied, read_png,
@@ -114,9 +114,9 @@ def save_render_result(scene, path):
 
 
 def mesh_layers(path):
-    channels = exr.read_channels(path)
-    rgba = exr.find_pass(channels, "ViewLayer", "Combined", "RGBA")
-    depth = exr.find_pass(channels, "ViewLayer", "Depth", "Z")[..., 0]
+    channels = exr_layers.read_channels(path)
+    rgba = exr_layers.find_pass(channels, "ViewLayer", "Combined", "RGBA")
+    depth = exr_layers.find_pass(channels, "ViewLayer", "Depth", "Z")[..., 0]
     return rgba, depth, channels
 
 
@@ -163,10 +163,10 @@ def test_still_is_the_exact_composite(rng, tmp_path, engine):
     assert np.abs(written[covered][:, :3] - mesh_8[covered][:, :3]).max() > 20
 
     # The multilayer file: Blender's view layer (meshes), the composite, and the splat layer.
-    composite = exr.find_pass(channels, "Composite", "Combined", "RGBA")
+    composite = exr_layers.find_pass(channels, "Composite", "Combined", "RGBA")
     assert np.abs(composite - expected).max() < 2e-5
-    splat_rgba = exr.find_pass(channels, "Splats", "Combined", "RGBA")
-    splat_depth = exr.find_pass(channels, "Splats", "Depth", "Z")[..., 0]
+    splat_rgba = exr_layers.find_pass(channels, "Splats", "Combined", "RGBA")
+    splat_depth = exr_layers.find_pass(channels, "Splats", "Depth", "Z")[..., 0]
     reference = premultiplied(np.concatenate([alone.rgb, alone.alpha[..., None]], -1), decode)
     assert np.abs(splat_rgba - reference).max() < 2e-5
     hit = np.isfinite(alone.depth)
@@ -244,7 +244,7 @@ def test_border_percentage_shift_and_pixel_aspect(rng, tmp_path):
     scene.render.use_border = True
     scene.render.border_min_x, scene.render.border_max_x = 0.2, 0.7
     scene.render.border_min_y, scene.render.border_max_y = 0.35, 0.9
-    region = render_hooks.render_region(*render_hooks.frame_size(scene.render),
+    region = render_hooks.render_region(*camera_adapter.frame_size(scene.render),
                                         render_hooks.render_border(scene.render))
     scene.render.use_crop_to_border = True
     cropped = read_png(render_still(scene, tmp_path / "crop"))

@@ -469,3 +469,56 @@ def test_spz_v4_without_zstandard(monkeypatch: pytest.MonkeyPatch, rng: np.rando
         spz.save(g, tmp_path / "x.spz")
     spz.save(g, tmp_path / "x.spz", version=3)
     assert len(spz.load(tmp_path / "x.spz")) == 10
+
+
+def _zero_zstd_frame(size: int) -> bytes:
+    """A zstd frame of `size` zero bytes, compressed in pieces (never `size` bytes in memory)."""
+    import zstandard
+    out = zstandard.ZstdCompressor(level=3).compressobj()
+    piece = bytes(1 << 22)
+    frames = [out.compress(piece[:min(len(piece), size - done)]) for done in range(0, size, len(piece))]
+    return b"".join(frames) + out.flush()
+
+
+def test_spz_decompression_bomb_fails_before_allocating(tmp_path: Path) -> None:
+    """The issue's reproducer: a small v4 file whose zstd streams really hold 12 million points
+    (zeros compress by thousands) passes the compression-ratio bound; the Gaussian ceiling
+    (formats.limits) refuses it from the header, in bounded time and memory."""
+    import tracemalloc
+
+    n = 12_000_000
+    sizes = spz._stream_sizes(n, 4, 0)
+    frames = [(_zero_zstd_frame(s), s) for s in sizes if s]
+    padding = struct.pack("<II", 0x12345678, 110_000) + bytes(110_000)  # an unknown extension
+    header = struct.pack("<4sIIBBBBI12s", b"NGSP", 4, n, 0, 12, spz.FLAG_EXTENSIONS, len(frames),
+                         32 + len(padding), bytes(12))
+    toc = b"".join(struct.pack("<QQ", len(f), s) for f, s in frames)
+    path = tmp_path / "bomb.spz"
+    path.write_bytes(header + padding + toc + b"".join(f for f, _ in frames))
+    assert path.stat().st_size < 200_000
+    tracemalloc.start()
+    start = time.perf_counter()
+    try:
+        with pytest.raises(SplatFileError, match="declares 12000000 points, more than the limit"):
+            spz.load(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert time.perf_counter() - start < 1.0 and peak < 16 * path.stat().st_size
+
+
+def test_every_reader_checks_the_gaussian_ceiling(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The ceiling is the user's to raise; each reader refuses a file above it, naming it."""
+    from addon.core.formats import limits
+
+    rng = np.random.default_rng(4)
+    g = random_gaussians(rng, 40, 1)
+    for suffix in (".ply", ".splat", ".spz"):
+        splat_io.save(g, tmp_path / f"g{suffix}")
+    monkeypatch.setattr(limits, "MAX_GAUSSIANS", 39)
+    for suffix in (".ply", ".splat", ".spz"):
+        with pytest.raises(SplatFileError, match=r"g\.\w+: declares 40 .*limit of 39"):
+            splat_io.load(tmp_path / f"g{suffix}")
+    monkeypatch.setattr(limits, "MAX_GAUSSIANS", 40)
+    for suffix in (".ply", ".splat", ".spz"):
+        assert len(splat_io.load(tmp_path / f"g{suffix}")) == 40

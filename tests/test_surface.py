@@ -1,5 +1,5 @@
 """Splats to meshes, Blender-free: surface nets, TSDF fusion, the z-buffer and the texture bake
-(addon/core/surface.py, addon/core/texture_bake.py) on analytic scenes with known answers."""
+(addon/core/surface.py, addon/core/mesh_texture.py) on analytic scenes with known answers."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from addon.core import surface as S
-from addon.core import texture_bake as T
+from addon.core import mesh_texture as T
 from addon.core.cameras import Camera
 from addon.core.gaussians import Gaussians
 
@@ -137,10 +137,10 @@ def plane_scene():
     return vertices, faces, view
 
 
-def test_texture_bake_on_a_known_textured_plane():
+def test_mesh_texture_on_a_known_textured_plane():
     vertices, faces, view = plane_scene()
     size = 64
-    baked = T.bake_texture(vertices, faces, [view], size, tolerance=0.05)
+    baked = T.project_texture(vertices, faces, [view], size, tolerance=0.05)
     assert baked.coverage == 1.0
     assert baked.corner_uvs.shape == (len(faces), 3, 2)
     texels = T.rasterise_uv(vertices, faces, baked.corner_uvs, size)
@@ -151,10 +151,10 @@ def test_texture_bake_on_a_known_textured_plane():
     assert np.isfinite(baked.image).all() and baked.image.min() >= 0  # gutters filled
 
 
-def test_texture_bake_ignores_occluded_views():
+def test_mesh_texture_ignores_occluded_views():
     vertices, faces, view = plane_scene()
     blocked = S.View(view.camera, np.ones_like(view.rgb), view.alpha, np.full_like(view.depth, 1.0))
-    baked = T.bake_texture(vertices, faces, [blocked, view], 32, tolerance=0.05)
+    baked = T.project_texture(vertices, faces, [blocked, view], 32, tolerance=0.05)
     assert baked.image[..., 2].max() < 0.3  # the white occluder never reaches the plane
 
 

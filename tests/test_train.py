@@ -10,7 +10,8 @@ import pytest
 
 from addon.core.colmap import read_colmap
 from addon.core.dataset import ColmapDataset
-from addon.core.train import (Trainer, TrainConfig, compact, initial_gaussians,
+from addon.core.render import project
+from addon.core.train import (Trainer, TrainConfig, compact, downscaled_view, initial_gaussians,
                               nearest_mean_sq_distance, position_lr)
 
 DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
@@ -113,3 +114,45 @@ def test_compaction_shrinks_and_reports(dataset) -> None:
     assert report.after["bytes"] < report.before["bytes"]
     assert report.after["psnr"] > report.before["psnr"] - 1.0
     assert len(trainer) == report.after["gaussians"]
+
+
+def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
+    # Any real gain is below 1e9 dB a minute: the third check (step 30) stops the run.
+    config = short_config(steps=120, stop_below_db_per_minute=1e9, stop_check_every=10)
+    trainer = Trainer(dataset, config)
+    history = list(trainer.run())
+    assert trainer.converged and trainer.step == 30 and len(history) == 30
+    assert len(trainer.checks) == 3
+    trainer.save_checkpoint(tmp_path / "state.npz")
+    resumed = Trainer.load_checkpoint(tmp_path / "state.npz", dataset)
+    assert resumed.converged and resumed.checks == trainer.checks
+    assert list(resumed.run()) == []
+    # Off by default: the step count alone ends the run.
+    plain = Trainer(dataset, short_config(steps=40))
+    list(plain.run())
+    assert plain.step == 40 and not plain.converged and plain.checks == []
+
+
+def test_coarse_to_fine_schedule_and_views(dataset, rng) -> None:
+    trainer = Trainer(dataset, short_config(coarse_levels=2, coarse_until=1000))
+    assert [trainer.resolution_level(s) for s in (1, 500, 501, 1000, 1001)] == [2, 2, 1, 1, 0]
+    camera, image = dataset.cameras[0], dataset.image(0)
+    small_camera, small = downscaled_view(camera, image, 4)
+    h, w = image.shape[0] // 4, image.shape[1] // 4
+    assert small.shape == (h, w, 3) and (small_camera.width, small_camera.height) == (w, h)
+    want = image[:4 * h, :4 * w].astype(np.float64).reshape(h, 4, w, 4, 3).mean(axis=(1, 3))
+    assert np.allclose(small, want, atol=1e-6)
+    # A point lands at the same place on the image: pixel coordinates scale by exactly 1/4.
+    g = trainer.gaussians.subset(slice(0, 200))
+    full, coarse = project(g, camera), project(g, small_camera)
+    seen = full.valid & coarse.valid
+    assert seen.sum() > 50
+    assert np.allclose(coarse.xy[seen], full.xy[seen] / 4, rtol=1e-5, atol=1e-4)
+
+
+def test_coarse_to_fine_training_learns(dataset) -> None:
+    trainer = Trainer(dataset, short_config(steps=90, coarse_levels=2, coarse_until=60))
+    start = trainer.evaluate(dataset.train_indices[:6]).psnr
+    history = list(trainer.run())
+    assert trainer.evaluate(dataset.train_indices[:6]).psnr > start + 3.0
+    assert any(s["densified"] for s in history) and trainer.gaussians.non_finite() is None

@@ -1,6 +1,7 @@
 """Training in Blender (bpy): `bpy.ops.splat.train` on the imported demo COLMAP scene (photos
 used at 120x90), resuming from its checkpoint, the splats lining up with the imported cameras,
-the rig placement, and the background machinery: the worker thread cancelling cleanly, and the
+the cameras and points taken as they are in the scene (moved as a rig or one by one), and the
+background machinery (`job_runner`): the worker thread cancelling cleanly, and the
 modal handler (driven here by hand-made TIMER / ESC events: there is no window in background
 mode) updating the object and stopping on Esc."""
 
@@ -14,11 +15,12 @@ import bpy
 import numpy as np
 import pytest
 
-from addon.blender import colmap_import, train_operator
-from addon.blender.train_operator import (OBJECT_KEY, RUNNING, ColmapSource, JobModal,
-                                          background_training, rig_transform,
-                                          train_colmap_collection, train_request)
-from addon.core import photos
+from addon.blender import colmap_import, job_runner, train_operator
+from addon.blender.job_runner import RUNNING, JobOperator
+from addon.blender.train_operator import (OBJECT_KEY, source_of, train_colmap_collection,
+                                          train_request, training_job)
+from addon.core import colmap, image_io
+from addon.core.dataset import NO_CAMERA
 from addon.core.jobs import Progress, format_duration, status_line
 from addon.core.render import render
 from addon.core.train import Trainer, TrainConfig, psnr
@@ -39,7 +41,7 @@ def demo(tmp_path):
     collection = next(c for c in bpy.data.collections if train_operator.is_colmap_collection(c))
     camera = next(o for o in collection.objects if o.get("colmap_image_name") == VIEW)
     yield SimpleNamespace(collection=collection, camera=camera, checkpoint=tmp_path / "ck.npz")
-    train_operator.stop_all()
+    job_runner.stop_all()
     RUNNING.clear()
 
 
@@ -53,8 +55,8 @@ def _render_from(camera_obj, gaussians):
 
 
 def _photo(camera_obj, camera):
-    pixels = photos.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
-    return photos.to_float(photos.rgb_alpha(pixels)[0])
+    pixels = image_io.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
+    return image_io.to_float(image_io.rgb_alpha(pixels)[0])
 
 
 def _world_gaussians(obj):
@@ -64,7 +66,7 @@ def _world_gaussians(obj):
 
 def test_train_operator_learns_lines_up_and_resumes(demo) -> None:
     start = time.perf_counter()
-    source = ColmapSource.of(demo.collection)
+    source = source_of(demo.collection)
     dataset = source.dataset(downscale=4.0, preload_threads=-1)
     untrained = Trainer(dataset, TrainConfig(**{k: v for k, v in SMALL.items()
                                                 if k != "downscale"})).gaussians
@@ -117,26 +119,72 @@ def test_bad_requests_change_nothing(demo, tmp_path) -> None:
     assert bpy_support.scene_state() == state
 
 
-def test_rig_transform_follows_cameras_moved_together(demo) -> None:
-    dataset = ColmapSource.of(demo.collection).dataset(downscale=4.0, preload_threads=-1)
-    matrix, warning = rig_transform(demo.collection, dataset)
-    assert warning is None and np.array_equal(matrix, np.eye(4))
+def _pixels(camera, xyz):
+    cam = xyz @ camera.world_to_camera[:3, :3].T + camera.world_to_camera[:3, 3]
+    return np.stack([camera.fx * cam[:, 0] / cam[:, 2] + camera.cx,
+                     camera.fy * cam[:, 1] / cam[:, 2] + camera.cy], axis=1)
 
+
+def test_training_takes_the_cameras_and_points_as_they_are_in_the_scene(demo) -> None:
+    # As imported: the camera objects render exactly the model's cameras, the points object
+    # holds the model's points where the import put them.
+    source = source_of(demo.collection)
+    model = colmap.read_colmap(source.model_dir, source.image_folder, cache_dir=source.cache_dir,
+                               align=False).transformed(source.transform)
+    assert set(source.cameras) == {im.name for im in model.images}
+    for im in model.images:
+        camera = source.cameras[im.name]
+        assert (camera.width, camera.height) == (im.camera.width, im.camera.height)
+        assert np.allclose(camera.world_to_camera, im.camera.world_to_camera, atol=1e-5)
+        assert np.allclose([camera.fx, camera.fy, camera.cx, camera.cy],
+                           [im.camera.fx, im.camera.fy, im.camera.cx, im.camera.cy], atol=1e-4)
+    assert np.allclose(source.points.xyz, model.points.xyz, atol=1e-5)
+    assert np.allclose(source.points.rgb, model.points.rgb / 255.0)
+
+    # Moved together (a rig, with a scale): the splats land where the cameras see them, every
+    # point starts on the same pixel of every camera as before.
     import mathutils
     angle, scale = 0.3, 1.7
     moved = mathutils.Matrix.Translation((1.0, -2.0, 0.5)) @ \
         mathutils.Matrix.Rotation(angle, 4, "Z") @ mathutils.Matrix.Scale(scale, 4)
     cameras = [o for o in demo.collection.objects if o.type == "CAMERA"]
-    for o in cameras:
+    rig = cameras + [o for o in demo.collection.objects if o.type in ("MESH", "POINTCLOUD")]
+    for o in rig:
         o.matrix_world = moved @ o.matrix_world
-    matrix, warning = rig_transform(demo.collection, dataset)
-    assert warning is None
-    assert np.allclose(matrix, np.array(moved), atol=1e-4)
-
-    cameras[3].location.x += 1.0  # one camera on its own: no common transform
     bpy.context.view_layer.update()
-    matrix, warning = rig_transform(demo.collection, dataset)
-    assert np.array_equal(matrix, np.eye(4)) and "one by one" in warning
+    rigged = source_of(demo.collection)
+    m = np.array(moved)
+    assert np.allclose(rigged.points.xyz, source.points.xyz @ m[:3, :3].T + m[:3, 3], atol=1e-4)
+    for name, camera in source.cameras.items():
+        assert np.allclose(rigged.cameras[name].centre, m[:3, :3] @ camera.centre + m[:3, 3],
+                           atol=1e-4)
+        assert np.allclose(_pixels(rigged.cameras[name], rigged.points.xyz),
+                           _pixels(camera, source.points.xyz), atol=1e-2)
+    # The trainer's dataset is exactly that, scaled to the photos' pixels.
+    dataset = rigged.dataset(downscale=4.0, preload_threads=-1)
+    i = dataset.names.index(VIEW)
+    assert np.allclose(dataset.cameras[i].world_to_camera, rigged.cameras[VIEW].world_to_camera)
+    assert dataset.cameras[i].fx == pytest.approx(rigged.cameras[VIEW].fx / 4, rel=1e-3)
+    assert np.array_equal(dataset.points.xyz, rigged.points.xyz)
+
+    # One camera on its own: it trains as it now is (README: a camera moved by hand).
+    cameras[3].location.x += 1.0
+    bpy.context.view_layer.update()
+    alone = source_of(demo.collection)
+    name = cameras[3]["colmap_image_name"]
+    assert np.allclose(alone.cameras[name].centre, rigged.cameras[name].centre + (1, 0, 0))
+    others = [n for n in source.cameras if n != name]
+    assert all(np.array_equal(alone.cameras[n].world_to_camera,
+                              rigged.cameras[n].world_to_camera) for n in others)
+
+    # A deleted camera leaves its photo out of training (and the report says so).
+    gone = cameras[5]["colmap_image_name"]
+    bpy.data.objects.remove(cameras[5])
+    fewer = source_of(demo.collection)
+    assert gone not in fewer.cameras and len(fewer.cameras) == len(source.cameras) - 1
+    dataset = fewer.dataset(downscale=4.0, preload_threads=-1)
+    assert gone not in dataset.names and len(dataset) == len(source.cameras) - 1
+    assert dataset.scene.missing[gone] == NO_CAMERA
 
 
 def test_worker_thread_cancels_with_a_consistent_state(demo) -> None:
@@ -180,7 +228,7 @@ def test_cancel_while_loading_leaves_the_checkpoint_alone(demo) -> None:
     assert OBJECT_KEY not in demo.collection
 
 
-class _Harness(JobModal):
+class _Harness(JobOperator):
     """The operator's modal half without an Operator (no window: events are made by hand)."""
 
     def __init__(self, key: str) -> None:
@@ -200,7 +248,7 @@ def test_modal_handler_updates_the_object_and_stops_on_esc(demo) -> None:
                                                          sh_degree=1, threads=2),
                             downscale=4.0, checkpoint=str(demo.checkpoint), update_every=20,
                             checkpoint_every=0)
-    running = background_training(request)
+    running = training_job(request)
     RUNNING[running.key] = running
     harness = _Harness(running.key)
     running.job.start()
@@ -235,20 +283,20 @@ def test_menus_and_status_bar_are_registered() -> None:
     bpy_support.ensure_registered()
     assert hasattr(bpy.types, "SPLAT_OT_train") and hasattr(bpy.types, "SPLAT_OT_bake_to_splats")
     funcs = bpy.types.STATUSBAR_HT_header.draw._draw_funcs
-    assert funcs.count(train_operator.draw_status) == 1
-    menu = train_operator.menu_parent()
+    assert funcs.count(job_runner.draw_status) == 1
+    menu = job_runner.menu_parent()
     assert menu.__name__ == "VIEW3D_MT_splat"
-    from addon.blender import bake_operator
+    from addon.blender import scene_to_splats
     assert train_operator._menu in menu.draw._draw_funcs
-    assert bake_operator._menu in menu.draw._draw_funcs
+    assert scene_to_splats._menu in menu.draw._draw_funcs
     # `WorkSpace.status_text_set(None)` may put back a draw function saved before this add-on
     # registered: the status line comes back at the next timer tick.
     header = bpy.types.STATUSBAR_HT_header
     wrapped = header.draw
     header.draw = wrapped._draw_funcs[-1]
     try:
-        train_operator.ensure_status_draw()
-        assert header.draw._draw_funcs[0] is train_operator.draw_status
+        job_runner.ensure_status_draw()
+        assert header.draw._draw_funcs[0] is job_runner.draw_status
     finally:
         header.draw = wrapped
 
@@ -262,3 +310,6 @@ def test_status_line() -> None:
     assert format_duration(3723) == "1:02:03" and format_duration(None) == "--"
     assert status_line(Progress(phase="loading", message="loading photos")) == \
         "Training: loading photos..."
+    # After a resume the percentage is of the total, not of the steps this run adds.
+    resumed = Progress(phase="training", step=300, start_step=300, total=1500)
+    assert resumed.fraction == pytest.approx(0.2) and "(20 %)" in status_line(resumed)

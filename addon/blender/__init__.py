@@ -14,7 +14,8 @@ MODULE_NAMES: list[str] = [
     "properties", "gather", "io_operators", "edit_operators",  # splat objects
     "colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
     "render_panel", "render_hooks", "viewport",  # rendering with meshes
-    "train_operator", "bake_operator",  # training: splat.train, splat.bake_to_splats
+    "job_runner",  # long jobs: status bar, Esc, splat.train_stop
+    "train_operator", "scene_to_splats",  # training: splat.train, splat.bake_to_splats
     "mesh_convert",  # splats to a textured mesh: splat.convert_to_mesh
 ]
 

@@ -25,7 +25,8 @@ What it builds, in one new collection (named after the workspace) linked to the 
 
 The collection carries `colmap_transform` (16 floats, row-major 4x4 similarity from COLMAP's
 frame to Blender's world: identity unless aligned), `colmap_model_dir`, `colmap_image_dir`,
-`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment` and `colmap_missing`.
+`colmap_image_folder`, `colmap_undistorted_dir`, `colmap_alignment`, `colmap_missing` and
+`colmap_dropped` (what the reader left out as non-finite, with counts).
 
 Bad input (see `addon.core.colmap`) raises `ColmapError` before anything is created; a failure
 while building removes everything built so far. The operator reports either as an error.
@@ -43,10 +44,10 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from ..core import colmap
 from ..core.cameras import camera_to_blender
 from . import dependencies
+from .camera_adapter import apply_recorded_output, record_output_settings, set_camera, set_lens, to_matrix
 from .registration import register_classes, unregister_classes
 
 SENSOR_WIDTH = 36.0
-_PROPS = ("colmap_resolution", "colmap_resolution_percentage", "colmap_pixel_aspect")
 
 
 # -- per-camera render settings ----------------------------------------------------------------
@@ -54,19 +55,7 @@ _PROPS = ("colmap_resolution", "colmap_resolution_percentage", "colmap_pixel_asp
 def apply_camera_resolution(scene: bpy.types.Scene, camera_obj: bpy.types.Object | None = None) -> bool:
     """Set the scene's resolution, percentage and pixel aspect from an imported camera
     (`camera_obj`, default the scene camera). False (nothing changed) for other cameras."""
-    obj = camera_obj if camera_obj is not None else scene.camera
-    if obj is None or any(key not in obj for key in _PROPS):
-        return False
-    render = scene.render
-    width, height = (int(v) for v in obj["colmap_resolution"])
-    aspect_x, aspect_y = (float(v) for v in obj["colmap_pixel_aspect"])
-    if (render.resolution_x, render.resolution_y) != (width, height):
-        render.resolution_x, render.resolution_y = width, height
-    if render.resolution_percentage != int(obj["colmap_resolution_percentage"]):
-        render.resolution_percentage = int(obj["colmap_resolution_percentage"])
-    if (render.pixel_aspect_x, render.pixel_aspect_y) != (aspect_x, aspect_y):
-        render.pixel_aspect_x, render.pixel_aspect_y = aspect_x, aspect_y
-    return True
+    return apply_recorded_output(scene.render, camera_obj if camera_obj is not None else scene.camera)
 
 
 _MSGBUS_OWNER = object()
@@ -118,27 +107,6 @@ class _Built:
                 if isinstance(block, kind) and data.get(name) == block:
                     data.remove(block)
                     break
-
-
-def _matrix(m: np.ndarray):
-    import mathutils
-    return mathutils.Matrix([list(row) for row in np.asarray(m, np.float64)])
-
-
-def _set_camera_data(cam: bpy.types.Camera, params) -> None:
-    cam.type = "PERSP"
-    cam.sensor_fit = params.sensor_fit
-    cam.sensor_width = params.sensor_width
-    cam.sensor_height = params.sensor_height
-    cam.lens = params.lens
-    cam.shift_x = params.shift_x
-    cam.shift_y = params.shift_y
-
-
-def _store_render_props(obj: bpy.types.Object, params) -> None:
-    obj["colmap_resolution"] = (params.resolution_x, params.resolution_y)
-    obj["colmap_resolution_percentage"] = params.resolution_percentage
-    obj["colmap_pixel_aspect"] = (params.pixel_aspect_x, params.pixel_aspect_y)
 
 
 def _clip_range(scene_data: colmap.ColmapScene) -> tuple[float, float]:
@@ -226,17 +194,17 @@ def _animated_camera(name: str, scene_data: colmap.ColmapScene, collection, scen
     cam.clip_start, cam.clip_end = clip
     obj.rotation_mode = "QUATERNION"
     first = camera_to_blender(scene_data.images[0].camera, SENSOR_WIDTH)
-    _store_render_props(obj, first)
+    record_output_settings(obj, first)
     previous = None
     for i, im in enumerate(scene_data.images):
         params = camera_to_blender(im.camera, SENSOR_WIDTH)
         frame = scene.frame_start + i
-        loc, rot, _scale = _matrix(params.matrix_world).decompose()
+        loc, rot, _scale = to_matrix(params.matrix_world).decompose()
         if previous is not None and rot.dot(previous) < 0:
             rot = mathutils.Quaternion([-v for v in rot])
         previous = rot
         obj.location, obj.rotation_quaternion = loc, rot
-        _set_camera_data(cam, params)
+        set_lens(cam, params)
         obj.keyframe_insert("location", frame=frame)
         obj.keyframe_insert("rotation_quaternion", frame=frame)
         for prop in ("lens", "shift_x", "shift_y", "sensor_width"):
@@ -274,6 +242,8 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
     except BaseException:
         built.remove_all()
         raise
+    # What the reader left out as non-finite, for the operator's report ("points3D: 2, ...").
+    collection["colmap_dropped"] = ", ".join(f"{k}: {v}" for k, v in data.dropped.items())
     report(1.0, "done")
     return collection
 
@@ -299,16 +269,15 @@ def _build(data: colmap.ColmapScene, scene, directory, points: bool, backgrounds
     for k, im in enumerate(data.images):
         params = camera_to_blender(im.camera, SENSOR_WIDTH)
         cam = built.add(bpy.data.cameras.new(im.name))
-        _set_camera_data(cam, params)
         cam.clip_start, cam.clip_end = clip
         obj = built.add(bpy.data.objects.new(im.name, cam))
         collection.objects.link(obj)
-        obj.matrix_world = _matrix(params.matrix_world)
+        set_camera(obj, params)
         obj["colmap_image_name"] = im.name
         obj["colmap_image_id"] = im.image_id
         obj["colmap_camera_id"] = im.camera_id
         obj["colmap_photo"] = str(im.path or "")
-        _store_render_props(obj, params)
+        record_output_settings(obj, params)
         if backgrounds and im.path is not None:
             before = len(bpy.data.images)
             image = bpy.data.images.load(str(im.path), check_existing=True)
@@ -392,6 +361,9 @@ class SPLAT_OT_import_colmap(bpy.types.Operator):
             wm.progress_end()
         missing = collection["colmap_missing"].splitlines()
         cameras = sum(1 for o in collection.objects if "colmap_image_name" in o)
+        if collection["colmap_dropped"]:
+            self.report({"WARNING"}, f"left out as non-finite (NaN or Inf) in the model: "
+                                     f"{collection['colmap_dropped']}")
         if missing:
             shown = ", ".join(line.split(":")[0] for line in missing[:5])
             more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""

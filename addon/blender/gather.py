@@ -128,9 +128,10 @@ def _edit_mode_hidden(mesh) -> np.ndarray | None:
     return hide if hide.any() else None
 
 
-def _read_edit_mode(evaluated, depsgraph) -> Gaussians:
-    """An object in Edit Mode: its evaluated mesh is a wrapper around the edit BMesh; `to_mesh`
-    makes it real. Hidden flags live on the BMesh only."""
+def edit_mode_gaussians(evaluated) -> Gaussians:
+    """The splats of an evaluated mesh object in Edit Mode, hidden vertices dropped. Its
+    evaluated mesh is a wrapper around the edit BMesh; `to_mesh` makes it real. Hidden flags
+    live on the BMesh only."""
     mesh = evaluated.to_mesh()  # (preserve_all_data_layers=True would re-evaluate the stale original)
     try:
         gaussians = splat_object.gaussians_from_data(mesh, drop_hidden=False)
@@ -202,7 +203,7 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
             local = local_this_call.get(local_key) if local_key is not None else None
             if local is None:
                 if edit_mode:
-                    local = _read_edit_mode(evaluated, depsgraph)
+                    local = edit_mode_gaussians(evaluated)
                 else:
                     local = splat_object.gaussians_from_data(data)
                 if sh_degree < local.degree:

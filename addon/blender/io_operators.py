@@ -78,7 +78,7 @@ def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True) -> Gau
     if not world_space:
         evaluated = obj.evaluated_get(depsgraph)
         if evaluated.type == "MESH" and evaluated.data.is_editmode:
-            return gather._read_edit_mode(evaluated, depsgraph)
+            return gather.edit_mode_gaussians(evaluated)
         return splat_object.gaussians_from_data(evaluated.data)
     result = gather.gather(depsgraph, objects=[obj], use_cache=False, all_sh_bands=True)
     if not result.batches:

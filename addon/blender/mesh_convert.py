@@ -1,6 +1,6 @@
 """Splats to a textured mesh: `convert_to_mesh(obj, ...)` and `bpy.ops.splat.convert_to_mesh`.
 
-Pipeline (the numpy parts are in `addon.core.surface` and `addon.core.texture_bake`):
+Pipeline (the numpy parts are in `addon.core.surface` and `addon.core.mesh_texture`):
   1. gather the splat object's world-space Gaussians (modifiers, transform applied);
   2. cameras: the COLMAP cameras the object was trained from (`cameras='COLMAP'`; 'AUTO' uses
      them when found), else `view_count` cameras on a Fibonacci sphere framing the splats
@@ -30,9 +30,9 @@ well, so the shadow catcher is the camera-side half of "hidden".
 
 Progress and cancel: `progress(stage, fraction)` and `cancel() -> bool` are called between
 views and stages; a cancelled conversion raises `Cancelled` and leaves no datablock behind.
-The operator runs synchronously in background mode (`bpy.app.background`) or from scripts
-with EXEC_DEFAULT, and as a modal operator (Esc cancels, progress in the header and the
-cursor) when invoked from the UI.
+The operator runs the same steps through `job_runner` (`StagedJob`: on the main thread, since
+it makes datablocks): blocking from scripts and in background mode (a line per stage in the
+terminal), and from the UI a little on every timer tick (status bar progress, Esc cancels).
 """
 
 from __future__ import annotations
@@ -44,11 +44,14 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty
 
-from ..core.cameras import BlenderCameraParams, Camera, camera_from_blender
+from ..core.cameras import Camera
 from ..core.gaussians import Gaussians
-from ..core import surface, texture_bake
+from ..core import surface, mesh_texture
 from ..core.surface import Cancelled
+from ..core.jobs import StagedJob
 from . import dependencies, gather, splat_object
+from .camera_adapter import camera_of
+from .job_runner import JobOperator, OperatorJob, wants_background
 from .registration import register_classes, unregister_classes
 
 CAMERA_MODES = ("AUTO", "COLMAP", "SPHERE")
@@ -79,19 +82,7 @@ def colmap_camera_objects(obj) -> list:
 def camera_of_object(camera_obj, scene, max_size: int) -> Camera:
     """The pinhole camera of a Blender camera object (its COLMAP resolution when imported,
     else the scene's), scaled down to at most `max_size` pixels a side."""
-    r = scene.render
-    res = tuple(camera_obj["colmap_resolution"]) if "colmap_resolution" in camera_obj else \
-        (r.resolution_x, r.resolution_y)
-    pct = int(camera_obj.get("colmap_resolution_percentage", r.resolution_percentage))
-    aspect = tuple(camera_obj["colmap_pixel_aspect"]) if "colmap_pixel_aspect" in camera_obj \
-        else (r.pixel_aspect_x, r.pixel_aspect_y)
-    cam = camera_obj.data
-    full = camera_from_blender(BlenderCameraParams(
-        matrix_world=np.array(camera_obj.matrix_world, dtype=np.float64), lens=cam.lens,
-        sensor_width=cam.sensor_width, sensor_height=cam.sensor_height,
-        sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
-        resolution_x=int(res[0]), resolution_y=int(res[1]), resolution_percentage=pct,
-        pixel_aspect_x=float(aspect[0]), pixel_aspect_y=float(aspect[1])))
+    full = camera_of(camera_obj, scene.render, use_recorded=True)
     s = min(1.0, max_size / max(full.width, full.height))
     w, h = max(1, round(full.width * s)), max(1, round(full.height * s))
     sx, sy = w / full.width, h / full.height
@@ -275,15 +266,16 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
     stats["decimate_s"] = time.perf_counter() - t
     yield "decimate", 1.0
     t = time.perf_counter()
-    corner_uvs = texture_bake.unwrap(vertices, faces, texture_size)
+    corner_uvs = mesh_texture.unwrap(vertices, faces, texture_size)
     stats["unwrap_s"] = time.perf_counter() - t
     yield "unwrap", 1.0
     t = time.perf_counter()
-    baked = texture_bake.bake_texture(vertices, faces, views, texture_size,
-                                      tolerance=2.0 * volume.grid.voxel, corner_uvs=corner_uvs)
-    stats["bake_s"] = time.perf_counter() - t
-    stats["coverage"] = baked.coverage
-    yield "bake", 1.0
+    texture = mesh_texture.project_texture(vertices, faces, views, texture_size,
+                                           tolerance=2.0 * volume.grid.voxel,
+                                           corner_uvs=corner_uvs)
+    stats["texture_s"] = time.perf_counter() - t
+    stats["coverage"] = texture.coverage
+    yield "texture", 1.0
 
     # Everything below creates datablocks: one step, cleaned up on failure.
     name = name or f"{obj.name} Mesh"
@@ -291,7 +283,7 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
     try:
         mesh = _new_mesh(name, vertices, faces, corner_uvs)
         created.append(("meshes", mesh))
-        image = _image(f"{name} Texture", baked.image)
+        image = _image(f"{name} Texture", texture.image)
         created.append(("images", image))
         material = _material(f"{name} Material", image)
         created.append(("materials", material))
@@ -352,21 +344,10 @@ def convert_to_mesh(obj, resolution: int = 128, max_triangles: int = 100_000,
         return done.value
 
 
-def _make_active(context, obj) -> None:
-    layer = context.view_layer
-    layer.update()  # objects linked by this operator show up in the layer after an update
-    if layer.objects.get(obj.name) is None:
-        return
-    for other in list(context.selected_objects):
-        other.select_set(False)
-    obj.select_set(True)
-    layer.objects.active = obj
+STAGES = ("render", "fuse", "extract", "decimate", "unwrap", "texture")
 
 
-_STAGES = ("render", "fuse", "extract", "decimate", "unwrap", "bake")
-
-
-class SPLAT_OT_convert_to_mesh(bpy.types.Operator):
+class SPLAT_OT_convert_to_mesh(JobOperator, bpy.types.Operator):
     """Convert the active splat object to a textured triangle mesh (surface from fused depth,
     xatlas UVs, texture baked from splat renders)"""
 
@@ -400,70 +381,32 @@ class SPLAT_OT_convert_to_mesh(bpy.types.Operator):
                     texture_size=self.texture_size, cameras=self.cameras, proxy=self.proxy,
                     view_count=self.view_count, view_size=self.view_size)
 
+    def invoke(self, context, event):
+        self.interactive = wants_background(context)
+        return self.execute(context)
+
     def execute(self, context):
         obj = context.active_object
+        stats: dict = {}
         try:
-            stats = {}
-            new = convert_to_mesh(obj, stats=stats, **self._kwargs())
+            _check(obj, self.resolution, self.max_triangles, self.texture_size)
+            steps = convert_job(obj, stats=stats, **self._kwargs())
         except ConversionError as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
-        _make_active(context, new)
-        self.report({"INFO"}, f"'{new.name}': {stats['triangles']} triangles, "
-                              f"{self.texture_size}px texture, {stats['total_s']:.1f} s")
-        return {"FINISHED"}
 
-    def invoke(self, context, event):
-        if bpy.app.background or context.window_manager is None or context.window is None:
-            return self.execute(context)
-        obj = context.active_object
-        self._stats = {}
-        try:
-            self._job = convert_job(obj, stats=self._stats, **self._kwargs())
-        except ConversionError as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.05, window=context.window)
-        wm.progress_begin(0, 100)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        def finish(running, write):
+            job = running.job
+            if job.error is not None:
+                return "ERROR", f"Conversion failed: {job.error}", None
+            if job.result is None:
+                return "WARNING", "Conversion cancelled: nothing changed", None
+            new = job.result
+            return "INFO", (f"'{new.name}': {stats['triangles']} triangles, "
+                            f"{self.texture_size}px texture, {stats['total_s']:.1f} s"), new
 
-    def _finish(self, context):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        if context.area is not None:
-            context.area.header_text_set(None)
-
-    def modal(self, context, event):
-        if event.type == "ESC":
-            self._job.close()
-            self._finish(context)
-            self.report({"WARNING"}, "conversion cancelled")
-            return {"CANCELLED"}
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        try:
-            deadline = time.perf_counter() + 0.1
-            while time.perf_counter() < deadline:
-                stage, fraction = next(self._job)
-                done = (_STAGES.index(stage) + fraction) / len(_STAGES)
-                context.window_manager.progress_update(int(100 * done))
-                if context.area is not None:
-                    context.area.header_text_set(
-                        f"Converting to mesh: {stage} {100 * fraction:.0f}% (Esc to cancel)")
-        except StopIteration as finished:
-            self._finish(context)
-            new = finished.value
-            _make_active(context, new)
-            self.report({"INFO"}, f"'{new.name}': {self._stats['triangles']} triangles")
-            return {"FINISHED"}
-        except Exception as error:  # noqa: BLE001 - reported, never left running
-            self._finish(context)
-            self.report({"ERROR"}, f"conversion failed: {error}")
-            return {"CANCELLED"}
-        return {"RUNNING_MODAL"}
+        return self.run_job(context, OperatorJob(f"mesh:{obj.name}", "Converting to mesh",
+                                                 StagedJob(steps, STAGES), finish))
 
 
 def _menu(self, context):

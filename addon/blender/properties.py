@@ -17,9 +17,9 @@ The panel sits in Properties > Object and shows the splat count and the SH degre
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from .registration import register_classes, unregister_classes
+from .registration import add_pointer, register_classes, remove_pointer, unregister_classes
 
 COLOR_SPACES = [
     ("SRGB", "sRGB (display)", "Colours are display sRGB, as splats trained on photos are: the "
@@ -104,11 +104,9 @@ CLASSES = (SplatObjectSettings, OBJECT_PT_splat)
 
 def register() -> None:
     register_classes(CLASSES)
-    if "splat" not in bpy.types.Object.bl_rna.properties:
-        bpy.types.Object.splat = PointerProperty(type=SplatObjectSettings)
+    add_pointer(bpy.types.Object, "splat", SplatObjectSettings)
 
 
 def unregister() -> None:
-    if "splat" in bpy.types.Object.bl_rna.properties:
-        del bpy.types.Object.splat
+    remove_pointer(bpy.types.Object, "splat")
     unregister_classes(CLASSES)

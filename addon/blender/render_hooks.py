@@ -45,13 +45,14 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from ..core import exr, exr_scanlines
-from ..core.cameras import BlenderCameraParams, Camera, camera_from_blender
+from ..core import exr_layers, exr_scanlines
+from ..core.cameras import Camera
 from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed,
                               render_region, splat_layer)
 from ..core.gaussians import Gaussians
 from . import compositor_bridge as bridge
 from . import dependencies, gather
+from .camera_adapter import camera_of, frame_size
 from .compositor_bridge import ENGINE_ID
 
 
@@ -101,24 +102,6 @@ def settings_of(scene):
     return scene.splat_render
 
 
-def blender_camera(camera_obj, render) -> Camera:
-    """The pinhole camera Blender renders for an evaluated perspective camera object."""
-    cam = camera_obj.data
-    return camera_from_blender(BlenderCameraParams(
-        matrix_world=np.array(camera_obj.matrix_world, dtype=np.float64), lens=cam.lens,
-        sensor_width=cam.sensor_width, sensor_height=cam.sensor_height,
-        sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
-        resolution_x=render.resolution_x, resolution_y=render.resolution_y,
-        resolution_percentage=render.resolution_percentage,
-        pixel_aspect_x=render.pixel_aspect_x, pixel_aspect_y=render.pixel_aspect_y))
-
-
-def frame_size(render) -> tuple[int, int]:
-    """The full frame in pixels (resolution x percentage, truncated as Blender does)."""
-    return (render.resolution_x * render.resolution_percentage // 100,
-            render.resolution_y * render.resolution_percentage // 100)
-
-
 def render_border(render) -> tuple[float, float, float, float] | None:
     if not render.use_border:
         return None
@@ -141,7 +124,7 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
             warnings.append("splats render through perspective cameras only: "
                             f"{camera_obj.name!r} is not one, so no splats are drawn")
         else:
-            camera = blender_camera(camera_obj, depsgraph.scene_eval.render)
+            camera = camera_of(camera_obj, depsgraph.scene_eval.render)
     antialiased = {"OBJECT": result.antialiased, "ON": True, "OFF": False}[settings.antialiased]
     spaces = {b.color_space for b in result.batches}
     if len(spaces) > 1:
@@ -241,7 +224,7 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     start = time.perf_counter()
     channels = exr_scanlines.read_channels(path)  # no OpenImageIO: Blender's Python may lack it
     timings["read_ms"] = 1000 * (time.perf_counter() - start)
-    rgba = exr.find_pass(channels, layer, "Combined", "RGBA")
+    rgba = exr_layers.find_pass(channels, layer, "Combined", "RGBA")
     if rgba is None:  # e.g. "Render Single Layer" with another layer active: use what rendered
         layers = sorted({name[:-len(".Combined.R")] for name in channels
                          if name.endswith(".Combined.R") and not name.startswith("Composite.")})
@@ -250,8 +233,8 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
         print(f"Gaussian splats: view layer {layer!r} was not rendered; composing with "
               f"{layers[0]!r}")
         layer = layers[0]
-        rgba = exr.find_pass(channels, layer, "Combined", "RGBA")
-    depth = exr.find_pass(channels, layer, "Depth", "Z")
+        rgba = exr_layers.find_pass(channels, layer, "Combined", "RGBA")
+    depth = exr_layers.find_pass(channels, layer, "Depth", "Z")
     if depth is None:
         print(f"Gaussian splats: view layer {layer!r} has no Depth pass; splats are drawn in "
               f"front of every mesh (enable View Layer > Passes > Data > Z)")
@@ -261,7 +244,7 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     timings["layer"] = layer
     # Cycles' "Shadow Catcher" pass (on when the scene has shadow catchers, e.g. splat proxies:
     # `compositor_bridge.ensure_bridge`): the factor the composite is darkened by.
-    timings["shadow"] = exr.find_pass(channels, layer, "Shadow Catcher", "RGB")
+    timings["shadow"] = exr_layers.find_pass(channels, layer, "Shadow Catcher", "RGB")
     return np.ascontiguousarray(rgba), np.ascontiguousarray(depth), timings
 
 
@@ -639,8 +622,8 @@ def _on_render_write(scene, _depsgraph=None) -> None:
         if path is None:
             raise RuntimeError("cannot find the written multilayer EXR to add the splat "
                                "passes to")
-        exr.append_layers(path, {"Splats.Combined": ("RGBA", layer.rgba),
-                                 "Splats.Depth": ("Z", layer.depth[..., None])})
+        exr_layers.append_layers(path, {"Splats.Combined": ("RGBA", layer.rgba),
+                                        "Splats.Depth": ("Z", layer.depth[..., None])})
     except Exception as error:
         traceback.print_exc()
         fail_render(scene, f"the splat passes could not be added to the file: {error}",

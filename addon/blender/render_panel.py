@@ -18,11 +18,10 @@ every splat object of the scene:
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, \
-    StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from . import compositor_bridge as bridge
-from .registration import register_classes, unregister_classes
+from .registration import add_pointer, register_classes, remove_pointer, unregister_classes
 
 
 def _viewport_switch(settings, context) -> None:
@@ -202,11 +201,9 @@ CLASSES = (SplatRenderSettings, SPLAT_OT_render_splats_only, SPLAT_OT_compositor
 
 def register() -> None:
     register_classes(CLASSES)
-    if "splat_render" not in bpy.types.Scene.bl_rna.properties:
-        bpy.types.Scene.splat_render = PointerProperty(type=SplatRenderSettings)
+    add_pointer(bpy.types.Scene, "splat_render", SplatRenderSettings)
 
 
 def unregister() -> None:
-    if "splat_render" in bpy.types.Scene.bl_rna.properties:
-        del bpy.types.Scene.splat_render
+    remove_pointer(bpy.types.Scene, "splat_render")
     unregister_classes(CLASSES)

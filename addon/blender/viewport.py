@@ -34,13 +34,12 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from ..core import colour
-from ..core.cameras import Camera
+from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
 from ..core.render import render
 from . import gather
 
 REST_SECONDS = 0.15
-_FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 # --------------------------------------------------------------------- cameras and images
@@ -59,7 +58,7 @@ def camera_from_view(view_matrix, window_matrix, width: int, height: int,
         return None
     w = max(1, int(round(width * scale)))
     h = max(1, int(round(height * scale)))
-    world_to_camera = _FLIP_YZ @ np.asarray(view_matrix, np.float64)
+    world_to_camera = CAMERA_AXIS_FLIP @ np.asarray(view_matrix, np.float64)
     return Camera(world_to_camera, p[0, 0] * w / 2, p[1, 1] * h / 2, (1 - p[0, 2]) * w / 2,
                   (1 + p[1, 2]) * h / 2, w, h)
 

@@ -12,8 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Blender's camera frame (looks down -Z, +Y up) to OpenCV's (looks down +Z, +Y down) and back.
-_FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
+# Blender's camera frame (looks down -Z, +Y up) to OpenCV's (looks down +Z, +Y down) and back:
+# the one definition of that axis flip (it is its own inverse). A Blender camera's matrix_world
+# is `camera_to_world @ CAMERA_AXIS_FLIP`; a Blender view matrix becomes an OpenCV
+# world_to_camera as `CAMERA_AXIS_FLIP @ view_matrix`.
+CAMERA_AXIS_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
 _SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 _MIN_RESOLUTION, _MAX_RESOLUTION = 4, 65536  # Blender's limits on resolution_x, resolution_y
 
@@ -199,7 +202,7 @@ def camera_from_blender(params: BlenderCameraParams) -> Camera:
     if not (lengths > 0).all():
         raise ValueError("matrix_world has a zero-length axis (zero scale)")
     m[:3, :3] /= lengths
-    camera_to_world_cv = m @ _FLIP_YZ
+    camera_to_world_cv = m @ CAMERA_AXIS_FLIP
     world_to_camera = np.linalg.inv(camera_to_world_cv)
     return Camera(world_to_camera, fx, fy, cx, cy, width, height)
 
@@ -246,7 +249,7 @@ def camera_to_blender(camera: Camera, sensor_width: float = 36.0) -> BlenderCame
     scale = 100 // percentage
     if max(width, height) * scale > _MAX_RESOLUTION:
         raise ValueError(f"camera size {width}x{height} is beyond Blender's resolution limits")
-    matrix_world = camera.camera_to_world @ _FLIP_YZ
+    matrix_world = camera.camera_to_world @ CAMERA_AXIS_FLIP
     return BlenderCameraParams(
         matrix_world=matrix_world,
         lens=lens,

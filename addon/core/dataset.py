@@ -29,12 +29,12 @@ import os
 import threading
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
-from . import photos
+from . import image_io
 from .cameras import Camera
 from .colmap import ColmapImage, ColmapPoints, ColmapScene
 
@@ -55,7 +55,64 @@ def split_indices(count: int, test_every: int = 8) -> tuple[list[int], list[int]
     return [i for i in range(count) if i not in held], test
 
 
-class ColmapDataset:
+NO_CAMERA = "no camera object with this colmap_image_name in the scene"
+
+
+@dataclass
+class Points:
+    """Points to start training from."""
+
+    xyz: np.ndarray  # (N, 3) float64
+    rgb: np.ndarray  # (N, 3): float64 in [0, 1], or uint8; display sRGB
+
+
+def with_cameras(scene: ColmapScene, cameras: dict[str, Camera],
+                 points: ColmapPoints | Points | None = None) -> ColmapScene:
+    """`scene` with each image's camera replaced by `cameras[name]` (what the camera object
+    with that `colmap_image_name` renders, at any size of the photo's aspect: it is scaled to
+    the photo's pixels), and with `points` when given. Images with no camera are left out
+    (listed in `missing`). Raises ValueError when no camera matches, or when a camera's frame
+    does not have its photo's shape."""
+    images, missing = [], dict(scene.missing)
+    for im in scene.images:
+        camera = cameras.get(im.name)
+        if camera is None:
+            missing[im.name] = NO_CAMERA
+            continue
+        size = im.camera.width, im.camera.height
+        if abs(camera.width * size[1] - camera.height * size[0]) > 0.01 * camera.height * size[0]:
+            raise ValueError(f"the camera of {im.name!r} renders {camera.width}x"
+                             f"{camera.height} pixels but its photo is {size[0]}x{size[1]}")
+        if (camera.width, camera.height) != size:
+            camera = scale_camera(camera, *size)
+        images.append(replace(im, camera=camera))
+    if not images:
+        raise ValueError(f"{scene.model_dir}: none of the model's images has a camera object "
+                         f"in the scene (matched by colmap_image_name)")
+    return replace(scene, images=images, missing=missing,
+                   points=scene.points if points is None else points)
+
+
+class Views:
+    """The train/test split of a dataset's `cameras` (shared by every dataset type)."""
+
+    cameras: list[Camera]
+    train_indices: list[int]
+    test_indices: list[int]
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def train_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.train_indices]
+
+    @property
+    def test_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.test_indices]
+
+
+class ColmapDataset(Views):
     def __init__(self, scene: ColmapScene, *, downscale: float = 1.0, test_every: int = 8,
                  max_cache_bytes: int | None = None) -> None:
         if not downscale >= 1.0:
@@ -76,24 +133,13 @@ class ColmapDataset:
         self._cache_bytes = 0
         self._lock = threading.Lock()
 
-    def __len__(self) -> int:
-        return len(self.items)
-
     @property
     def names(self) -> list[str]:
         return [im.name for im in self.items]
 
     @property
-    def points(self) -> ColmapPoints:
+    def points(self) -> ColmapPoints | Points:
         return self.scene.points
-
-    @property
-    def train_cameras(self) -> list[Camera]:
-        return [self.cameras[i] for i in self.train_indices]
-
-    @property
-    def test_cameras(self) -> list[Camera]:
-        return [self.cameras[i] for i in self.test_indices]
 
     def pixels(self, i: int) -> np.ndarray:
         """The photo's pixels (H, W, C) in its own type, decoded once and cached."""
@@ -103,9 +149,9 @@ class ColmapDataset:
                 self._cache.move_to_end(i)
                 return cached
         cam = self.cameras[i]
-        pixels = photos.read_pixels(self.items[i].path, size=(cam.width, cam.height))
+        pixels = image_io.read_pixels(self.items[i].path, size=(cam.width, cam.height))
         if pixels.shape[:2] != (cam.height, cam.width):
-            raise photos.PhotoError(
+            raise image_io.ImageError(
                 f"{self.items[i].path}: {pixels.shape[1]}x{pixels.shape[0]} pixels, "
                 f"expected {cam.width}x{cam.height}")
         with self._lock:
@@ -124,20 +170,26 @@ class ColmapDataset:
 
     def image(self, i: int) -> np.ndarray:
         """(H, W, 3) float32 colour of image i (see the module docstring for its scale)."""
-        return photos.to_float(photos.rgb_alpha(self.pixels(i))[0])
+        return image_io.to_float(image_io.rgb_alpha(self.pixels(i))[0])
 
     def alpha(self, i: int) -> np.ndarray | None:
         """(H, W) float32 alpha of image i, or None when the photo has none."""
-        alpha = photos.rgb_alpha(self.pixels(i))[1]
-        return None if alpha is None else photos.to_float(alpha[:, :, None])[:, :, 0]
+        alpha = image_io.rgb_alpha(self.pixels(i))[1]
+        return None if alpha is None else image_io.to_float(alpha[:, :, None])[:, :, 0]
 
-    def preload(self, threads: int = 0, progress: Callable[[float, str], None] | None = None) -> None:
-        """Decode every photo now, on `threads` threads (0: every core)."""
+    def preload(self, threads: int = 0,
+                progress: Callable[[float, str], None] | None = None) -> None:
+        """Decode every photo now, on `threads` threads (0: every core), in batches:
+        `progress(fraction, message)` is called before each and may raise to stop (only the
+        batch under way is waited for)."""
         workers = threads if threads > 0 else (os.cpu_count() or 1)
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            for k, _ in enumerate(pool.map(self.pixels, range(len(self)))):
+            for start in range(0, len(self), 4 * workers):
+                batch = range(start, min(start + 4 * workers, len(self)))
                 if progress is not None:
-                    progress((k + 1) / len(self), self.items[k].name)
+                    progress(start / len(self),
+                             f"decoding photos {start + 1}-{batch[-1] + 1} of {len(self)}")
+                list(pool.map(self.pixels, batch))
 
     @property
     def cached_bytes(self) -> int:

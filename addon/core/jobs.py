@@ -1,6 +1,8 @@
-"""Training as a job: a `Trainer` on a worker thread (or the calling thread), with progress,
-cancelling, snapshots of the Gaussians and checkpoints. Blender-free: the Blender operators
-(`addon/blender/train_operator.py`, `bake_operator.py`) poll a job from a timer.
+"""Long jobs, Blender-free: training as a job (a `Trainer` on a worker thread or the calling
+thread, with progress, cancelling, snapshots of the Gaussians and checkpoints), work in stages on
+the caller's thread (`StagedJob`), and how both report (`Progress`, `status_line`,
+`ProgressPrinter`). The Blender side (`addon/blender/job_runner.py`) runs either kind from an
+operator: a timer in the UI, blocking in scripts.
 
     job = TrainingJob(lambda job: Trainer(dataset, config), checkpoint="state.npz",
                       checkpoint_every=1000, snapshot_every=200)
@@ -30,12 +32,12 @@ import traceback
 from collections import deque
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Generator, Sequence
 
 from .gaussians import Gaussians
 from .train import CompactionReport, Evaluation, Trainer, compact
 
-PHASES = ("waiting", "loading", "training", "compacting", "evaluating", "saving", "done",
+PHASES = ("waiting", "loading", "working", "training", "compacting", "evaluating", "saving", "done",
           "cancelled", "failed")
 
 
@@ -54,15 +56,17 @@ class Progress:
     seconds_per_step: float = float("nan")  # mean wall time of the last `window` steps
     eta: float | None = None  # seconds left, None until a few steps have run
     evaluation: Evaluation | None = None  # held-out PSNR/SSIM at the end
-    prepared: float = 0.0  # while loading: the fraction prepared
+    prepared: float = 0.0  # while loading or working (a `StagedJob`): the fraction done
 
     @property
     def fraction(self) -> float:
-        """Of the preparation while loading, else of the steps this job runs."""
-        if self.phase in ("waiting", "loading"):
+        """Of the preparation while loading or working, else of the total steps (a resumed
+        job at step 300 of 1,500 is 20 % done, not 0 %)."""
+        if self.phase in ("waiting", "loading", "working"):
             return self.prepared
-        span = self.total - self.start_step
-        return 1.0 if span <= 0 else min(max((self.step - self.start_step) / span, 0.0), 1.0)
+        if self.total <= 0:
+            return 1.0 if self.finished else 0.0
+        return min(max(self.step / self.total, 0.0), 1.0)
 
     @property
     def finished(self) -> bool:
@@ -82,11 +86,14 @@ def format_duration(seconds: float | None) -> str:
 def status_line(p: Progress, title: str = "Training") -> str:
     """The one-line status shown in Blender's status bar (and printed in background mode)."""
     if p.phase == "failed":
-        return f"{title} failed at step {p.step:,}: {p.message}"
+        where = f" at step {p.step:,}" if p.total else ""
+        return f"{title} failed{where}: {p.message}"
     if p.phase in ("waiting", "loading"):
         return f"{title}: {p.message or 'loading photos'}..."
-    if p.phase == "cancelled" and not p.total:
-        return f"{title}: {p.message or 'cancelled'}"
+    if p.phase == "working":
+        return f"{title}: {p.message} ({100 * p.fraction:.0f} %)"
+    if p.phase in ("cancelled", "done") and not p.total:  # no steps: a staged job, or none run
+        return f"{title}: {p.message or p.phase}"
     if p.phase in ("compacting", "evaluating", "saving"):
         return f"{title}: {p.message or p.phase}..."
     parts = [f"{title} {p.step:,}/{p.total:,} ({100 * p.fraction:.0f} %)"]
@@ -104,6 +111,17 @@ def status_line(p: Progress, title: str = "Training") -> str:
     if p.evaluation is not None and p.evaluation.views:
         parts.append(f"held-out PSNR {p.evaluation.psnr:.2f} dB, SSIM {p.evaluation.ssim:.3f}")
     return " | ".join(parts)
+
+
+def compaction_note(job: "TrainingJob") -> str:
+    """What compaction did, for a report ("" when it did not run)."""
+    report = job.compaction
+    if report is None:
+        return ""
+    b, a = report.before, report.after
+    return (f"; compacted {b['gaussians']:,} -> {a['gaussians']:,} Gaussians, SH degree "
+            f"{b['sh_degree']} -> {a['sh_degree']}, training-view PSNR {b['psnr']:.2f} -> "
+            f"{a['psnr']:.2f} dB")
 
 
 class JobCancelled(Exception):
@@ -186,6 +204,9 @@ class TrainingJob:
     def cancel(self) -> None:
         """Ask the worker to stop after the current step (it then saves the checkpoint)."""
         self._cancel.set()
+
+    def poll(self, seconds: float = 0.0) -> None:
+        """Nothing to do: the work runs on its own thread (see `StagedJob.poll`)."""
 
     @property
     def cancelled(self) -> bool:
@@ -318,3 +339,119 @@ class TrainingJob:
                       gaussians=stats["gaussians"], sh_degree=stats["sh_degree"],
                       elapsed=now - started, seconds_per_step=per_step,
                       eta=per_step * (total - step) if len(self._window) >= 3 else None)
+
+
+class StagedJob:
+    """Work that must stay on one thread (it touches Blender data), done in small steps:
+    `steps` is a generator of (stage, fraction of that stage) whose return value becomes
+    `result`; `stages` names them in order, for the overall fraction. The same interface as
+    `TrainingJob` (start, poll, run, cancel, join, progress), so one runner drives both:
+    `poll(seconds)` advances it for about that long (from a UI timer), `run()` to the end.
+    Cancelling closes the generator at the next poll (its `finally` blocks clean up)."""
+
+    def __init__(self, steps: Generator[tuple[str, float], None, object],
+                 stages: Sequence[str], *,
+                 on_progress: Callable[[Progress], None] | None = None) -> None:
+        self._steps = steps
+        self.stages = tuple(stages)
+        self.on_progress = on_progress
+        self.result = None
+        self.error: BaseException | None = None
+        self.error_traceback = ""
+        self.trainer = None
+        self.final = None
+        self._cancel = False
+        self._done = False
+        self._started = time.perf_counter()
+        self._progress = Progress()
+
+    def _set(self, **changes) -> None:
+        self._progress = replace(self._progress, elapsed=time.perf_counter() - self._started,
+                                 **changes)
+        if self.on_progress is not None:
+            self.on_progress(replace(self._progress))
+
+    def start(self) -> "StagedJob":
+        self._started = time.perf_counter()
+        self._set(phase="working", message=self.stages[0] if self.stages else "")
+        return self
+
+    def poll(self, seconds: float = 0.0) -> None:
+        """Advance for about `seconds` (at least one step); finish when the work ends."""
+        deadline = time.perf_counter() + seconds
+        while not self._done:
+            if self._cancel:
+                self._steps.close()
+                self._end("cancelled")
+                return
+            try:
+                stage, fraction = next(self._steps)
+            except StopIteration as finished:
+                self.result = finished.value
+                self._end("done")
+                return
+            except BaseException as error:  # reported to the caller by `error`
+                self.error = error
+                self.error_traceback = traceback.format_exc()
+                self._end("failed", f"{type(error).__name__}: {error}")
+                return
+            index = self.stages.index(stage) if stage in self.stages else 0
+            overall = (index + min(max(fraction, 0.0), 1.0)) / max(len(self.stages), 1)
+            self._set(phase="working", message=stage, prepared=overall)
+            if time.perf_counter() >= deadline:
+                return
+
+    def _end(self, phase: str, message: str = "") -> None:
+        self._done = True
+        self._set(phase=phase, message=message,
+                  prepared=1.0 if phase == "done" else self._progress.prepared)
+
+    def run(self, *, raise_errors: bool = True) -> "StagedJob":
+        self.start()
+        self.poll(float("inf"))
+        if self.error is not None and raise_errors:
+            raise self.error
+        return self
+
+    def cancel(self) -> None:
+        self._cancel = True
+
+    @property
+    def cancelled(self) -> bool:
+        return self._cancel
+
+    def join(self, timeout: float | None = None) -> bool:
+        """No thread to wait for: a cancelled job is closed now."""
+        if self._cancel and not self._done:
+            self.poll()
+        return self._done
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def progress(self) -> Progress:
+        return replace(self._progress)
+
+    def take_snapshot(self) -> None:
+        return None
+
+
+class ProgressPrinter:
+    """Terminal lines for a job without a window (`blender --background`, the bpy wheel): one
+    at every phase or stage change, else at most one every `interval` seconds."""
+
+    def __init__(self, title: str, interval: float = 5.0,
+                 write: Callable[[str], None] | None = None) -> None:
+        self.title = title
+        self.interval = float(interval)
+        self.write = write or (lambda line: print(line, flush=True))
+        self._key = None
+        self._last = float("-inf")
+
+    def __call__(self, p: Progress) -> None:
+        key = (p.phase, p.message if p.phase == "working" else "")
+        now = time.monotonic()
+        if key != self._key or now - self._last >= self.interval:
+            self._key, self._last = key, now
+            self.write(status_line(p, self.title))

@@ -115,6 +115,20 @@ def render_views(gaussians: Gaussians, cameras: Sequence[Camera], *, antialiased
     return views
 
 
+def project_points(camera: Camera, points: np.ndarray, near: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Planar depth z and pixel coordinates (u, v) of world-space `points` (N, 3) seen by
+    `camera`, and which points are in view: in front of `near` and inside the frame."""
+    r, t = camera.world_to_camera[:3, :3], camera.world_to_camera[:3, 3]
+    c = points @ r.T + t
+    z = c[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = camera.fx * c[:, 0] / z + camera.cx
+        v = camera.fy * c[:, 1] / z + camera.cy
+    in_view = (z > near) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    return z, u, v, in_view
+
+
 class Cancelled(Exception):
     """Raised between stages or views when the caller's `cancel()` says so."""
 
@@ -196,15 +210,8 @@ def fuse_tsdf(depth_maps: Sequence[np.ndarray], alpha_maps: Sequence[np.ndarray]
         alpha = np.asarray(alpha, np.float32)
         if depth.shape != (cam.height, cam.width) or alpha.shape != depth.shape:
             raise ValueError(f"view {v}: depth and alpha must be {(cam.height, cam.width)}")
-        r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
         for start in range(0, n, chunk):
-            p = points[start:start + chunk]
-            c = p @ r.T + t
-            z = c[:, 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                u = cam.fx * c[:, 0] / z + cam.cx
-                vv = cam.fy * c[:, 1] / z + cam.cy
-            ok = (z > near) & (u >= 0) & (u < cam.width) & (vv >= 0) & (vv < cam.height)
+            z, u, vv, ok = project_points(cam, points[start:start + chunk], near)
             idx = np.nonzero(ok)[0]
             if not len(idx):
                 continue
@@ -412,9 +419,9 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vn / np.maximum(norm, 1e-30)
 
 
-def _raster_candidates(x0, x1, y0, y1, limit: int):
-    """Yield (triangle ids, px, py) of every pixel in each triangle's bounding box, in chunks of
-    about `limit` pixels."""
+def raster_candidates(x0, x1, y0, y1, limit: int):
+    """Yield (triangle ids, px, py) of every pixel in each triangle's bounding box (columns
+    x0..x1, rows y0..y1, inclusive), in chunks of about `limit` pixels."""
     w = np.maximum(x1 - x0 + 1, 0)
     h = np.maximum(y1 - y0 + 1, 0)
     counts = (w * h).astype(np.int64)
@@ -435,6 +442,21 @@ def _raster_candidates(x0, x1, y0, y1, limit: int):
         py = y0[tid] + offs // w[tid]
         yield tid, px, py
         start = end
+
+
+def barycentric(xs: np.ndarray, ys: np.ndarray, x: np.ndarray, y: np.ndarray, eps: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Barycentric weights (l0, l1, l2) of the points (x, y) in the triangles whose corners are
+    (xs[:, k], ys[:, k]), and whether each point is inside (every weight >= eps; never in a
+    degenerate triangle)."""
+    det = ((ys[:, 1] - ys[:, 2]) * (xs[:, 0] - xs[:, 2])
+           + (xs[:, 2] - xs[:, 1]) * (ys[:, 0] - ys[:, 2]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        l0 = ((ys[:, 1] - ys[:, 2]) * (x - xs[:, 2]) + (xs[:, 2] - xs[:, 1]) * (y - ys[:, 2])) / det
+        l1 = ((ys[:, 2] - ys[:, 0]) * (x - xs[:, 2]) + (xs[:, 0] - xs[:, 2]) * (y - ys[:, 2])) / det
+    l2 = 1.0 - l0 - l1
+    inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & np.isfinite(l0) & (det != 0)
+    return l0, l1, l2, inside
 
 
 def zbuffer_depth(vertices: np.ndarray, faces: np.ndarray, camera: Camera, *,
@@ -460,16 +482,9 @@ def zbuffer_depth(vertices: np.ndarray, faces: np.ndarray, camera: Camera, *,
     x1 = np.clip(np.floor(fu.max(axis=1) - 0.5), -1, w - 1).astype(np.int64)
     y0 = np.clip(np.ceil(fv.min(axis=1) - 0.5), 0, h).astype(np.int64)
     y1 = np.clip(np.floor(fv.max(axis=1) - 0.5), -1, h - 1).astype(np.int64)
-    for tid, px, py in _raster_candidates(x0, x1, y0, y1, chunk):
-        sx, sy = px + 0.5, py + 0.5
-        a, b, cc = fu[tid], fv[tid], fzz[tid]
-        det = (b[:, 1] - b[:, 2]) * (a[:, 0] - a[:, 2]) + (a[:, 2] - a[:, 1]) * (b[:, 0] - b[:, 2])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            l0 = ((b[:, 1] - b[:, 2]) * (sx - a[:, 2]) + (a[:, 2] - a[:, 1]) * (sy - b[:, 2])) / det
-            l1 = ((b[:, 2] - b[:, 0]) * (sx - a[:, 2]) + (a[:, 0] - a[:, 2]) * (sy - b[:, 2])) / det
-        l2 = 1.0 - l0 - l1
-        eps = -1e-9
-        inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & np.isfinite(l0) & (det != 0)
+    for tid, px, py in raster_candidates(x0, x1, y0, y1, chunk):
+        cc = fzz[tid]
+        l0, l1, l2, inside = barycentric(fu[tid], fv[tid], px + 0.5, py + 0.5, eps=-1e-9)
         inv_z = l0 / cc[:, 0] + l1 / cc[:, 1] + l2 / cc[:, 2]
         depth = 1.0 / inv_z
         sel = inside & (depth > 0)

@@ -12,14 +12,12 @@ What it does, as the reference implementation (Kerbl et al. 2023) does unless no
   steps and is scaled by the scene extent (1.1 x the largest camera distance from their mean);
 - the SH degree grows by one every 1000 steps;
 - loss (1 - 0.2) L1 + 0.2 (1 - SSIM);
-- from step 500 to 15000, every 100 steps: clone small and split large Gaussians whose
-  average screen-space gradient (NDC units) reaches 2e-4, prune those under 0.5 % opacity (and
-  after the first opacity reset those larger than 30 % of the scene extent: the reference's
-  10 % deletes background Gaussians the views need, see `TrainConfig.prune_large_fraction`);
-  every 3000 steps the opacities are reset to at most 0.01;
-- a Gaussian **budget** (`max_gaussians`, not in the reference): densification takes the
-  candidates with the largest gradients that fit it;
-- deterministic for a given seed (the native kernels are identical for any thread count).
+- densification (clone, split, prune, opacity reset, the Gaussian budget `max_gaussians`) is a
+  strategy, one file each in `strategies/`; `TrainConfig.strategy` picks one ("default": the
+  reference's, with a budget);
+- deterministic for a given seed (the native kernels are identical for any thread count);
+- with `TrainConfig.stop_below_db_per_minute`, training stops when done: when the held-out
+  PSNR gains less than that per minute of training (`steps` stays the ceiling).
 
 `compact()` (after training, not in the reference) prunes Gaussians whose total contribution to
 the training views is negligible and drops SH bands that do not improve them, and reports size
@@ -39,51 +37,11 @@ import numpy as np
 from . import train_kernels as tk
 from .cameras import Camera
 from .gaussians import Gaussians, sh_count
+from .optimizer import GaussianParameters, logit
 from .render import render
-
-SH_C0 = 0.28209479177387814
-PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
-
-
-@dataclass
-class TrainConfig:
-    steps: int = 7000
-    max_gaussians: int = 300_000
-    sh_degree: int = 3
-    seed: int = 0
-    threads: int = 0
-    antialiased: bool = False
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    lambda_dssim: float = 0.2
-    # Learning rates (3DGS defaults); the position rate is times the scene extent.
-    position_lr_init: float = 1.6e-4
-    position_lr_final: float = 1.6e-6
-    position_lr_max_steps: int = 30_000
-    sh_dc_lr: float = 2.5e-3
-    sh_rest_lr: float = 2.5e-3 / 20
-    opacity_lr: float = 2.5e-2
-    scaling_lr: float = 5e-3
-    rotation_lr: float = 1e-3
-    sh_degree_interval: int = 1000
-    # Densification.
-    densify_from: int = 500
-    densify_until: int = 15_000
-    densify_every: int = 100
-    densify_grad_threshold: float = 2e-4
-    percent_dense: float = 0.01
-    opacity_reset_every: int = 3000
-    prune_opacity: float = 0.005
-    # After the first opacity reset, Gaussians larger than this fraction of the scene extent are
-    # pruned. The reference uses 0.1; with a budget on a small scene (cup) that keeps deleting
-    # background Gaussians the views need (held-out PSNR 28.1 vs 30.1 dB at step 4000), so 0.3.
-    # 0 disables it.
-    prune_large_fraction: float = 0.3
-    initial_opacity: float = 0.1
-    max_initial_points: int = 50_000  # the 3-NN scale estimate is quadratic in this
-
-
-def _logit(p: float) -> float:
-    return math.log(p / (1.0 - p))
+from .sh import SH_C0
+from .strategies import StepInfo, Strategy, make_strategy
+from .train_config import TrainConfig
 
 
 def position_lr(config: TrainConfig, step: int, extent: float) -> float:
@@ -134,7 +92,20 @@ def initial_gaussians(xyz: np.ndarray, rgb: np.ndarray, config: TrainConfig,
     sh[:, 0] = (rgb - 0.5) / SH_C0
     return Gaussians(xyz, np.repeat(np.log(np.sqrt(dist2))[:, None], 3, axis=1),
                      np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
-                     np.full(n, _logit(config.initial_opacity)), sh)
+                     np.full(n, logit(config.initial_opacity)), sh)
+
+
+def downscaled_view(camera: Camera, image: np.ndarray, factor: int) -> tuple[Camera, np.ndarray]:
+    """`image` averaged over factor x factor blocks (a partial last row or column of blocks is
+    dropped) and the camera that sees it: new pixel i covers old pixels [f i, f i + f), whose
+    centre f (i + 0.5) is the new pixel's centre, so the intrinsics scale by exactly 1 / f."""
+    h, w = image.shape[0] // factor, image.shape[1] // factor
+    if h < 1 or w < 1:
+        raise ValueError(f"a {image.shape[1]}x{image.shape[0]} image cannot shrink {factor}x")
+    blocks = image[:h * factor, :w * factor].reshape(h, factor, w, factor, -1)
+    small = np.ascontiguousarray(blocks.mean(axis=(1, 3), dtype=np.float64), dtype=np.float32)
+    return Camera(camera.world_to_camera, camera.fx / factor, camera.fy / factor,
+                  camera.cx / factor, camera.cy / factor, w, h), small
 
 
 def psnr(image: np.ndarray, target: np.ndarray) -> float:
@@ -151,48 +122,52 @@ class Evaluation:
 
 
 class Trainer:
-    """The optimisation state: parameters, Adam moments, densification statistics."""
+    """The optimisation state: parameters with their Adam moments, the densification strategy
+    and its statistics, the step count and the random generator."""
 
     def __init__(self, dataset, config: TrainConfig | None = None,
-                 gaussians: Gaussians | None = None) -> None:
+                 gaussians: Gaussians | None = None, strategy: Strategy | None = None) -> None:
         self.dataset = dataset
         self.config = config = config or TrainConfig()
         self.rng = np.random.default_rng(config.seed)
         self.extent = scene_extent(dataset.train_cameras)
         self.step = 0
+        self.seconds = 0.0  # training time so far (the steps' wall time, evaluations excluded)
+        self.converged = False
+        self.checks: list[tuple[float, float]] = []  # (seconds, PSNR) at each stopping check
         self.background = np.asarray(config.background, np.float32)
+        self.strategy = strategy or make_strategy(config, self.extent, self.rng)
         if gaussians is None:
             points = dataset.points
-            gaussians = initial_gaussians(points.xyz, points.rgb, config, self.rng)
-        self._set_parameters(gaussians.with_degree(config.sh_degree))
+            gaussians = self.strategy.prepare_initial(
+                initial_gaussians(points.xyz, points.rgb, config, self.rng))
+        self.set_gaussians(gaussians.with_degree(config.sh_degree))
         self._order: list[int] = []
         self._grads: tk.Gradients | None = None
         self._loss_grad: dict[tuple[int, int], np.ndarray] = {}
+        self._coarse: dict[tuple[int, int], tuple[Camera, np.ndarray]] = {}
 
     # -- parameters -----------------------------------------------------------------------
-    def _set_parameters(self, g: Gaussians) -> None:
-        self.params = {
-            "means": g.means.copy(), "log_scales": g.log_scales.copy(), "quats": g.quats.copy(),
-            "opacity_logits": g.opacity_logits.copy(),
-            "sh_dc": np.ascontiguousarray(g.sh[:, :1]),
-            "sh_rest": np.ascontiguousarray(g.sh[:, 1:]),
-        }
-        self.moments = {k: (np.zeros_like(v), np.zeros_like(v)) for k, v in self.params.items()}
-        self._reset_statistics()
+    def set_gaussians(self, gaussians: Gaussians) -> None:
+        """Train these from now on (fresh Adam moments and strategy statistics)."""
+        self.parameters = GaussianParameters(gaussians)
+        self.strategy.reset(len(gaussians))
 
-    def _reset_statistics(self) -> None:
-        n = len(self.params["means"])
-        self.grad_accum = np.zeros(n, np.float64)
-        self.grad_count = np.zeros(n, np.int64)
+    @property
+    def params(self) -> dict[str, np.ndarray]:
+        return self.parameters.params
+
+    @property
+    def moments(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        return self.parameters.moments
 
     @property
     def gaussians(self) -> Gaussians:
-        p = self.params
-        return Gaussians(p["means"], p["log_scales"], p["quats"], p["opacity_logits"],
-                         np.concatenate([p["sh_dc"], p["sh_rest"]], axis=1))
+        """The current Gaussians: views of the parameters (`.copy()` keeps a snapshot)."""
+        return self.parameters.gaussians
 
     def __len__(self) -> int:
-        return len(self.params["means"])
+        return len(self.parameters)
 
     def learning_rates(self) -> dict[str, float]:
         c = self.config
@@ -201,6 +176,23 @@ class Trainer:
                 "sh_rest": c.sh_rest_lr}
 
     # -- one step -------------------------------------------------------------------------
+    def resolution_level(self, step: int | None = None) -> int:
+        """How many times the images of `step` (default: the next one) are halved."""
+        c = self.config
+        step = self.step + 1 if step is None else step
+        if c.coarse_levels <= 0 or step > c.coarse_until:
+            return 0
+        return math.ceil(c.coarse_levels * (1.0 - (step - 1) / c.coarse_until))
+
+    def _view(self, view: int, level: int) -> tuple[Camera, np.ndarray]:
+        camera, image = self.dataset.cameras[view], self.dataset.image(view)
+        if level == 0:
+            return camera, image
+        key = (view, level)
+        if key not in self._coarse:
+            self._coarse[key] = downscaled_view(camera, image, 2 ** level)
+        return self._coarse[key]
+
     def _next_view(self) -> int:
         if not self._order:
             self._order = list(self.rng.permutation(self.dataset.train_indices))
@@ -212,7 +204,7 @@ class Trainer:
         start = time.perf_counter()
         self.step += 1
         view = self._next_view()
-        camera, target = self.dataset.cameras[view], self.dataset.image(view)
+        camera, target = self._view(view, self.resolution_level())
         degree = min(c.sh_degree, (self.step - 1) // c.sh_degree_interval)
         gaussians = self.gaussians
         result, state = tk.render_train(gaussians, camera, background=self.background,
@@ -221,109 +213,41 @@ class Trainer:
         grad_image = self._loss_grad.setdefault(target.shape[:2], np.empty(target.shape, np.float32))
         loss = tk.l1_ssim_loss(result.rgb, target, lambda_dssim=c.lambda_dssim,
                                out_grad=grad_image, threads=c.threads)
-        if self._grads is None or self._grads.means.shape[0] != len(gaussians) or \
-                self._grads.sh.shape[1] != gaussians.sh.shape[1]:
+        if self._grads is None or not self._grads.fits(len(gaussians), gaussians.sh.shape[1]):
             self._grads = tk.Gradients.zeros_like(gaussians)
         grads = tk.backward(state, gaussians, loss.grad, threads=c.threads, out=self._grads)
 
-        if self.step < c.densify_until:
-            norm = tk.screen_gradient_norm(grads, camera.width, camera.height)
-            seen = state.visible
-            self.grad_accum[seen] += norm[seen]
-            self.grad_count[seen] += 1
-
-        grad_arrays = {"means": grads.means, "log_scales": grads.log_scales, "quats": grads.quats,
-                       "opacity_logits": grads.opacity_logits,
-                       "sh_dc": np.ascontiguousarray(grads.sh[:, :1]),
-                       "sh_rest": np.ascontiguousarray(grads.sh[:, 1:])}
-        for name, lr in self.learning_rates().items():
-            if self.params[name].size:
-                m, v = self.moments[name]
-                tk.adam_step(self.params[name], grad_arrays[name], m, v, lr=lr, step=self.step,
-                             threads=c.threads)
-
-        densified = self._densify_if_due()
+        info = StepInfo(self.step, camera, state, grads, self.learning_rates())
+        self.strategy.after_backward(self.parameters, info)
+        self.parameters.adam_step(grads, info.learning_rates, self.step, threads=c.threads)
+        densified = self.strategy.after_step(self.parameters, info)
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
                 "psnr": psnr(result.rgb, target), "gaussians": len(self), "sh_degree": degree,
                 "densified": densified, "seconds": time.perf_counter() - start}
-
-    # -- densification ----------------------------------------------------------------------
-    def _densify_if_due(self) -> int:
-        c, step = self.config, self.step
-        changed = 0
-        if c.densify_from < step < c.densify_until and step % c.densify_every == 0:
-            changed = self.densify_and_prune(
-                prune_large=step > c.opacity_reset_every and c.prune_large_fraction > 0)
-        if step < c.densify_until and step % c.opacity_reset_every == 0:
-            self.reset_opacity()
-        return changed
-
-    def densify_and_prune(self, *, prune_large: bool) -> int:
-        """Clone and split by gradient within the budget, then prune. Returns the count change."""
-        c = self.config
-        before = len(self)
-        average = np.where(self.grad_count > 0, self.grad_accum / np.maximum(self.grad_count, 1), 0.0)
-        max_scale = np.exp(self.params["log_scales"].max(axis=1))
-        candidates = np.flatnonzero(average >= c.densify_grad_threshold)
-        room = max(c.max_gaussians - before, 0)  # each clone or split adds one Gaussian
-        if len(candidates) > room:  # the budget: the strongest gradients first
-            candidates = candidates[np.argsort(-average[candidates], kind="stable")[:room]]
-        small = max_scale[candidates] <= c.percent_dense * self.extent
-        clone, split = candidates[small], candidates[~small]
-
-        new_rows = [self._rows(clone)]
-        if len(split):
-            for _ in range(2):
-                rows = self._rows(split)
-                scale = np.exp(rows["log_scales"].astype(np.float64))
-                offset = self.rng.normal(size=scale.shape) * scale
-                rotation = _quat_to_matrix(rows["quats"])
-                rows["means"] = (rows["means"] + np.einsum("nij,nj->ni", rotation, offset)).astype(np.float32)
-                rows["log_scales"] = np.log(scale / (0.8 * 2)).astype(np.float32)
-                new_rows.append(rows)
-        keep = np.ones(before, bool)
-        keep[split] = False
-        self._append_and_keep(new_rows, keep)
-
-        opacity = 1.0 / (1.0 + np.exp(-self.params["opacity_logits"].astype(np.float64)))
-        prune = opacity < c.prune_opacity
-        if prune_large:
-            prune |= np.exp(self.params["log_scales"].max(axis=1)) > c.prune_large_fraction * self.extent
-        if prune.all():  # never prune to nothing
-            prune[np.argmax(opacity)] = False
-        self._append_and_keep([], ~prune)
-        self._reset_statistics()
-        return len(self) - before
-
-    def _rows(self, index: np.ndarray) -> dict[str, np.ndarray]:
-        return {name: array[index].copy() for name, array in self.params.items()}
-
-    def _append_and_keep(self, new_rows: list[dict[str, np.ndarray]], keep: np.ndarray) -> None:
-        for name in PARAMS:
-            parts = [self.params[name][keep]] + [rows[name] for rows in new_rows]
-            self.params[name] = np.ascontiguousarray(np.concatenate(parts))
-            m, v = self.moments[name]
-            added = sum(len(rows[name]) for rows in new_rows)
-            pad = np.zeros((added,) + m.shape[1:], np.float32)
-            self.moments[name] = (np.ascontiguousarray(np.concatenate([m[keep], pad])),
-                                  np.ascontiguousarray(np.concatenate([v[keep], pad])))
-        count = len(self.params["means"])
-        self.grad_accum = np.zeros(count)
-        self.grad_count = np.zeros(count, np.int64)
-
-    def reset_opacity(self) -> None:
-        """Opacities to at most 0.01, their Adam moments cleared (as 3DGS replaces the tensor)."""
-        logits = self.params["opacity_logits"]
-        np.minimum(logits, np.float32(_logit(0.01)), out=logits)
-        for moment in self.moments["opacity_logits"]:
-            moment[:] = 0.0
 
     # -- running, evaluating --------------------------------------------------------------
     def run(self, steps: int | None = None) -> Iterator[dict[str, float]]:
         """Train up to `steps` (default: the config's) total steps, yielding each step's stats."""
         target = self.config.steps if steps is None else steps
-        while self.step < target:
-            yield self.train_step()
+        while self.step < target and not self.converged:
+            stats = self.train_step()
+            self.seconds += stats["seconds"]
+            if self.config.stop_below_db_per_minute > 0 and \
+                    self.step % self.config.stop_check_every == 0:
+                self.converged = self._gain_has_stalled()
+            yield stats
+
+    def _gain_has_stalled(self) -> bool:
+        """Record a check; True when the last two intervals each gained less than the threshold
+        per minute (a single slow interval, e.g. across an opacity reset, does not stop it)."""
+        views = self.dataset.test_indices or self.dataset.train_indices[:: max(
+            1, len(self.dataset.train_indices) // 8)][:8]
+        self.checks.append((self.seconds, self.evaluate(views).psnr))
+        if len(self.checks) < 3:
+            return False
+        rates = [(b[1] - a[1]) / max((b[0] - a[0]) / 60.0, 1e-9)
+                 for a, b in zip(self.checks[-3:-1], self.checks[-2:])]
+        return all(rate < self.config.stop_below_db_per_minute for rate in rates)
 
     def evaluate(self, indices: list[int] | None = None, *, sh_degree: int | None = None,
                  gaussians: Gaussians | None = None) -> Evaluation:
@@ -347,16 +271,15 @@ class Trainer:
 
     # -- checkpoints ----------------------------------------------------------------------
     def save_checkpoint(self, path: str | Path) -> None:
-        """Everything needed to resume: parameters, moments, statistics, step, RNG state."""
+        """Everything needed to resume: parameters, moments, strategy statistics, step, RNG
+        state (written to a temporary file, then moved over `path`)."""
         path = Path(path)
-        arrays = {f"param_{k}": v for k, v in self.params.items()}
-        arrays |= {f"m_{k}": m for k, (m, _) in self.moments.items()}
-        arrays |= {f"v_{k}": v for k, (_, v) in self.moments.items()}
         meta = {"step": self.step, "config": asdict(self.config), "order": self._order,
-                "rng": self.rng.bit_generator.state}
+                "rng": self.rng.bit_generator.state, "seconds": self.seconds,
+                "converged": self.converged, "checks": self.checks}
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, grad_accum=self.grad_accum, grad_count=self.grad_count,
-                 meta=np.frombuffer(repr(meta).encode(), np.uint8), **arrays)
+        np.savez(tmp, meta=np.frombuffer(repr(meta).encode(), np.uint8),
+                 **self.strategy.state_arrays(), **self.parameters.state_arrays())
         tmp.replace(path)
 
     @classmethod
@@ -368,26 +291,15 @@ class Trainer:
             config = TrainConfig(**{k: tuple(v) if isinstance(v, list) else v
                                     for k, v in meta["config"].items()})
             trainer = cls(dataset, config, gaussians=Gaussians.empty(config.sh_degree))
-            trainer.params = {k: data[f"param_{k}"].copy() for k in PARAMS}
-            trainer.moments = {k: (data[f"m_{k}"].copy(), data[f"v_{k}"].copy()) for k in PARAMS}
-            trainer.grad_accum = data["grad_accum"].copy()
-            trainer.grad_count = data["grad_count"].copy()
+            trainer.parameters = GaussianParameters.from_state_arrays(data)
+            trainer.strategy.load_state_arrays(data)
         trainer.step = int(meta["step"])
+        trainer.seconds = float(meta.get("seconds", 0.0))
+        trainer.converged = bool(meta.get("converged", False))
+        trainer.checks = [tuple(c) for c in meta.get("checks", [])]
         trainer._order = list(meta["order"])
         trainer.rng.bit_generator.state = meta["rng"]
         return trainer
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    q = np.asarray(q, np.float64)
-    norm = np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(norm > 0, q / np.where(norm > 0, norm, 1), [1.0, 0.0, 0.0, 0.0])
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], 1)
 
 
 # -- compaction ---------------------------------------------------------------------------
@@ -448,7 +360,7 @@ def compact(trainer: Trainer, *, weight_fraction: float = 0.002, max_psnr_loss_d
     if progress:
         progress(f"kept {len(pruned)} of {len(g)} Gaussians, SH degree {degree}")
     trainer.config.sh_degree = degree
-    trainer._set_parameters(pruned)
+    trainer.set_gaussians(pruned)
     after = trainer.evaluate(sample)
     report.after = {"gaussians": len(pruned), "sh_degree": degree,
                     "bytes": ply_bytes(len(pruned), degree), "psnr": after.psnr}

@@ -29,9 +29,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import native
 from .cameras import Camera
 from .gaussians import Gaussians
-from .render import RenderResult, _camera_args, _gaussian_args, _sh_degree, _splatcore, _threads
+from .render import RenderResult
 
 # Adam as 3DGS configures it (torch.optim.Adam(eps=1e-15)).
 ADAM_BETA1 = 0.9
@@ -105,7 +106,8 @@ class Gradients:
         return {"means": self.means, "log_scales": self.log_scales, "quats": self.quats,
                 "opacity_logits": self.opacity_logits, "sh": self.sh}
 
-    def _fits(self, count: int, sh_coeffs: int) -> bool:
+    def fits(self, count: int, sh_coeffs: int) -> bool:
+        """Whether every array has the shape for `count` Gaussians of `sh_coeffs` coefficients."""
         want = {"means": (count, 3), "log_scales": (count, 3), "quats": (count, 4),
                 "opacity_logits": (count,), "sh": (count, sh_coeffs, 3), "xy": (count, 2),
                 "xy_abs": (count, 2)}
@@ -131,11 +133,8 @@ def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray
     out: a RenderResult of the right size to render into (its arrays are reused), or None.
     Returns (images, state); the images are bit-identical to `render()`'s.
     """
-    viewmat, intrinsics, width, height = _camera_args(camera)
-    if background is not None:
-        background = np.ascontiguousarray(background, dtype=np.float32).reshape(-1)
-        if background.shape != (3,):
-            raise ValueError(f"background must be an RGB triple, got shape {background.shape}")
+    viewmat, intrinsics, width, height = native.camera_args(camera)
+    background = native.background_arg(background)
     if out is None:
         out = RenderResult(np.empty((height, width, 3), np.float32),
                            np.empty((height, width), np.float32),
@@ -143,26 +142,17 @@ def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray
     final_t = np.empty((height, width), np.float32)
     n_contrib = np.empty((height, width), np.int32)
     visible = np.empty(len(gaussians), np.uint8)
-    degree = _sh_degree(gaussians, sh_degree)
-    stats, handle = _splatcore().render_train(
-        *_gaussian_args(gaussians), degree, viewmat, intrinsics, width, height, float(near),
-        bool(antialiased), _threads(threads), background, out.rgb, out.alpha, out.depth, final_t,
-        n_contrib, visible)
+    degree = native.resolve_sh_degree(gaussians, sh_degree)
+    stats, handle = native.splatcore().render_train(
+        *native.gaussian_args(gaussians), degree, viewmat, intrinsics, width, height, float(near),
+        bool(antialiased), native.thread_count(threads), background, out.rgb, out.alpha,
+        out.depth, final_t, n_contrib, visible)
     out.stats = dict(stats)
-    info = _splatcore().train_state_info(handle)
+    info = native.splatcore().train_state_info(handle)
     state = TrainState(handle, width, height, info["count"], info["sh_coeffs"], degree,
                        bool(antialiased), info["drawn"], info["tile_pairs"], final_t, n_contrib,
                        visible.view(bool))
     return out, state
-
-
-def _image_grad(name: str, value, shape: tuple[int, ...]) -> np.ndarray | None:
-    if value is None:
-        return None
-    array = np.ascontiguousarray(value, dtype=np.float32)
-    if array.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
-    return array
 
 
 def backward(state: TrainState, gaussians: Gaussians, d_rgb: np.ndarray,
@@ -179,21 +169,23 @@ def backward(state: TrainState, gaussians: Gaussians, d_rgb: np.ndarray,
     """
     if not isinstance(state, TrainState):
         raise TypeError(f"state must be the TrainState from render_train, got {type(state).__name__}")
-    arrays = _gaussian_args(gaussians)
+    arrays = native.gaussian_args(gaussians)
     if len(gaussians) != state.count or gaussians.sh.shape[1] != state.sh_coeffs:
         raise ValueError(f"the Gaussians (N={len(gaussians)}, K={gaussians.sh.shape[1]}) are not "
                          f"those render_train drew (N={state.count}, K={state.sh_coeffs})")
     h, w = state.height, state.width
-    d_rgb = _image_grad("d_rgb", d_rgb, (h, w, 3))
-    d_alpha = _image_grad("d_alpha", d_alpha, (h, w))
-    d_depth = _image_grad("d_depth", d_depth, (h, w))
+    d_rgb = native.float_image("d_rgb", d_rgb, (h, w, 3))
+    if d_alpha is not None:
+        d_alpha = native.float_image("d_alpha", d_alpha, (h, w))
+    if d_depth is not None:
+        d_depth = native.float_image("d_depth", d_depth, (h, w))
     if out is None:
         out = Gradients.zeros(state.count, state.sh_coeffs)
-    elif not isinstance(out, Gradients) or not out._fits(state.count, state.sh_coeffs):
+    elif not isinstance(out, Gradients) or not out.fits(state.count, state.sh_coeffs):
         raise ValueError("out must be Gradients shaped like the Gaussians (Gradients.zeros_like)")
-    stats = _splatcore().backward(state.handle, *arrays, d_rgb, d_alpha, d_depth, _threads(threads),
-                                  out.means, out.log_scales, out.quats, out.opacity_logits, out.sh,
-                                  out.xy, out.xy_abs)
+    stats = native.splatcore().backward(
+        state.handle, *arrays, d_rgb, d_alpha, d_depth, native.thread_count(threads), out.means,
+        out.log_scales, out.quats, out.opacity_logits, out.sh, out.xy, out.xy_abs)
     out.stats = dict(stats)
     return out
 
@@ -218,13 +210,6 @@ def screen_gradient_norm(grads: Gradients, width: int, height: int, *,
     raise ValueError(f"kind must be '3dgs', 'abs' or 'pixels', got {kind!r}")
 
 
-def _image(name: str, value) -> np.ndarray:
-    array = np.ascontiguousarray(value, dtype=np.float32)
-    if array.ndim != 3 or array.shape[2] != 3:
-        raise ValueError(f"{name} must have shape (H, W, 3), got {array.shape}")
-    return array
-
-
 def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float = 0.2,
                  need_grad: bool = True, out_grad: np.ndarray | None = None,
                  threads: int = 0) -> LossResult:
@@ -236,7 +221,7 @@ def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float =
     The gradient (H, W, 3) float32 goes into out_grad when given (reused), else a new array;
     need_grad=False skips it (about half the work).
     """
-    image, target = _image("image", image), _image("target", target)
+    image, target = native.rgb_image("image", image), native.rgb_image("target", target)
     if target.shape != image.shape:
         raise ValueError(f"target shape {target.shape} differs from image shape {image.shape}")
     lam = float(lambda_dssim)
@@ -245,7 +230,7 @@ def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float =
     grad = None
     if need_grad:
         grad = np.empty(image.shape, np.float32) if out_grad is None else out_grad
-    loss, l1, ssim = _splatcore().l1_ssim(image, target, lam, _threads(threads), grad)
+    loss, l1, ssim = native.splatcore().l1_ssim(image, target, lam, native.thread_count(threads), grad)
     return LossResult(loss, l1, ssim, grad)
 
 
@@ -260,5 +245,5 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
     step counts from 1. All four arrays: float32, C-contiguous, one shape (no copies are made:
     a converted copy would not be updated in place, so other dtypes are an error).
     """
-    _splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1), float(beta2),
-                      float(eps), int(step), _threads(threads))
+    native.splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1),
+                            float(beta2), float(eps), int(step), native.thread_count(threads))

@@ -1,11 +1,15 @@
 /*
  * splatcore: a CPU renderer for 3D Gaussian splats that reproduces the reference 3DGS
- * rasterizer (Kerbl et al. 2023) up to float rounding.
+ * rasterizer (Kerbl et al. 2023) up to float rounding, with its training backward pass.
  *
- * Plain C11, no Python: the binding lives in module.c alone. Arrays are caller-owned, C-contiguous,
- * float32 unless noted; nothing here keeps a pointer after a call returns.
+ * This is the public C API: everything a caller (module.c, the Python binding, or a C program
+ * such as native/tests/render_driver.c) needs. The stage-to-stage declarations live in
+ * src/internal.h, which only the library's own files include.
  *
- * Pipeline (one stage per file):
+ * Plain C11, no Python. Arrays are caller-owned, C-contiguous, float32 unless noted; nothing
+ * here keeps a pointer after a call returns. Every result is identical for any thread count.
+ *
+ * Pipeline (one stage per file in src/):
  *   project.c    per Gaussian: EWA projection, SH colour, opacity, screen footprint
  *   sh.c         spherical harmonics degree 0..3 (the reference constants)
  *   sort.c       stable radix sort of Gaussians by view depth
@@ -13,7 +17,8 @@
  *   composite.c  per tile, front to back, with an optional mesh layer (colour + depth); and the
  *                training variant that records what the backward pass needs
  *   render.c     the pipeline above, with timings
- *   threadpool.c a small persistent pool; output never depends on the thread count
+ *   threadpool.c a small persistent pool (POSIX threads, or Win32 threads on Windows)
+ *   cpu.c        the instruction set the compositor kernels run with, picked once at run time
  *
  * Training (backward passes, loss and optimizer):
  *   composite_backward.c  per tile, back to front: gradients of the projected Gaussians
@@ -32,14 +37,7 @@
 extern "C" {
 #endif
 
-enum { SC_TILE = 16 };
-
-/* The reference constants (DESIGN.md, "Rendering semantics"). */
-#define SC_ALPHA_MIN (1.0f / 255.0f) /* a Gaussian is skipped at a pixel below this alpha */
-#define SC_ALPHA_MAX 0.99f           /* alpha is clamped to this */
-#define SC_T_MIN 1e-4f               /* stop before transmittance would fall below this */
-#define SC_DILATION 0.3              /* low-pass filter added to the 2D covariance */
-#define SC_GUARD 0.3                 /* guard band: fraction of the half field of view */
+enum { SC_TILE = 16 }; /* tiles are SC_TILE x SC_TILE pixels (sc_footprint, sc_frame) */
 
 typedef enum {
     SC_OK = 0,
@@ -123,51 +121,20 @@ typedef struct {
 sc_status sc_project(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                      sc_projection *out, sc_stats *stats);
 
-/* Evaluate SH of `degree` (0..3) for one Gaussian: coeffs (K,3), dir a unit vector. */
-void sc_sh_colour(int degree, const float *coeffs, const double dir[3], double rgb[3]);
-
 /* The whole pipeline: project, sort, bin, composite. */
 sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                     const sc_image *image, sc_stats *stats);
-
-/* Stable ascending sort of `count` float keys, carrying a payload: on entry order[i] is the
- * payload of keys[i], on return the payloads are in key order. `scratch` holds 3*count values. */
-void sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
-
-/* Tile lists for `count` splats already in front-to-back order: for each tile t,
- * list[offsets[t] .. offsets[t+1]) are indices into `splats`, ascending (so front to back).
- * Allocates *offsets and *list (free with free()). With pair_offsets and pairs non-NULL, also
- * the inverse, Gaussian-major index (for the backward pass's deterministic reduction): splat k's
- * entries in `list` are at positions pairs[pair_offsets[k] .. pair_offsets[k+1]), in tile order;
- * *pair_offsets has count + 1 entries. */
-sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
-                 const sc_camera *cam, int threads, int64_t **offsets, uint32_t **list,
-                 int64_t **pair_offsets, uint32_t **pairs);
-
-/* Composite one tile front to back. Returns the number of Gaussian/pixel evaluations made. */
-int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
-                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *image);
-
-/* The training variant of sc_composite_tile: no mesh layer (image->mesh_rgba is ignored), the
- * same rgb, alpha and depth bit for bit, and per pixel of the tile, into (H,W) arrays:
- * final_t the transmittance left after the Gaussians (before the background), and n_contrib the
- * number of tile-list entries up to and including the last Gaussian added at that pixel (0 if
- * none), as the reference CUDA rasterizer's n_contrib. */
-int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, int64_t count,
-                                int tile_x, int tile_y, const sc_camera *cam, const sc_image *image,
-                                float *final_t, int32_t *n_contrib);
 
 /* Time `iterations` passes of the composite inner loop over one in-cache tile of `count`
  * Gaussians that all cover it (no early stop): the kernel's arithmetic limit. Returns seconds. */
 double sc_composite_microbench(int count, int iterations);
 
-/* Thread pool: run fn(ctx, begin, end, thread) over [0, n) in chunks of `grain` on `threads`
- * threads (the caller is thread 0). Which thread runs a chunk must not change results. */
-typedef void (*sc_task)(void *ctx, int64_t begin, int64_t end, int thread);
-void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx);
+/* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);
 
-double sc_now_ms(void);
+/* The instruction set the compositor kernels run with on this CPU: "avx512", "avx2" or "sse2"
+ * on x86-64 (picked once; SPLATCORE_ISA=sse2|avx2|avx512 caps it), "neon" on arm64. */
+const char *sc_cpu_isa_name(void);
 
 /* ================================================================ training
  *
@@ -197,18 +164,11 @@ typedef struct {
     int64_t drawn;
     int64_t *offsets;       /* (ntiles + 1): tile t's entries are list[offsets[t] .. offsets[t+1]) */
     uint32_t *list;         /* (pairs) indices into splats */
-    int64_t *pair_offsets;  /* optional (drawn + 1), see sc_bin */
-    uint32_t *pairs;        /* optional (pairs), see sc_bin */
+    int64_t *pair_offsets;  /* optional (drawn + 1): splat k's entries in `list` are at */
+    uint32_t *pairs;        /* positions pairs[pair_offsets[k] .. pair_offsets[k+1]), tile order */
     int tiles_x;
     int64_t ntiles;
 } sc_frame;
-
-/* Project, sort and bin (the first three stages of sc_render); with_pairs also builds the
- * Gaussian-major pair index. Fills stats' project/sort/bin times, visible and tile_pairs.
- * On success free with sc_frame_free; on failure nothing is left allocated. */
-sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
-                           int with_pairs, sc_frame *frame, sc_stats *stats);
-void sc_frame_free(sc_frame *frame);
 
 /* Everything the backward pass needs from a training forward. Owns its arrays. */
 typedef struct {
@@ -231,35 +191,6 @@ sc_status sc_render_train(const sc_gaussians *g, const sc_camera *cam, const sc_
                           const sc_image *image, sc_train_state *state, sc_stats *stats);
 void sc_train_state_free(sc_train_state *state);
 
-/* Gradients of a projected Gaussian (its sc_splat fields), as records of SC_DG_COUNT floats. */
-enum {
-    SC_DG_X, SC_DG_Y,                      /* projected mean, pixels */
-    SC_DG_CA, SC_DG_CB, SC_DG_CC,          /* conic; B counts once (power has -B dx dy) */
-    SC_DG_OPACITY,                         /* the opacity the compositor uses */
-    SC_DG_R, SC_DG_G, SC_DG_B,             /* clamped SH colour */
-    SC_DG_DEPTH,                           /* view-space z, through the expected-depth image */
-    SC_DG_ABS_X, SC_DG_ABS_Y,              /* sums over pixels of |per-pixel dL/dx|, |dL/dy| */
-    SC_DG_COUNT
-};
-
-/* Per-pixel inputs of the compositor's backward pass, all (H,W[,3]) like the images. */
-typedef struct {
-    const float *d_rgb;      /* dL/d rgb (H,W,3) */
-    const float *d_alpha;    /* dL/d alpha (H,W), or NULL */
-    const float *d_depth;    /* dL/d expected depth (H,W), or NULL; ignored where depth is inf */
-    const float *final_t;    /* from the training forward */
-    const int32_t *n_contrib;
-    const float *depth;
-    const float *background; /* (3), or NULL for black */
-} sc_image_grads;
-
-/* Backward of sc_composite_tile_train for one tile, back to front: writes `count` records
- * (count, SC_DG_COUNT), one per tile-list entry (zero for entries no pixel used). Returns the
- * number of Gaussian/pixel evaluations made. */
-int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list, int64_t count,
-                                   int tile_x, int tile_y, const sc_camera *cam,
-                                   const sc_image_grads *grads, float *records);
-
 /* Parameter gradients, in the Gaussians' layout (caller-owned, overwritten). */
 typedef struct {
     float *means;          /* (N,3) */
@@ -269,25 +200,9 @@ typedef struct {
     float *sh;             /* (N,K,3); bands above the rendered degree get 0 */
     float *xy;             /* (N,2) dL/d projected mean in pixels, summed over pixels (the
                             * compositor's part; 3DGS's viewspace gradient is xy * (W/2, H/2)) */
-    float *xy_abs;         /* (N,2) SC_DG_ABS_X, SC_DG_ABS_Y (gsplat's "absgrad") */
+    float *xy_abs;         /* (N,2) sums over pixels of |per-pixel dL/dx|, |dL/dy|
+                            * (gsplat's "absgrad") */
 } sc_gaussian_grads;
-
-/* Backward of the projection of Gaussian i (drawn as `s` by the forward): from its summed
- * splat gradient `d` (SC_DG_COUNT) to its rows of `out` (xy and xy_abs copied from d). campos
- * is the camera centre in world space; the colour clamp is read from s's colour (0 = clamped).
- * Returns 0, or -1 if an input is non-finite, or -2 if Gaussian i no longer projects to `s` (it
- * changed since the forward). Non-finite results (only in extreme overflow) are written as 0
- * and counted in *flushed. */
-int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
-                                 const sc_options *opt, const double campos[3], int64_t i,
-                                 const sc_splat *s, const double *d, sc_gaussian_grads *out,
-                                 int64_t *flushed);
-
-/* Backward of sc_sh_colour: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
- * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
- * free vector; the caller applies the normalisation). */
-void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const double d_rgb[3],
-                    double *d_coeffs, double d_dir[3]);
 
 typedef struct {
     double ms_composite, ms_project, ms_total;
@@ -303,7 +218,7 @@ typedef struct {
  * detected), a non-finite one SC_ERR_NONFINITE, with stats->error_index; the outputs then hold
  * partial results. Rows of Gaussians that were not drawn are 0. Deterministic: per tile, one
  * record per tile-list entry; per Gaussian, its records summed in the fixed order of the pair
- * index. Memory, during the call: SC_DG_COUNT floats per tile pair + ~110 bytes per Gaussian. */
+ * index. Memory, during the call: 12 floats per tile pair + ~110 bytes per Gaussian. */
 sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const float *d_rgb,
                       const float *d_alpha, const float *d_depth, int threads,
                       sc_gaussian_grads *out, sc_backward_stats *stats);

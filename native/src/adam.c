@@ -6,7 +6,7 @@
  * thread count gives the same result. */
 #include <math.h>
 
-#include "splatcore.h"
+#include "internal.h"
 
 typedef struct {
     float *param, *m, *v;

@@ -9,7 +9,7 @@
 #include <math.h>
 #include <stdlib.h>
 
-#include "splatcore.h"
+#include "internal.h"
 
 /* Tile columns [*t0, *t1) that Gaussian `s`/`f` reaches within tile row `ty`. */
 static void row_tiles(const sc_footprint *f, const sc_splat *s, int ty, const sc_camera *cam,

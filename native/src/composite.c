@@ -6,8 +6,8 @@
  * Speed comes from three things, none of which changes a result:
  *  - only the pixel rows and 8-pixel half rows that a Gaussian's footprint reaches are
  *    evaluated (row0..row1, col0..col1);
- *  - each half row is branch-free, so the compiler vectorises it (AVX2/AVX-512 clones
- *    where the CPU has them, chosen at load time; SSE2 otherwise);
+ *  - each half row is branch-free, so the compiler vectorises it (AVX2/AVX-512 builds
+ *    where the CPU has them, chosen once at run time by cpu.c; SSE2 otherwise; NEON on arm64);
  *  - exp() is a polynomial (sc_fast_exp, internal.h) with relative error below 4e-7, far
  *    inside the 1e-4 tolerance and the threshold margins the tests allow (checked against
  *    float64 in tests). */
@@ -27,9 +27,9 @@ typedef struct {
  * masks rather than branches so that the loop vectorises. With `record` (a constant at every
  * call, so the compiler drops the branch) it also notes `entry` as the last Gaussian added at
  * each pixel it was added to, for the backward pass. */
-static inline void blend_block(tile_state *st, int first, float power_y, float cb_dy,
-                               const sc_columns *c, const int record, int32_t *restrict last_all,
-                               int32_t entry) {
+static SC_ALWAYS_INLINE void blend_block(tile_state *st, int first, float power_y, float cb_dy,
+                                         const sc_columns *c, const int record,
+                                         int32_t *restrict last_all, int32_t entry) {
     const int col = first % SC_TILE;
     float *restrict T = st->T + first, *restrict live = st->live + first;
     float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
@@ -106,9 +106,10 @@ static void flush_mesh(tile_state *st, mesh_state *ms, const sc_camera *cam, con
 }
 
 /* Every Gaussian of the tile's list, front to back. `record` as in blend_block. */
-static inline int64_t composite(tile_state *st, mesh_state *ms, const sc_splat *splats,
-                                const uint32_t *list, int64_t count, const sc_camera *cam,
-                                const sc_image *im, const int record, int32_t *last) {
+static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
+                                          const sc_splat *splats, const uint32_t *list,
+                                          int64_t count, const sc_camera *cam,
+                                          const sc_image *im, const int record, int32_t *last) {
     const int has_mesh = im->mesh_rgba != NULL;
     const float px0 = (float)ms->x0 + 0.5f;
     int64_t evaluations = 0;
@@ -132,19 +133,17 @@ static inline int64_t composite(tile_state *st, mesh_state *ms, const sc_splat *
     return evaluations;
 }
 
-SC_CLONES
-static int64_t composite_render(tile_state *st, mesh_state *ms, const sc_splat *splats,
-                                const uint32_t *list, int64_t count, const sc_camera *cam,
-                                const sc_image *im) {
-    return composite(st, ms, splats, list, count, cam, im, 0, NULL);
-}
+SC_MULTIVERSION(int64_t, composite_render,
+                (tile_state *st, mesh_state *ms, const sc_splat *splats, const uint32_t *list,
+                 int64_t count, const sc_camera *cam, const sc_image *im),
+                (st, ms, splats, list, count, cam, im),
+                composite(st, ms, splats, list, count, cam, im, 0, NULL))
 
-SC_CLONES
-static int64_t composite_record(tile_state *st, mesh_state *ms, const sc_splat *splats,
-                                const uint32_t *list, int64_t count, const sc_camera *cam,
-                                const sc_image *im, int32_t *last) {
-    return composite(st, ms, splats, list, count, cam, im, 1, last);
-}
+SC_MULTIVERSION(int64_t, composite_record,
+                (tile_state *st, mesh_state *ms, const sc_splat *splats, const uint32_t *list,
+                 int64_t count, const sc_camera *cam, const sc_image *im, int32_t *last),
+                (st, ms, splats, list, count, cam, im, last),
+                composite(st, ms, splats, list, count, cam, im, 1, last))
 
 /* One tile: set up, composite, write out; with `final_t` and `n_contrib` the training record. */
 static int64_t composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,

@@ -102,9 +102,9 @@ static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, int fir
     }
 }
 
-SC_CLONES
-static int64_t back_tile(back_state *st, const int32_t *block_last, int x0, int y0, int32_t kmax,
-                         const sc_splat *splats, const uint32_t *list, float *records) {
+static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *block_last, int x0,
+                                              int y0, int32_t kmax, const sc_splat *splats,
+                                              const uint32_t *list, float *records) {
     const float px0 = (float)x0 + 0.5f;
     int64_t evaluations = 0;
     for (int32_t k = kmax - 1; k >= 0; --k) {
@@ -134,6 +134,12 @@ static int64_t back_tile(back_state *st, const int32_t *block_last, int x0, int 
     }
     return evaluations;
 }
+
+SC_MULTIVERSION(int64_t, back_tile,
+                (back_state *st, const int32_t *block_last, int x0, int y0, int32_t kmax,
+                 const sc_splat *splats, const uint32_t *list, float *records),
+                (st, block_last, x0, y0, kmax, splats, list, records),
+                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records))
 
 int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list, int64_t count,
                                    int tile_x, int tile_y, const sc_camera *cam,

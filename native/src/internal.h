@@ -1,6 +1,11 @@
-/* Private helpers shared by the forward and backward passes (not public API).
- * Both passes must make the same per-pixel decisions (power > 0, alpha < 1/255), so they use
- * the same exp() and the same expressions, from here. */
+/* The library's internal header: what one stage declares for another, and the inline helpers
+ * that two stages must compute identically. Not part of the API (that is include/splatcore.h);
+ * only files in src/ include it.
+ *
+ * The forward and backward passes must make the same decisions (culling, the guard-band clamp,
+ * power > 0, alpha < 1/255), so they share the same expressions from here: the projection math
+ * of project.c and project_backward.c, the exp() and per-column set-up of composite.c and
+ * composite_backward.c. */
 #ifndef SPLATCORE_INTERNAL_H
 #define SPLATCORE_INTERNAL_H
 
@@ -9,13 +14,140 @@
 
 #include "splatcore.h"
 
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__) && defined(__linux__)
-#define SC_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+/* The reference constants (DESIGN.md, "Rendering semantics"). */
+#define SC_ALPHA_MIN (1.0f / 255.0f) /* a Gaussian is skipped at a pixel below this alpha */
+#define SC_ALPHA_MAX 0.99f           /* alpha is clamped to this */
+#define SC_T_MIN 1e-4f               /* stop before transmittance would fall below this */
+#define SC_DILATION 0.3              /* low-pass filter added to the 2D covariance */
+#define SC_GUARD 0.3                 /* guard band: fraction of the half field of view */
+
+/* Evaluate SH of `degree` (0..3) for one Gaussian: coeffs (K,3), dir a unit vector. */
+void sc_sh_colour(int degree, const float *coeffs, const double dir[3], double rgb[3]);
+
+/* ---------------------------------------------------------------- stages */
+
+/* Stable ascending sort of `count` float keys, carrying a payload: on entry order[i] is the
+ * payload of keys[i], on return the payloads are in key order. `scratch` holds 3*count values. */
+void sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
+
+/* Tile lists for `count` splats already in front-to-back order: for each tile t,
+ * list[offsets[t] .. offsets[t+1]) are indices into `splats`, ascending (so front to back).
+ * Allocates *offsets and *list (free with free()). With pair_offsets and pairs non-NULL, also
+ * the inverse, Gaussian-major index (for the backward pass's deterministic reduction): splat k's
+ * entries in `list` are at positions pairs[pair_offsets[k] .. pair_offsets[k+1]), in tile order;
+ * *pair_offsets has count + 1 entries. */
+sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
+                 const sc_camera *cam, int threads, int64_t **offsets, uint32_t **list,
+                 int64_t **pair_offsets, uint32_t **pairs);
+
+/* Composite one tile front to back. Returns the number of Gaussian/pixel evaluations made. */
+int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
+                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *image);
+
+/* The training variant of sc_composite_tile: no mesh layer (image->mesh_rgba is ignored), the
+ * same rgb, alpha and depth bit for bit, and per pixel of the tile, into (H,W) arrays:
+ * final_t the transmittance left after the Gaussians (before the background), and n_contrib the
+ * number of tile-list entries up to and including the last Gaussian added at that pixel (0 if
+ * none), as the reference CUDA rasterizer's n_contrib. */
+int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, int64_t count,
+                                int tile_x, int tile_y, const sc_camera *cam, const sc_image *image,
+                                float *final_t, int32_t *n_contrib);
+
+/* Thread pool: run fn(ctx, begin, end, thread) over [0, n) in chunks of `grain` on `threads`
+ * threads (the caller is thread 0). Which thread runs a chunk must not change results. */
+typedef void (*sc_task)(void *ctx, int64_t begin, int64_t end, int thread);
+void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx);
+
+/* A monotonic clock in milliseconds (the stages' timings). */
+double sc_now_ms(void);
+
+/* Project, sort and bin (the first three stages of sc_render); with_pairs also builds the
+ * Gaussian-major pair index. Fills stats' project/sort/bin times, visible and tile_pairs.
+ * On success free with sc_frame_free; on failure nothing is left allocated. */
+sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                           int with_pairs, sc_frame *frame, sc_stats *stats);
+void sc_frame_free(sc_frame *frame);
+
+/* ---------------------------------------------------------------- training stages */
+
+/* Gradients of a projected Gaussian (its sc_splat fields), as records of SC_DG_COUNT floats. */
+enum {
+    SC_DG_X, SC_DG_Y,                      /* projected mean, pixels */
+    SC_DG_CA, SC_DG_CB, SC_DG_CC,          /* conic; B counts once (power has -B dx dy) */
+    SC_DG_OPACITY,                         /* the opacity the compositor uses */
+    SC_DG_R, SC_DG_G, SC_DG_B,             /* clamped SH colour */
+    SC_DG_DEPTH,                           /* view-space z, through the expected-depth image */
+    SC_DG_ABS_X, SC_DG_ABS_Y,              /* sums over pixels of |per-pixel dL/dx|, |dL/dy| */
+    SC_DG_COUNT
+};
+
+/* Per-pixel inputs of the compositor's backward pass, all (H,W[,3]) like the images. */
+typedef struct {
+    const float *d_rgb;      /* dL/d rgb (H,W,3) */
+    const float *d_alpha;    /* dL/d alpha (H,W), or NULL */
+    const float *d_depth;    /* dL/d expected depth (H,W), or NULL; ignored where depth is inf */
+    const float *final_t;    /* from the training forward */
+    const int32_t *n_contrib;
+    const float *depth;
+    const float *background; /* (3), or NULL for black */
+} sc_image_grads;
+
+/* Backward of sc_composite_tile_train for one tile, back to front: writes `count` records
+ * (count, SC_DG_COUNT), one per tile-list entry (zero for entries no pixel used). Returns the
+ * number of Gaussian/pixel evaluations made. */
+int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list, int64_t count,
+                                   int tile_x, int tile_y, const sc_camera *cam,
+                                   const sc_image_grads *grads, float *records);
+
+/* Backward of the projection of Gaussian i (drawn as `s` by the forward): from its summed
+ * splat gradient `d` (SC_DG_COUNT) to its rows of `out` (xy and xy_abs copied from d). campos
+ * is the camera centre in world space; the colour clamp is read from s's colour (0 = clamped).
+ * Returns 0, or -1 if an input is non-finite, or -2 if Gaussian i no longer projects to `s` (it
+ * changed since the forward). Non-finite results (only in extreme overflow) are written as 0
+ * and counted in *flushed. */
+int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
+                                 const sc_options *opt, const double campos[3], int64_t i,
+                                 const sc_splat *s, const double *d, sc_gaussian_grads *out,
+                                 int64_t *flushed);
+
+/* Backward of sc_sh_colour: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
+ * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
+ * free vector; the caller applies the normalisation). */
+void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const double d_rgb[3],
+                    double *d_coeffs, double d_dir[3]);
+
+/* ---------------------------------------------------------------- CPU dispatch
+ * The compositor kernels are compiled once per instruction-set level and the best one for this
+ * CPU runs (cpu.c). SC_MULTIVERSION(ret, name, params, args, call) defines `static ret
+ * name params`, which runs `return call;` compiled for the chosen level; `args` forwards the
+ * parameters. Function-level target attributes work with GCC and Clang on every x86-64 OS
+ * (unlike target_clones, which needs ELF ifuncs). Elsewhere (arm64: NEON is baseline) there is
+ * one build. */
+typedef enum { SC_ISA_BASE, SC_ISA_V3 /* AVX2 + FMA */, SC_ISA_V4 /* AVX-512 */ } sc_isa;
+sc_isa sc_cpu_isa(void);
+
+#if defined(__GNUC__) && (defined(__x86_64__) || defined(_M_X64))
+#define SC_MULTIVERSIONED 1
+/* The x86-64-v3 and -v4 psABI levels as feature lists: clang ignores "arch=" in a target
+ * attribute when the command line fixes the features (zig cc does), so name them. */
+#define SC_TARGET_V3 "avx,avx2,bmi,bmi2,f16c,fma,lzcnt,movbe,xsave"
+#define SC_TARGET_V4 SC_TARGET_V3 ",avx512f,avx512bw,avx512cd,avx512dq,avx512vl"
+#define SC_MULTIVERSION(ret, name, params, args, call)                                           \
+    static ret name##_base params { return call; }                                               \
+    __attribute__((target(SC_TARGET_V3))) static ret name##_v3 params { return call; }          \
+    __attribute__((target(SC_TARGET_V4))) static ret name##_v4 params { return call; }          \
+    static ret name params {                                                                     \
+        const sc_isa isa = sc_cpu_isa();                                                         \
+        return isa == SC_ISA_V4 ? name##_v4 args : isa == SC_ISA_V3 ? name##_v3 args             \
+                                                                    : name##_base args;          \
+    }
 #else
-#define SC_CLONES
+#define SC_MULTIVERSIONED 0
+#define SC_MULTIVERSION(ret, name, params, args, call)                                           \
+    static ret name params { return call; }
 #endif
 
-/* Inner blocks must be inlined into the SC_CLONES caller to be vectorised for its target. */
+/* Inner blocks must be inlined into the SC_MULTIVERSION kernels to be vectorised for their level. */
 #if defined(__GNUC__)
 #define SC_ALWAYS_INLINE __attribute__((always_inline)) inline
 #else
@@ -39,6 +171,115 @@ static inline void sc_to_camera(const double *world_to_camera, const float *mean
     for (int k = 0; k < 3; ++k)
         p[k] = v[4 * k] * mean[0] + v[4 * k + 1] * mean[1] + v[4 * k + 2] * mean[2] + v[4 * k + 3];
 }
+
+/* ---------------------------------------------------------------- projection math
+ * One Gaussian's forward projection, computed in double. project.c draws with it and
+ * project_backward.c recomputes it (O(1) per Gaussian) to differentiate it. */
+
+static inline double sc_clamp(double v, double lo, double hi) {
+    return v < lo ? lo : (v > hi ? hi : v);
+}
+
+/* The camera centre in world space: -R^T t of a rigid world_to_camera. */
+static inline void sc_camera_centre(const double *world_to_camera, double centre[3]) {
+    const double *v = world_to_camera;
+    for (int k = 0; k < 3; ++k) centre[k] = -(v[k] * v[3] + v[4 + k] * v[7] + v[8 + k] * v[11]);
+}
+
+/* Unit view direction from the camera centre to a mean; returns the distance (dir 0 at 0). */
+static inline double sc_view_dir(const float *mean, const double campos[3], double dir[3]) {
+    for (int k = 0; k < 3; ++k) dir[k] = (double)mean[k] - campos[k];
+    const double len = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int k = 0; k < 3; ++k) dir[k] = len > 0.0 ? dir[k] / len : 0.0;
+    return len;
+}
+
+static inline double sc_sigmoid(float logit) { return 1.0 / (1.0 + exp(-(double)logit)); }
+
+/* The intermediate values of the EWA projection Sigma2 = A A^T + 0.3 I, A = J W R S. */
+typedef struct {
+    double p[3];               /* the mean in the camera frame; p[2] is the view depth z */
+    double tx, ty;             /* x/z and y/z clamped to the guard band (used inside J only) */
+    int clamped_x, clamped_y;  /* whether that clamp acted */
+    double j00, j02, j11, j12; /* the EWA Jacobian J (2x3, j01 = j10 = 0) */
+    double q[4], q_norm2;      /* the normalised quaternion w,x,y,z and |q|^2 of the input */
+    double r[9];               /* its rotation, row-major */
+    double scale[3];           /* exp(log_scales) */
+    double jw[2][3];           /* J W (W the camera rotation) */
+    double a_rows[2][3];       /* A = J W R S */
+    double a0, b0, c0;         /* Sigma2 before the dilation: [[a0, b0], [b0, c0]] = A A^T */
+    double a, b, c, det;       /* the dilated Sigma2 and its determinant */
+} sc_ewa;
+
+/* Rotation matrix (row-major) of a quaternion w,x,y,z; normalises (into unit[4]); zero means
+ * identity. Returns |q|^2. */
+static inline double sc_quat_rotation(const float *q, double unit[4], double r[9]) {
+    double w = q[0], x = q[1], y = q[2], z = q[3];
+    const double n2 = w * w + x * x + y * y + z * z;
+    if (n2 > 0.0) {
+        const double inv = 1.0 / sqrt(n2);
+        w *= inv, x *= inv, y *= inv, z *= inv;
+    } else {
+        w = 1.0, x = y = z = 0.0;
+    }
+    unit[0] = w, unit[1] = x, unit[2] = y, unit[3] = z;
+    r[0] = 1 - 2 * (y * y + z * z), r[1] = 2 * (x * y - w * z), r[2] = 2 * (x * z + w * y);
+    r[3] = 2 * (x * y + w * z), r[4] = 1 - 2 * (x * x + z * z), r[5] = 2 * (y * z - w * x);
+    r[6] = 2 * (x * z - w * y), r[7] = 2 * (y * z + w * x), r[8] = 1 - 2 * (x * x + y * y);
+    return n2;
+}
+
+/* The EWA projection of Gaussian i up to its dilated 2D covariance. Returns 1 when it projects,
+ * 0 when it is culled (view z below `near`, or a degenerate covariance). The caller checks
+ * finiteness first (sc_gaussian_finite). */
+static inline int sc_ewa_project(const sc_gaussians *g, int64_t i, const sc_camera *cam,
+                                 double near, sc_ewa *e) {
+    const float *mean = g->means + 3 * i, *ls = g->log_scales + 3 * i;
+    const double *v = cam->world_to_camera;
+    sc_to_camera(v, mean, e->p);
+    const double z = e->p[2];
+    if (!(z >= near)) return 0;
+
+    /* EWA Jacobian with x/z and y/z clamped to the guard band (inside J only). */
+    const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
+    const double tan_x = 0.5 * cam->width / fx, tan_y = 0.5 * cam->height / fy;
+    const double lo_x = -(cx / fx) - SC_GUARD * tan_x, hi_x = (cam->width - cx) / fx + SC_GUARD * tan_x;
+    const double lo_y = -(cy / fy) - SC_GUARD * tan_y, hi_y = (cam->height - cy) / fy + SC_GUARD * tan_y;
+    const double rx = e->p[0] / z, ry = e->p[1] / z;
+    e->clamped_x = rx < lo_x || rx > hi_x, e->clamped_y = ry < lo_y || ry > hi_y;
+    e->tx = sc_clamp(rx, lo_x, hi_x), e->ty = sc_clamp(ry, lo_y, hi_y);
+    e->j00 = fx / z, e->j02 = -fx * e->tx / z, e->j11 = fy / z, e->j12 = -fy * e->ty / z;
+
+    /* Sigma2 = J W R S S^T R^T W^T J^T = A A^T with the 2x3 factor A = J W R S:
+     * fewer operations than forming the 3x3 covariances, and symmetric by construction. */
+    e->q_norm2 = sc_quat_rotation(g->quats + 4 * i, e->q, e->r);
+    for (int k = 0; k < 3; ++k) e->scale[k] = exp((double)ls[k]);
+    for (int k = 0; k < 3; ++k) {
+        e->jw[0][k] = e->j00 * v[k] + e->j02 * v[8 + k];
+        e->jw[1][k] = e->j11 * v[4 + k] + e->j12 * v[8 + k];
+    }
+    for (int row = 0; row < 2; ++row)
+        for (int k = 0; k < 3; ++k)
+            e->a_rows[row][k] = (e->jw[row][0] * e->r[k] + e->jw[row][1] * e->r[3 + k] +
+                                 e->jw[row][2] * e->r[6 + k]) * e->scale[k];
+    const double *a0v = e->a_rows[0], *a1v = e->a_rows[1];
+    e->a0 = a0v[0] * a0v[0] + a0v[1] * a0v[1] + a0v[2] * a0v[2];
+    e->b0 = a0v[0] * a1v[0] + a0v[1] * a1v[1] + a0v[2] * a1v[2];
+    e->c0 = a1v[0] * a1v[0] + a1v[1] * a1v[1] + a1v[2] * a1v[2];
+    e->a = e->a0 + SC_DILATION, e->b = e->b0, e->c = e->c0 + SC_DILATION;
+    e->det = e->a * e->c - e->b * e->b;
+    return e->det > 0.0 && isfinite(e->det);
+}
+
+/* The projected mean in pixels. */
+static inline double sc_pixel_x(const sc_camera *cam, const sc_ewa *e) {
+    return cam->fx * e->p[0] / e->p[2] + cam->cx;
+}
+static inline double sc_pixel_y(const sc_camera *cam, const sc_ewa *e) {
+    return cam->fy * e->p[1] / e->p[2] + cam->cy;
+}
+
+/* ---------------------------------------------------------------- compositor helpers */
 
 enum { SC_PIXELS = SC_TILE * SC_TILE, SC_BLOCK = 8 /* pixels evaluated together: half a row */ };
 

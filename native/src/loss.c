@@ -15,7 +15,7 @@
 #include <math.h>
 #include <stdlib.h>
 
-#include "splatcore.h"
+#include "internal.h"
 
 enum { RADIUS = 5, TAPS = 2 * RADIUS + 1, MAPS = 5 };
 static const double SIGMA = 1.5, C1 = 0.01 * 0.01, C2 = 0.03 * 0.03;

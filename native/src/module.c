@@ -312,6 +312,31 @@ static int check_mesh(const float *rgba, const float *depth, int64_t pixels) {
     return 0;
 }
 
+static int check_finite_array(const float *v, int64_t n, const char *name) {
+    for (int64_t i = 0; i < n; ++i)
+        if (!isfinite(v[i])) {
+            PyErr_Format(PyExc_ValueError, "%s has a non-finite value (NaN or Inf) at flat index %lld",
+                         name, (long long)i);
+            return -1;
+        }
+    return 0;
+}
+
+/* The optional background (3) and the three images render() and render_train() write:
+ * out_rgb (H,W,3), out_alpha and out_depth (H,W). */
+static int parse_image(buffers *b, PyObject *background, PyObject *const *outs, int width,
+                       int height, sc_image *image) {
+    const Py_ssize_t img3[] = {height, width, 3}, img1[] = {height, width}, rgb3[] = {3};
+    if (background != Py_None) {
+        if (!(image->background = get_array(b, background, "background", 'f', 1, rgb3, 0))) return -1;
+        if (check_finite_array(image->background, 3, "background") != 0) return -1;
+    }
+    if (!(image->rgb = (float *)get_array(b, outs[0], "out_rgb", 'f', 3, img3, 1))) return -1;
+    if (!(image->alpha = (float *)get_array(b, outs[1], "out_alpha", 'f', 2, img1, 1))) return -1;
+    if (!(image->depth = (float *)get_array(b, outs[2], "out_depth", 'f', 2, img1, 1))) return -1;
+    return 0;
+}
+
 static PyObject *py_render(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[7], *background, *mesh_rgba, *mesh_depth, *outs[3];
@@ -330,16 +355,8 @@ static PyObject *py_render(PyObject *self, PyObject *args) {
     if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
                      &opt) != 0)
         goto fail;
-    const Py_ssize_t img3[] = {height, width, 3}, img4[] = {height, width, 4}, img1[] = {height, width},
-                     rgb3[] = {3};
-    if (background != Py_None) {
-        if (!(image.background = get_array(&b, background, "background", 'f', 1, rgb3, 0))) goto fail;
-        if (!isfinite(image.background[0]) || !isfinite(image.background[1]) ||
-            !isfinite(image.background[2])) {
-            PyErr_SetString(PyExc_ValueError, "background colour is non-finite");
-            goto fail;
-        }
-    }
+    if (parse_image(&b, background, outs, width, height, &image) != 0) goto fail;
+    const Py_ssize_t img4[] = {height, width, 4}, img1[] = {height, width};
     if ((mesh_rgba == Py_None) != (mesh_depth == Py_None)) {
         PyErr_SetString(PyExc_ValueError, "mesh_rgba and mesh_depth must be given together");
         goto fail;
@@ -349,9 +366,6 @@ static PyObject *py_render(PyObject *self, PyObject *args) {
         if (!(image.mesh_depth = get_array(&b, mesh_depth, "mesh_depth", 'f', 2, img1, 0))) goto fail;
         if (check_mesh(image.mesh_rgba, image.mesh_depth, (int64_t)width * height) != 0) goto fail;
     }
-    if (!(image.rgb = (float *)get_array(&b, outs[0], "out_rgb", 'f', 3, img3, 1))) goto fail;
-    if (!(image.alpha = (float *)get_array(&b, outs[1], "out_alpha", 'f', 2, img1, 1))) goto fail;
-    if (!(image.depth = (float *)get_array(&b, outs[2], "out_depth", 'f', 2, img1, 1))) goto fail;
 
     sc_stats stats = {0};
     sc_status status;
@@ -389,16 +403,6 @@ static sc_train_state *get_state(PyObject *obj) {
     return PyCapsule_GetPointer(obj, STATE_NAME);
 }
 
-static int check_finite_array(const float *v, int64_t n, const char *name) {
-    for (int64_t i = 0; i < n; ++i)
-        if (!isfinite(v[i])) {
-            PyErr_Format(PyExc_ValueError, "%s has a non-finite value (NaN or Inf) at flat index %lld",
-                         name, (long long)i);
-            return -1;
-        }
-    return 0;
-}
-
 static PyObject *py_render_train(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[7], *background, *outs[6];
@@ -420,14 +424,8 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
     if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
                      &opt) != 0)
         goto fail;
-    const Py_ssize_t img3[] = {height, width, 3}, img1[] = {height, width}, rgb3[] = {3};
-    if (background != Py_None) {
-        if (!(image.background = get_array(&b, background, "background", 'f', 1, rgb3, 0))) goto fail;
-        if (check_finite_array(image.background, 3, "background") != 0) goto fail;
-    }
-    if (!(image.rgb = (float *)get_array(&b, outs[0], "out_rgb", 'f', 3, img3, 1))) goto fail;
-    if (!(image.alpha = (float *)get_array(&b, outs[1], "out_alpha", 'f', 2, img1, 1))) goto fail;
-    if (!(image.depth = (float *)get_array(&b, outs[2], "out_depth", 'f', 2, img1, 1))) goto fail;
+    if (parse_image(&b, background, outs, width, height, &image) != 0) goto fail;
+    const Py_ssize_t img1[] = {height, width};
     if (outs[3] != Py_None &&
         !(out_t = (float *)get_array(&b, outs[3], "out_final_t", 'f', 2, img1, 1)))
         goto fail;

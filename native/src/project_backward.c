@@ -25,67 +25,21 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
                                  const sc_options *opt, const double campos[3], int64_t i,
                                  const sc_splat *s, const double *d, sc_gaussian_grads *out,
                                  int64_t *flushed) {
-    const float *mean = g->means + 3 * i, *ls = g->log_scales + 3 * i, *q = g->quats + 4 * i;
     const float *sh = g->sh + (int64_t)3 * g->sh_coeffs * i;
     if (!sc_gaussian_finite(g, i)) return -1;
 
     /* ---- forward, as project.c */
-    const double *v = cam->world_to_camera;
-    double p[3];
-    sc_to_camera(v, mean, p);
-    const double z = p[2];
-    if (!(z >= opt->near)) return -2;
-    const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
-    const double tan_x = 0.5 * cam->width / fx, tan_y = 0.5 * cam->height / fy;
-    const double lo_x = -(cx / fx) - SC_GUARD * tan_x, hi_x = (cam->width - cx) / fx + SC_GUARD * tan_x;
-    const double lo_y = -(cy / fy) - SC_GUARD * tan_y, hi_y = (cam->height - cy) / fy + SC_GUARD * tan_y;
-    const double rx = p[0] / z, ry = p[1] / z;
-    const int clamped_x = rx < lo_x || rx > hi_x, clamped_y = ry < lo_y || ry > hi_y;
-    const double tx = rx < lo_x ? lo_x : (rx > hi_x ? hi_x : rx);
-    const double ty = ry < lo_y ? lo_y : (ry > hi_y ? hi_y : ry);
-    const double j00 = fx / z, j02 = -fx * tx / z, j11 = fy / z, j12 = -fy * ty / z;
-
-    /* Normalised quaternion and rotation (an all-zero quaternion is the identity). */
-    double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-    const double qn2 = qw * qw + qx * qx + qy * qy + qz * qz;
-    const double qnorm = sqrt(qn2);
-    if (qn2 > 0.0) {
-        const double inv = 1.0 / qnorm;
-        qw *= inv, qx *= inv, qy *= inv, qz *= inv;
-    } else {
-        qw = 1.0, qx = qy = qz = 0.0;
-    }
-    const double r[9] = {
-        1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz),     2 * (qx * qz + qw * qy),
-        2 * (qx * qy + qw * qz),     1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
-        2 * (qx * qz - qw * qy),     2 * (qy * qz + qw * qx),     1 - 2 * (qx * qx + qy * qy)};
-    const double scale[3] = {exp((double)ls[0]), exp((double)ls[1]), exp((double)ls[2])};
-    double m[2][3], mr[2][3], af[2][3]; /* M = J W, M R, A = M R S */
-    for (int k = 0; k < 3; ++k) {
-        m[0][k] = j00 * v[k] + j02 * v[8 + k];
-        m[1][k] = j11 * v[4 + k] + j12 * v[8 + k];
-    }
-    for (int row = 0; row < 2; ++row)
-        for (int k = 0; k < 3; ++k) {
-            mr[row][k] = m[row][0] * r[k] + m[row][1] * r[3 + k] + m[row][2] * r[6 + k];
-            af[row][k] = mr[row][k] * scale[k];
-        }
-    const double a0 = af[0][0] * af[0][0] + af[0][1] * af[0][1] + af[0][2] * af[0][2];
-    const double b0 = af[0][0] * af[1][0] + af[0][1] * af[1][1] + af[0][2] * af[1][2];
-    const double c0 = af[1][0] * af[1][0] + af[1][1] * af[1][1] + af[1][2] * af[1][2];
-    const double a = a0 + SC_DILATION, b = b0, c = c0 + SC_DILATION;
-    const double det = a * c - b * b;
-    if (!(det > 0.0) || !isfinite(det)) return -2;
-    const double sig = 1.0 / (1.0 + exp(-(double)g->opacity_logits[i]));
-
+    sc_ewa e;
+    if (!sc_ewa_project(g, i, cam, opt->near, &e)) return -2;
+    const double *v = cam->world_to_camera, *p = e.p, *r = e.r, *scale = e.scale;
+    const double z = p[2], fx = cam->fx, fy = cam->fy, tx = e.tx, ty = e.ty;
+    const double a0 = e.a0, b0 = e.b0, c0 = e.c0, a = e.a, b = e.b, c = e.c, det = e.det;
+    const double(*m)[3] = e.jw, (*af)[3] = e.a_rows; /* M = J W, A = M R S */
+    const double sig = sc_sigmoid(g->opacity_logits[i]);
     double dir[3];
-    for (int k = 0; k < 3; ++k) dir[k] = (double)mean[k] - campos[k];
-    const double len = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
-    for (int k = 0; k < 3; ++k) dir[k] = len > 0.0 ? dir[k] / len : 0.0;
-
-    const double px = fx * p[0] / z + cx, py = fy * p[1] / z + cy;
-    if (!same(px, s->x) || !same(py, s->y) || !same(z, s->depth) || !same(c / det, s->ca) ||
-        !same(a / det, s->cc))
+    const double len = sc_view_dir(g->means + 3 * i, campos, dir);
+    if (!same(sc_pixel_x(cam, &e), s->x) || !same(sc_pixel_y(cam, &e), s->y) ||
+        !same(z, s->depth) || !same(c / det, s->ca) || !same(a / det, s->cc))
         return -2;
 
     /* ---- backward */
@@ -140,13 +94,13 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
     const double z2 = z * z;
     double dp[3] = {0.0, 0.0, 0.0};
     dp[2] -= dj00 * fx / z2 + dj11 * fy / z2;
-    if (clamped_x) {
+    if (e.clamped_x) {
         dp[2] += dj02 * fx * tx / z2; /* j02 = -fx tx / z with tx constant */
     } else {
         dp[0] -= dj02 * fx / z2; /* j02 = -fx x / z^2 */
         dp[2] += dj02 * 2.0 * fx * p[0] / (z2 * z);
     }
-    if (clamped_y) {
+    if (e.clamped_y) {
         dp[2] += dj12 * fy * ty / z2;
     } else {
         dp[1] -= dj12 * fy / z2;
@@ -173,8 +127,8 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
 
     /* Rotation -> normalised quaternion -> quaternion. */
     double dq[4] = {0.0, 0.0, 0.0, 0.0};
-    if (qn2 > 0.0) {
-        const double w = qw, x = qx, y = qy, zq = qz;
+    if (e.q_norm2 > 0.0) {
+        const double w = e.q[0], x = e.q[1], y = e.q[2], zq = e.q[3], qnorm = sqrt(e.q_norm2);
         const double dqw = 2.0 * (-zq * dR[1] + y * dR[2] + zq * dR[3] - x * dR[5] - y * dR[6] +
                                   x * dR[7]);
         const double dqx = 2.0 * (y * dR[1] + zq * dR[2] + y * dR[3] - 2.0 * x * dR[4] -

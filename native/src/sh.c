@@ -1,6 +1,6 @@
 /* Real spherical harmonics up to degree 3, with the constants and basis order of the reference
  * 3DGS code (computeColorFromSH), so trained coefficients mean the same thing here. */
-#include "splatcore.h"
+#include "internal.h"
 
 static const double C0 = 0.28209479177387814;
 static const double C1 = 0.4886025119029199;

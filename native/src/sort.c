@@ -2,7 +2,7 @@
  * what makes equal depths keep index order, as the reference rasterizer's sort does. */
 #include <string.h>
 
-#include "splatcore.h"
+#include "internal.h"
 
 /* Map float bits to unsigned integers that sort in the same order as the floats. */
 static uint32_t sortable(float f) {

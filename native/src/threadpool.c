@@ -2,28 +2,42 @@
  * chunks of a job through an atomic counter, so load balances itself. Results never depend on
  * which thread ran a chunk; callers make every chunk's output independent of the thread.
  * One job runs at a time (a mutex serialises concurrent callers, e.g. two Python threads that
- * both released the GIL). Without pthreads (Windows builds) jobs run on the calling thread. */
+ * both released the GIL). POSIX threads, or Win32 threads on Windows, behind five wrappers. */
 #if !defined(_WIN32)
 #define _GNU_SOURCE /* sched_getaffinity, CPU_COUNT */
 #endif
-#include "splatcore.h"
+#include "internal.h"
 
 #include <stdatomic.h>
 #include <time.h>
 
 #if defined(_WIN32)
+#define WIN32_LEAN_AND_MEAN
 #include <windows.h>
 
-int sc_cpu_count(void) {
-    SYSTEM_INFO info;
-    GetSystemInfo(&info);
-    return (int)info.dwNumberOfProcessors;
+typedef SRWLOCK sc_mutex;
+typedef CONDITION_VARIABLE sc_cond;
+#define SC_MUTEX_INIT SRWLOCK_INIT
+#define SC_COND_INIT CONDITION_VARIABLE_INIT
+static void mutex_lock(sc_mutex *m) { AcquireSRWLockExclusive(m); }
+static void mutex_unlock(sc_mutex *m) { ReleaseSRWLockExclusive(m); }
+static void cond_wait(sc_cond *c, sc_mutex *m) { SleepConditionVariableSRW(c, m, INFINITE, 0); }
+static void cond_signal(sc_cond *c) { WakeConditionVariable(c); }
+static void cond_broadcast(sc_cond *c) { WakeAllConditionVariable(c); }
+
+static DWORD WINAPI worker_entry(LPVOID arg);
+/* Start a detached worker; 0 on success. */
+static int start_worker(int id) {
+    HANDLE h = CreateThread(NULL, 0, worker_entry, (LPVOID)(intptr_t)id, 0, NULL);
+    if (!h) return -1;
+    CloseHandle(h);
+    return 0;
 }
 
-void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx) {
-    (void)threads;
-    (void)grain;
-    if (n > 0) fn(ctx, 0, n, 0);
+int sc_cpu_count(void) {
+    /* All processor groups (machines with more than 64 logical processors have several). */
+    DWORD n = GetActiveProcessorCount(ALL_PROCESSOR_GROUPS);
+    return n > 0 ? (int)n : 1;
 }
 
 double sc_now_ms(void) {
@@ -36,28 +50,25 @@ double sc_now_ms(void) {
 #else
 #include <pthread.h>
 #include <sched.h>
-#include <stdlib.h>
 #include <unistd.h>
 
-enum { MAX_WORKERS = 255 };
+typedef pthread_mutex_t sc_mutex;
+typedef pthread_cond_t sc_cond;
+#define SC_MUTEX_INIT PTHREAD_MUTEX_INITIALIZER
+#define SC_COND_INIT PTHREAD_COND_INITIALIZER
+static void mutex_lock(sc_mutex *m) { pthread_mutex_lock(m); }
+static void mutex_unlock(sc_mutex *m) { pthread_mutex_unlock(m); }
+static void cond_wait(sc_cond *c, sc_mutex *m) { pthread_cond_wait(c, m); }
+static void cond_signal(sc_cond *c) { pthread_cond_signal(c); }
+static void cond_broadcast(sc_cond *c) { pthread_cond_broadcast(c); }
 
-static struct {
-    pthread_mutex_t job_lock; /* one job at a time */
-    pthread_mutex_t lock;
-    pthread_cond_t wake, finished;
-    pthread_t workers[MAX_WORKERS];
-    int started;      /* workers created so far */
-    uint64_t epoch;   /* bumped for every job */
-    int participants; /* workers (ids 1..participants-1) taking part in this job */
-    int busy;         /* participating workers not yet done */
-    sc_task fn;
-    void *ctx;
-    int64_t n, grain;
-    atomic_llong next;
-} pool = {.job_lock = PTHREAD_MUTEX_INITIALIZER,
-          .lock = PTHREAD_MUTEX_INITIALIZER,
-          .wake = PTHREAD_COND_INITIALIZER,
-          .finished = PTHREAD_COND_INITIALIZER};
+static void *worker_entry(void *arg);
+static int start_worker(int id) {
+    pthread_t thread;
+    if (pthread_create(&thread, NULL, worker_entry, (void *)(intptr_t)id) != 0) return -1;
+    pthread_detach(thread);
+    return 0;
+}
 
 int sc_cpu_count(void) {
 #ifdef CPU_COUNT
@@ -73,6 +84,24 @@ double sc_now_ms(void) {
     clock_gettime(CLOCK_MONOTONIC, &t);
     return 1000.0 * (double)t.tv_sec + 1e-6 * (double)t.tv_nsec;
 }
+#endif
+
+enum { MAX_WORKERS = 255 };
+
+static struct {
+    sc_mutex job_lock; /* one job at a time */
+    sc_mutex lock;
+    sc_cond wake, finished;
+    int started;      /* workers created so far */
+    uint64_t epoch;   /* bumped for every job */
+    int participants; /* workers (ids 1..participants-1) taking part in this job */
+    int busy;         /* participating workers not yet done */
+    sc_task fn;
+    void *ctx;
+    int64_t n, grain;
+    atomic_llong next;
+} pool = {.job_lock = SC_MUTEX_INIT, .lock = SC_MUTEX_INIT, .wake = SC_COND_INIT,
+          .finished = SC_COND_INIT};
 
 static void run_chunks(int thread) {
     for (;;) {
@@ -83,21 +112,31 @@ static void run_chunks(int thread) {
     }
 }
 
-static void *worker_main(void *arg) {
-    int id = (int)(intptr_t)arg;
+static void worker_main(int id) {
     uint64_t seen = 0;
-    pthread_mutex_lock(&pool.lock);
+    mutex_lock(&pool.lock);
     for (;;) {
-        while (pool.epoch == seen) pthread_cond_wait(&pool.wake, &pool.lock);
+        while (pool.epoch == seen) cond_wait(&pool.wake, &pool.lock);
         seen = pool.epoch;
         if (id >= pool.participants) continue;
-        pthread_mutex_unlock(&pool.lock);
+        mutex_unlock(&pool.lock);
         run_chunks(id);
-        pthread_mutex_lock(&pool.lock);
-        if (--pool.busy == 0) pthread_cond_signal(&pool.finished);
+        mutex_lock(&pool.lock);
+        if (--pool.busy == 0) cond_signal(&pool.finished);
     }
+}
+
+#if defined(_WIN32)
+static DWORD WINAPI worker_entry(LPVOID arg) {
+    worker_main((int)(intptr_t)arg);
+    return 0;
+}
+#else
+static void *worker_entry(void *arg) {
+    worker_main((int)(intptr_t)arg);
     return NULL;
 }
+#endif
 
 void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx) {
     if (n <= 0) return;
@@ -109,17 +148,11 @@ void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ct
         fn(ctx, 0, n, 0);
         return;
     }
-    pthread_mutex_lock(&pool.job_lock);
-    pthread_mutex_lock(&pool.lock);
-    while (pool.started < threads - 1) {
-        /* Worker ids start at 1; the caller is thread 0. A failed start just means fewer
-         * helpers: the caller still runs every chunk that nobody else takes. */
-        if (pthread_create(&pool.workers[pool.started], NULL, worker_main,
-                           (void *)(intptr_t)(pool.started + 1)) != 0)
-            break;
-        pthread_detach(pool.workers[pool.started]);
-        pool.started++;
-    }
+    mutex_lock(&pool.job_lock);
+    mutex_lock(&pool.lock);
+    /* Worker ids start at 1; the caller is thread 0. A failed start just means fewer helpers:
+     * the caller still runs every chunk that nobody else takes. */
+    while (pool.started < threads - 1 && start_worker(pool.started + 1) == 0) pool.started++;
     int helpers = threads - 1 < pool.started ? threads - 1 : pool.started;
     pool.fn = fn;
     pool.ctx = ctx;
@@ -129,14 +162,13 @@ void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ct
     pool.participants = helpers + 1;
     pool.busy = helpers;
     pool.epoch++;
-    pthread_cond_broadcast(&pool.wake);
-    pthread_mutex_unlock(&pool.lock);
+    cond_broadcast(&pool.wake);
+    mutex_unlock(&pool.lock);
 
     run_chunks(0);
 
-    pthread_mutex_lock(&pool.lock);
-    while (pool.busy > 0) pthread_cond_wait(&pool.finished, &pool.lock);
-    pthread_mutex_unlock(&pool.lock);
-    pthread_mutex_unlock(&pool.job_lock);
+    mutex_lock(&pool.lock);
+    while (pool.busy > 0) cond_wait(&pool.finished, &pool.lock);
+    mutex_unlock(&pool.lock);
+    mutex_unlock(&pool.job_lock);
 }
-#endif

@@ -214,9 +214,7 @@ sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const 
                                   .background = state->has_background ? state->background : NULL};
     j->state = state, j->g = g, j->grads = &grads, j->out = out, j->records = records;
     atomic_init(&j->first_bad, g->count);
-    const double *v = state->camera.world_to_camera;
-    for (int k = 0; k < 3; ++k)
-        j->campos[k] = -(v[k] * v[3] + v[4 + k] * v[7] + v[8 + k] * v[11]);
+    sc_camera_centre(state->camera.world_to_camera, j->campos);
 
     sc_parallel_for(threads, f->ntiles, 1, backward_tiles, j);
     const double composited = sc_now_ms();

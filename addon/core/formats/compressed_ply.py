@@ -27,14 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians
+from ..sh import SH_C0
 from .errors import SplatFileError
-from .ply import (F_REST_COUNTS, PlyHeader, PlyTable, check_finite, f_rest_names, read_elements,
-                  read_header, sh_from_file_layout)
+from .limits import check_gaussian_count
+from .ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
+from .plyfile import PlyHeader, PlyTable, check_finite, read_elements, read_header
 
 __all__ = ["load", "CHUNK_SIZE"]
 
 CHUNK_SIZE = 256  # splats per chunk row
-SH_C0 = 0.28209479177387814
 OPACITY_LOGIT_LIMIT = 40.0  # opacity byte 0 or 255 maps here, as the PlayCanvas engine does
 
 CHUNK_POSITION = ("min_x", "min_y", "min_z", "max_x", "max_y", "max_z")
@@ -120,7 +121,8 @@ def load(path: str | os.PathLike, header: PlyHeader | None = None) -> Gaussians:
     if header.element("vertex") is None:
         raise SplatFileError(path, "missing element 'vertex' in a compressed ply")
     wanted = ["chunk", "vertex"] + (["sh"] if header.element("sh") is not None else [])
-    tables = read_elements(path, header, wanted)
+    tables = read_elements(path, header, wanted,
+                           check_rows=lambda p, rows: check_gaussian_count(p, header.element("vertex").count))
     chunk, vertex = tables["chunk"], tables["vertex"]
     has_color_bounds = _check_layout(path, chunk, vertex)
     bounds = chunk.gather(CHUNK_POSITION + CHUNK_SCALE, np.float64)

@@ -34,12 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians
-from .atomic import atomic_write
+from ..sh import SH_C0
+from ..atomic import atomic_write
 from .errors import SplatFileError
+from .limits import check_gaussian_count
 
 __all__ = ["load", "save", "RECORD"]
 
-SH_C0 = 0.28209479177387814
 
 RECORD = np.dtype([("position", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
 assert RECORD.itemsize == 32
@@ -92,7 +93,12 @@ def encode_alpha(logits: np.ndarray) -> np.ndarray:
 def load(path: str | os.PathLike) -> Gaussians:
     """Read a `.splat` file (SH degree 0)."""
     path = Path(path)
-    data = path.read_bytes()
+    try:
+        size = path.stat().st_size
+        check_gaussian_count(path, size // RECORD.itemsize)
+        data = path.read_bytes()
+    except OSError as e:
+        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
     if len(data) % RECORD.itemsize:
         raise SplatFileError(path, f"size {len(data)} bytes is not a multiple of the 32-byte .splat "
                                    f"record (truncated, or not a .splat file)")

@@ -67,8 +67,9 @@ from types import ModuleType
 import numpy as np
 
 from ..gaussians import Gaussians
-from .atomic import atomic_write
+from ..atomic import atomic_write
 from .errors import SplatFileError
+from .limits import check_gaussian_count
 from .splat import decode_alpha, encode_alpha
 
 __all__ = ["load", "save", "Packed", "read_packed", "unpack", "pack", "serialize",
@@ -279,6 +280,7 @@ def _read_legacy(stream: _Gunzip | bytes, compressed_size: int, path: Path) -> P
     if not plain and total > compressed_size * _DEFLATE_MAX_RATIO + 1024:
         raise SplatFileError(path, f"header claims {n} points ({total} bytes), more than a "
                                    f"{compressed_size}-byte gzip stream can hold")
+    check_gaussian_count(path, n, "points")  # before decompressing: the ratio bounds too little
     payload = stream[16:16 + total] if plain else stream.read(total)
     if len(payload) < total:
         raise SplatFileError(path, f"truncated: {len(payload)} of {total} data bytes for {n} points")
@@ -310,6 +312,7 @@ def _read_ngsp(data: bytes, path: Path) -> Packed:
     _check_header(path, version, n, sh_degree, fractional_bits)
     if n > len(data) * _ZSTD_MAX_RATIO // 9:
         raise SplatFileError(path, f"header claims {n} points, more than a {len(data)}-byte file can hold")
+    check_gaussian_count(path, n, "points")  # before decompressing: the ratio bounds too little
     sizes = _stream_sizes(n, version, sh_degree)
     names = [name for name, size in zip(_STREAMS, sizes) if size]
     if num_streams != len(names):
@@ -344,7 +347,10 @@ def _read_ngsp(data: bytes, path: Path) -> Packed:
 def read_packed(path: str | os.PathLike) -> Packed:
     """Read an SPZ file into its quantised domain (no conversion)."""
     path = Path(path)
-    data = path.read_bytes()
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
     if data[:2] == b"\x1f\x8b":
         return _read_legacy(_Gunzip(data, path), len(data), path)
     if data[:4] == b"NGSP":

@@ -1,5 +1,6 @@
-"""Bake a Blender scene to splats: `bpy.ops.splat.bake_to_splats`, and `bake_to_splats()` for
-scripts.
+"""A Blender scene to splats ("Bake to Splats" in the menu): `bpy.ops.splat.bake_to_splats`,
+and `scene_to_splats()` for scripts. (Splats to a mesh's texture is `mesh_convert` and
+`addon/core/mesh_texture.py`.)
 
     bpy.ops.splat.bake_to_splats(cameras=64, resolution=(256, 256), samples=32, steps=3000,
                                  filepath="//chair.ply")
@@ -9,7 +10,7 @@ What it does:
    objects never), or every visible one when nothing is selected. Their evaluated bounding boxes
    give a bounding sphere (centre, radius).
 2. Cameras: `cameras` views on a sphere of `radius_factor` x radius around the centre (a
-   Fibonacci lattice, `addon.core.bake.orbit_cameras`; the upper half only with
+   Fibonacci lattice, `addon.core.scene_to_splats.orbit_cameras`; the upper half only with
    `upper_hemisphere`), each looking at the centre with a field of view that frames the bounding
    sphere. Known poses: no COLMAP.
 3. Renders: Cycles on the CPU at `resolution` with `samples` samples, transparent film (the
@@ -26,19 +27,21 @@ What it does:
    The scene's view transform and look are not baked in: in Blender the splats then look like
    the meshes did under the same view transform; a web viewer shows them as "Standard" would.
 5. Training (alpha-aware): every step composites the target over a fresh random background
-   colour and renders the splats over the same colour (`addon.core.bake.RandomBackground`), so
-   transparent parts of the renders must stay transparent: no background, no dark fringe. The
-   Gaussians start from `initial_points` points spread over the targets' surfaces (area-weighted,
-   the material's base colour, else grey). By default every view trains (`hold_out` 0).
+   colour and renders the splats over the same colour
+   (`addon.core.scene_to_splats.RandomBackground`), so transparent parts of the renders must
+   stay transparent: no background, no dark fringe. The Gaussians start from `initial_points`
+   points spread over the targets' surfaces (area-weighted, the material's base colour, else
+   grey). By default every view trains (`hold_out` 0).
 6. Output: a splat object `<object> Splats` (world space, identity transform) in the active
    collection, and the .ply at `filepath` (`addon.core.splat_io.save`, the standard 3DGS layout
    web viewers read). Empty `filepath`: `<blend>_<object>_splats.ply` beside the saved .blend,
    else the temporary folder; the report names it.
 
 From the menu (`invoke`: a settings dialog) the renders block (Cycles, with the cursor showing
-progress), then training runs in the background like `splat.train` (status bar, the object
-updating every `update_every` steps, Esc stops it keeping the last state, the .ply is written
-either way). Scripts (`execute`) block until the .ply is written.
+progress), then training runs in the background through `job_runner` like `splat.train` (status
+bar, the object updating every `update_every` steps, Esc stops it keeping the last state, the
+.ply is written either way). Scripts (`execute`) block until the .ply is written; headless, a
+line is printed per stage and every few seconds.
 """
 
 from __future__ import annotations
@@ -53,16 +56,18 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
-from ..core import photos, splat_io
-from ..core.bake import ImageDataset, Points, RandomBackground, orbit_cameras, sample_surface
+from ..core import image_io, splat_io
 from ..core.cameras import Camera, camera_to_blender
 from ..core.colour import display_from_linear, srgb_encode
-from ..core.jobs import TrainingJob
+from ..core.dataset import Points
+from ..core.jobs import TrainingJob, compaction_note
+from ..core.scene_to_splats import ImageDataset, RandomBackground, orbit_cameras, sample_surface
 from ..core.train import Trainer, TrainConfig
 from . import splat_object
-from .registration import register_classes, unregister_classes
-from .train_operator import (RUNNING, JobModal, Running, _make_active, _printer, compaction_note,
-                             menu_parent)
+from .camera_adapter import set_camera
+from .job_runner import (JobOperator, OperatorJob, draw_settings, is_running, preparing,
+                         registration)
+from .train_operator import COMPACT_DESCRIPTION, TrainingSettings, replace_gaussians
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "CURVES", "POINTCLOUD", "VOLUME",
                   "GREASEPENCIL"}
@@ -70,22 +75,22 @@ SURFACE_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
 GREY = 0.8  # linear grey for surfaces without a material
 
 
-class BakeError(ValueError):
+class SceneToSplatsError(ValueError):
     """Nothing to bake, or a scene that cannot be rendered."""
 
 
 # -- what to bake ---------------------------------------------------------------------------------
 
-def _bakeable(obj) -> bool:
+def _has_geometry(obj) -> bool:
     return obj.type in GEOMETRY_TYPES and not splat_object.is_splat_object(obj)
 
 
-def bake_targets(context) -> list:
+def targets_of(context) -> list:
     """The selected objects with geometry, else every visible one (never splat objects)."""
-    selected = [o for o in context.selected_objects if _bakeable(o)]
+    selected = [o for o in context.selected_objects if _has_geometry(o)]
     if selected:
         return selected
-    return [o for o in context.view_layer.objects if _bakeable(o) and o.visible_get()]
+    return [o for o in context.view_layer.objects if _has_geometry(o) and o.visible_get()]
 
 
 def bounding_sphere(objects, depsgraph) -> tuple[np.ndarray, float]:
@@ -97,12 +102,12 @@ def bounding_sphere(objects, depsgraph) -> tuple[np.ndarray, float]:
         box = np.array([tuple(c) for c in evaluated.bound_box], np.float64).reshape(-1, 3)
         corners.append(box @ m[:3, :3].T + m[:3, 3])
     if not corners:
-        raise BakeError("nothing to bake: select objects with geometry")
+        raise SceneToSplatsError("nothing to bake: select objects with geometry")
     points = np.concatenate(corners)
     low, high = points.min(0), points.max(0)
     radius = 0.5 * float(np.linalg.norm(high - low))
     if not radius > 0 or not math.isfinite(radius):
-        raise BakeError("the objects to bake have no extent")
+        raise SceneToSplatsError("the objects to bake have no extent")
     return 0.5 * (low + high), radius
 
 
@@ -170,7 +175,7 @@ def surface_points(objects, depsgraph, count: int, rng: np.random.Generator,
 # -- rendering the views --------------------------------------------------------------------------
 
 @dataclass
-class _Saved:
+class SavedSettings:
     """Attribute values to put back, in reverse order of setting."""
 
     items: list = field(default_factory=list)
@@ -223,14 +228,14 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
                  hide: list = (), progress=None) -> list[np.ndarray]:
     """Render `scene` with Cycles (CPU) from each camera; premultiplied display-sRGB RGBA
     targets. Every setting touched is restored, the temporary camera removed, also on error."""
-    import mathutils
 
     if not hasattr(scene, "cycles"):
-        raise BakeError("Cycles is not available in this Blender (enable the Cycles add-on)")
-    folder = Path(tempfile.mkdtemp(prefix="splat-bake-"))
-    data = bpy.data.cameras.new("Splat Bake Camera")
-    cam_obj = bpy.data.objects.new("Splat Bake Camera", data)
-    saved = _Saved()
+        raise SceneToSplatsError("Cycles is not available in this Blender (enable the Cycles "
+                                 "add-on)")
+    folder = Path(tempfile.mkdtemp(prefix="splat-views-"))
+    data = bpy.data.cameras.new("Splat View Camera")
+    cam_obj = bpy.data.objects.new("Splat View Camera", data)
+    saved = SavedSettings()
     images = []
     try:
         scene.collection.objects.link(cam_obj)
@@ -271,20 +276,14 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
             saved.set(obj, "hide_render", True)
         for i, camera in enumerate(cameras):
             params = camera_to_blender(camera)
-            data.type = "PERSP"
-            data.sensor_fit = params.sensor_fit
-            data.sensor_width = params.sensor_width
-            data.sensor_height = params.sensor_height
-            data.lens = params.lens
-            data.shift_x, data.shift_y = params.shift_x, params.shift_y
+            set_camera(cam_obj, params)
             data.clip_start, data.clip_end = _clip_range(camera, scene)
-            cam_obj.matrix_world = mathutils.Matrix([list(r) for r in params.matrix_world])
             path = folder / f"view_{i:03d}.exr"
             render.filepath = str(path)
             bpy.ops.render.render(write_still=True, scene=scene.name)
             if not path.is_file():
-                raise BakeError(f"Cycles wrote no image for view {i} (expected {path})")
-            rgba = photos.to_float(photos.read_pixels(path))
+                raise SceneToSplatsError(f"Cycles wrote no image for view {i} (expected {path})")
+            rgba = image_io.to_float(image_io.read_pixels(path))
             if rgba.shape[2] < 4:
                 opaque = np.ones(rgba.shape[:2] + (1,), np.float32)
                 rgba = np.concatenate([rgba[..., :3], opaque], axis=2)
@@ -304,10 +303,10 @@ def _clip_range(camera: Camera, scene) -> tuple[float, float]:
     return 1e-3 * max(distance, 1e-3), 1e3 * max(distance, 1.0) + 1e4
 
 
-# -- the bake ------------------------------------------------------------------------------------
+# -- training on the views -----------------------------------------------------------------------
 
 @dataclass
-class BakeRequest:
+class SceneToSplatsRequest:
     """Everything a bake needs, gathered on the main thread."""
 
     scene_name: str
@@ -337,18 +336,19 @@ def default_ply_path(name: str) -> Path:
     return Path(tempfile.gettempdir()) / f"{safe}.ply"
 
 
-def prepare_bake(context, *, cameras: int = 64, resolution=(256, 256), samples: int = 32,
+def prepare_scene_to_splats(context, *, cameras: int = 64, resolution=(256, 256), samples: int = 32,
                  denoise: bool = False, steps: int = 3000, max_gaussians: int = 200_000,
                  sh_degree: int = 3, radius_factor: float = 2.5, upper_hemisphere: bool = False,
                  only_selected: bool = True, initial_points: int = 10_000, hold_out: int = 0,
                  seed: int = 0, threads: int = 0, compact: bool = True, update_every: int = 200,
-                 filepath: str = "", progress=None) -> BakeRequest:
+                 filepath: str = "", progress=None) -> SceneToSplatsRequest:
     """Pick the targets, place the cameras, render the views and build the dataset (main
-    thread: this is where Cycles runs). Raises BakeError."""
+    thread: this is where Cycles runs). Raises SceneToSplatsError."""
     scene = context.scene
-    targets = bake_targets(context)
+    targets = targets_of(context)
     if not targets:
-        raise BakeError("nothing to bake: the scene has no visible objects with geometry")
+        raise SceneToSplatsError("nothing to bake: the scene has no visible objects with "
+                                 "geometry")
     depsgraph = context.evaluated_depsgraph_get()
     centre, radius = bounding_sphere(targets, depsgraph)
     width, height = (int(v) for v in resolution)
@@ -371,7 +371,7 @@ def prepare_bake(context, *, cameras: int = 64, resolution=(256, 256), samples: 
                          max_initial_points=max(1, int(initial_points)))
     path = Path(bpy.path.abspath(filepath)) if filepath else default_ply_path(name)
     collection = getattr(context, "collection", None) or scene.collection
-    return BakeRequest(scene.name, dataset, config, path, name, collection.name, compact,
+    return SceneToSplatsRequest(scene.name, dataset, config, path, name, collection.name, compact,
                        update_every, background_seed=seed)
 
 
@@ -382,14 +382,13 @@ def _collection(name: str):
     return bpy.context.scene.collection
 
 
-def write_baked(request: BakeRequest, gaussians, obj=None, *, final: bool = False):
+def write_splats(request: SceneToSplatsRequest, gaussians, obj=None, *, final: bool = False):
     """Create or rewrite the bake's splat object (identity transform: world space)."""
     try:
         alive = obj is not None and obj.name is not None and obj.users > 0
     except ReferenceError:
         alive = False
     if alive:
-        from .train_operator import replace_gaussians
         replace_gaussians(obj, gaussians)
     else:
         obj = splat_object.create_splat_object(
@@ -401,7 +400,7 @@ def write_baked(request: BakeRequest, gaussians, obj=None, *, final: bool = Fals
     return obj
 
 
-def finish_bake(request: BakeRequest, job: TrainingJob, obj=None, *,
+def finish_scene_to_splats(request: SceneToSplatsRequest, job: TrainingJob, obj=None, *,
                 write: bool = True) -> tuple[str, str, object]:
     """Main thread, after training: the .ply and (when `write`) the object get the final
     Gaussians."""
@@ -417,7 +416,7 @@ def finish_bake(request: BakeRequest, job: TrainingJob, obj=None, *,
     splat_io.save(gaussians, request.filepath)
     if not write:
         return "WARNING", f"Baked {request.filepath}; the splat object was not updated", obj
-    obj = write_baked(request, gaussians, obj, final=True)
+    obj = write_splats(request, gaussians, obj, final=True)
     obj["splat_trained_steps"] = int(snapshot[0])
     trainer = job.trainer
     quality = ""
@@ -439,38 +438,34 @@ def finish_bake(request: BakeRequest, job: TrainingJob, obj=None, *,
                     f"{request.filepath}"), obj
 
 
-def background_bake(request: BakeRequest) -> Running:
-    """The record the modal handler polls (see `train_operator.background_training`)."""
-    job = request.job()
+def scene_to_splats_job(request: SceneToSplatsRequest) -> OperatorJob:
+    """The request as the job runner runs it (see `train_operator.training_job`)."""
     state = {"object": None}
 
     def apply(step, gaussians):
-        state["object"] = write_baked(request, gaussians, state["object"])
+        state["object"] = write_splats(request, gaussians, state["object"])
 
     def finish(running, write):
-        level, message, obj = finish_bake(request, running.job, state["object"], write=write)
-        if obj is not None:
-            _make_active(bpy.context, obj)
-        return level, message
+        return finish_scene_to_splats(request, running.job, state["object"], write=write)
 
-    return Running(f"bake:{request.name}", "Baking", job, apply, finish, job.progress(),
-                   lambda: state["object"])
+    return OperatorJob(f"bake:{request.name}", "Baking", request.job(), finish, apply,
+                       lambda: state["object"])
 
 
-def bake_to_splats(context=None, progress=None, **options):
+def scene_to_splats(context=None, progress=None, **options):
     """Render, train and write on the calling thread; returns the splat object. `options`: those
-    of `prepare_bake`. `progress(Progress)` is called after every training step."""
+    of `prepare_scene_to_splats`. `progress(Progress)` is called after every training step."""
     context = context or bpy.context
-    request = prepare_bake(context, **options)
+    request = prepare_scene_to_splats(context, **options)
     job = request.job(progress)
     job.run()
-    level, message, obj = finish_bake(request, job)
+    level, message, obj = finish_scene_to_splats(request, job)
     if level == "ERROR":
-        raise BakeError(message)
+        raise SceneToSplatsError(message)
     return obj
 
 
-class SPLAT_OT_bake_to_splats(JobModal, bpy.types.Operator):
+class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator):
     """Render the selected objects with Cycles from cameras all around them and train Gaussian
     splats on the renders: a splat object and a .ply that web viewers open"""
 
@@ -488,7 +483,6 @@ class SPLAT_OT_bake_to_splats(JobModal, bpy.types.Operator):
                           description="Denoise the renders (cleaner targets at few samples)")
     steps: IntProperty(name="Steps", default=3000, min=1, soft_max=30000)
     max_gaussians: IntProperty(name="Max Gaussians", default=200_000, min=1, soft_max=3_000_000)
-    sh_degree: IntProperty(name="SH Degree", default=3, min=0, max=3)
     radius_factor: FloatProperty(
         name="Distance", default=2.5, min=1.05, soft_max=10.0,
         description="Camera distance from the centre, in bounding-sphere radii")
@@ -503,52 +497,25 @@ class SPLAT_OT_bake_to_splats(JobModal, bpy.types.Operator):
     hold_out: IntProperty(name="Hold Out Every", default=0, min=0, soft_max=32,
                           description="Every n-th view is held out to measure quality (0: all "
                                       "views train)")
-    seed: IntProperty(name="Seed", default=0, min=0)
-    threads: IntProperty(name="Threads", default=0, min=0, soft_max=64)
-    compact: BoolProperty(name="Compact", default=True,
-                          description="After training, prune negligible Gaussians and unneeded "
-                                      "SH bands")
-    update_every: IntProperty(name="Update Every", default=200, min=0, soft_max=2000)
+    compact: BoolProperty(name="Compact", default=True, description=COMPACT_DESCRIPTION)
     filepath: StringProperty(name="Output", subtype="FILE_PATH",
                              description="The .ply to write (empty: beside the .blend, or the "
                                          "temporary folder)")
-    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"})
+
+    DIALOG = (("cameras", "resolution", "samples", "denoise", "radius_factor",
+               "upper_hemisphere", "only_selected"),
+              ("steps", "max_gaussians", "sh_degree", "initial_points", "compact"),
+              ("hold_out", "update_every", "threads", "seed"), "filepath")
 
     @classmethod
     def poll(cls, context):
         return context.scene is not None and getattr(context, "view_layer", None) is not None
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        col = layout.column(align=True)
-        col.prop(self, "cameras")
-        col.prop(self, "resolution")
-        col.prop(self, "samples")
-        col.prop(self, "denoise")
-        col.prop(self, "radius_factor")
-        col.prop(self, "upper_hemisphere")
-        col.prop(self, "only_selected")
-        col = layout.column(align=True)
-        col.prop(self, "steps")
-        col.prop(self, "max_gaussians")
-        col.prop(self, "sh_degree")
-        col.prop(self, "initial_points")
-        col.prop(self, "compact")
-        col = layout.column(align=True)
-        col.prop(self, "hold_out")
-        col.prop(self, "update_every")
-        col.prop(self, "threads")
-        col.prop(self, "seed")
-        layout.prop(self, "filepath")
+        draw_settings(self.layout, self, self.DIALOG)
 
     def invoke(self, context, event):
-        self.interactive = not bpy.app.background and context.window is not None
-        if not self.interactive:
-            return self.execute(context)
-        return context.window_manager.invoke_props_dialog(self, width=420, title="Bake to Splats",
-                                                          confirm_text="Bake")
+        return self.invoke_settings(context, "Bake to Splats", "Bake")
 
     def _options(self) -> dict:
         return dict(cameras=self.cameras, resolution=tuple(self.resolution), samples=self.samples,
@@ -560,37 +527,16 @@ class SPLAT_OT_bake_to_splats(JobModal, bpy.types.Operator):
                     filepath=self.filepath)
 
     def execute(self, context):
-        if any(key.startswith("bake:") for key in RUNNING):
+        if is_running("bake:"):
             self.report({"ERROR"}, "a bake is already training")
             return {"CANCELLED"}
-        wm = context.window_manager
-        window = context.window is not None and not bpy.app.background
-        if window:
-            wm.progress_begin(0, 1000)
         try:
-            request = prepare_bake(
-                context, progress=(lambda f, m: wm.progress_update(int(1000 * f))) if window
-                else None, **self._options())
-        except (BakeError, ValueError, RuntimeError, OSError) as error:
+            with preparing(context, "Baking", "rendering views") as progress:
+                request = prepare_scene_to_splats(context, progress=progress, **self._options())
+        except (SceneToSplatsError, ValueError, RuntimeError, OSError) as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
-        finally:
-            if window:
-                wm.progress_end()
-
-        if self.interactive and window:
-            return self.start_background(context, background_bake(request))
-
-        printer = _printer("Baking", self.update_every) if bpy.app.background else None
-        job = request.job(printer)
-        job.run(raise_errors=False)
-        level, message, obj = finish_bake(request, job)
-        if obj is not None:
-            _make_active(context, obj)
-        self.report({level}, message)
-        if bpy.app.background:
-            print(message, flush=True)
-        return {"CANCELLED"} if level == "ERROR" else {"FINISHED"}
+        return self.run_job(context, scene_to_splats_job(request))
 
 
 def _menu(self, context):
@@ -599,19 +545,4 @@ def _menu(self, context):
 
 
 CLASSES = (SPLAT_OT_bake_to_splats,)
-_MENU_PARENTS: list = []
-
-
-def register() -> None:
-    register_classes(CLASSES)
-    parent = menu_parent()
-    parent.remove(_menu)
-    parent.append(_menu)
-    _MENU_PARENTS.append(parent)
-
-
-def unregister() -> None:
-    for parent in _MENU_PARENTS:
-        parent.remove(_menu)
-    _MENU_PARENTS.clear()
-    unregister_classes(CLASSES)
+register, unregister = registration(CLASSES, _menu)

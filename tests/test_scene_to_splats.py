@@ -1,7 +1,7 @@
-"""Baking a scene to splats: the Blender-free parts (cameras on a sphere, surface sampling, the
-in-memory dataset, the colour conversion of the targets) and `bpy.ops.splat.bake_to_splats` on a
-small coloured cube (8 views at 48x36, 100 steps): a splat object and a readable .ply around the
-cube, every scene setting put back."""
+"""A Blender scene to splats ("Bake to Splats"): the Blender-free parts (cameras on a sphere,
+surface sampling, the in-memory dataset, the colour conversion of the targets) and
+`bpy.ops.splat.bake_to_splats` on a small coloured cube (8 views at 48x36, 100 steps): a splat
+object and a readable .ply around the cube, every scene setting put back."""
 
 from __future__ import annotations
 
@@ -13,11 +13,12 @@ import pytest
 import time
 from types import SimpleNamespace
 
-from addon.blender.bake_operator import _Saved, background_bake, prepare_bake, rgba_to_target
-from addon.blender.train_operator import RUNNING, JobModal
+from addon.blender.job_runner import RUNNING, JobOperator
+from addon.blender.scene_to_splats import (SavedSettings, prepare_scene_to_splats,
+                                           rgba_to_target, scene_to_splats_job)
 from addon.core import colour, splat_io
-from addon.core.bake import (ImageDataset, Points, RandomBackground, orbit_cameras,
-                             sample_surface, sphere_directions)
+from addon.core.scene_to_splats import (ImageDataset, Points, RandomBackground, orbit_cameras,
+                                        sample_surface, sphere_directions)
 from tests import bpy_support
 
 
@@ -166,7 +167,7 @@ def test_bake_cube_to_splats(tmp_path) -> None:
     assert mean[0] > 2 * mean[1] and mean[0] > 2 * mean[2]
 
 
-class _Harness(JobModal):
+class _Harness(JobOperator):
     """The operator's modal half without an Operator (no window: events are made by hand)."""
 
     def __init__(self, key: str) -> None:
@@ -181,11 +182,12 @@ def test_bake_in_the_background_stops_on_esc_and_writes_the_ply(tmp_path) -> Non
     setup = _cube_scene()
     before = _settings(setup.scene)
     out = tmp_path / "cube.ply"
-    request = prepare_bake(bpy.context, cameras=6, resolution=(32, 24), samples=2, steps=5000,
-                           max_gaussians=2000, initial_points=300, sh_degree=0, threads=2,
-                           compact=False, update_every=10, filepath=str(out))
+    request = prepare_scene_to_splats(bpy.context, cameras=6, resolution=(32, 24), samples=2,
+                                      steps=5000, max_gaussians=2000, initial_points=300,
+                                      sh_degree=0, threads=2, compact=False, update_every=10,
+                                      filepath=str(out))
     assert _settings(setup.scene) == before
-    running = background_bake(request)
+    running = scene_to_splats_job(request)
     RUNNING[running.key] = running
     harness = _Harness(running.key)
     running.job.start()
@@ -223,7 +225,7 @@ def test_saved_settings_restore_in_any_order() -> None:
     bpy_support.ensure_registered()
     settings = bpy.context.scene.render.image_settings
     settings.file_format, settings.color_depth = "PNG", "8"
-    saved = _Saved()
+    saved = SavedSettings()
     saved.remember(settings, "file_format", "color_depth")
     saved.set(settings, "file_format", "OPEN_EXR")  # changes the depth too
     saved.set(settings, "color_depth", "32")

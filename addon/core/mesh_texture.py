@@ -1,4 +1,5 @@
-"""UV atlas (xatlas) and a colour texture baked from splat renders.
+"""Splats -> a mesh's colour texture: UV atlas (xatlas) and a texture projected from splat
+renders (what Blender calls texture baking; scene -> splats is `scene_to_splats`).
 
 `unwrap(vertices, faces, texture_size)` charts and packs the mesh with xatlas: it returns
 per-corner UVs in [0, 1] for the mesh's own faces (the mesh keeps its vertices, so it stays
@@ -7,7 +8,7 @@ watertight; seams live only in the UV layer, as in any Blender mesh).
 `rasterise_uv` finds, for each texel centre, the triangle that covers it in UV space and its
 barycentric coordinates, hence the texel's world position and (interpolated vertex) normal.
 
-`bake_texture` projects views of the splats onto the texels. For each view (native renders:
+`project_texture` projects views of the splats onto the texels. For each view (native renders:
 premultiplied colour, alpha, planar depth), a texel counts when it lies in the image in front of
 the near plane, the splats' depth at its pixel agrees with the texel's camera z within `tolerance`
 (visibility: nothing of the splats is in front of it) and alpha >= `min_alpha`. Its weight is
@@ -32,7 +33,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .cameras import Camera
-from .surface import Cancelled, View, _raster_candidates, vertex_normals
+from .surface import (Cancelled, View, barycentric, project_points, raster_candidates,
+                      vertex_normals)
 
 
 def unwrap(vertices: np.ndarray, faces: np.ndarray, texture_size: int = 1024,
@@ -93,15 +95,8 @@ def rasterise_uv(vertices: np.ndarray, faces: np.ndarray, corner_uvs: np.ndarray
     y1 = np.clip(np.floor(fv.max(axis=1)), -1, size - 1).astype(np.int64)
     owner = np.full(size * size, -1, np.int64)
     bary = np.zeros((size * size, 3), np.float64)
-    for tid, px, py in _raster_candidates(x0, x1, y0, y1, chunk):
-        a, b = fu[tid], fv[tid]
-        det = (b[:, 1] - b[:, 2]) * (a[:, 0] - a[:, 2]) + (a[:, 2] - a[:, 1]) * (b[:, 0] - b[:, 2])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            l0 = ((b[:, 1] - b[:, 2]) * (px - a[:, 2]) + (a[:, 2] - a[:, 1]) * (py - b[:, 2])) / det
-            l1 = ((b[:, 2] - b[:, 0]) * (px - a[:, 2]) + (a[:, 0] - a[:, 2]) * (py - b[:, 2])) / det
-        l2 = 1.0 - l0 - l1
-        eps = -1e-6
-        ok = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & np.isfinite(l0) & (det != 0)
+    for tid, px, py in raster_candidates(x0, x1, y0, y1, chunk):
+        l0, l1, l2, ok = barycentric(fu[tid], fv[tid], px, py, eps=-1e-6)
         flat = py[ok] * size + px[ok]
         owner[flat] = tid[ok]
         bary[flat] = np.stack([l0[ok], l1[ok], l2[ok]], axis=1)
@@ -142,13 +137,7 @@ def project_views(texels: TexelMap, views: Sequence[View], *, tolerance: float,
         if cancel is not None and cancel():
             raise Cancelled()
         cam = view.camera
-        r, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
-        c = texels.position @ r.T + t
-        z = c[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = cam.fx * c[:, 0] / z + cam.cx
-            v = cam.fy * c[:, 1] / z + cam.cy
-        ok = (z > near) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        z, u, v, ok = project_points(cam, texels.position, near)
         idx = np.nonzero(ok)[0]
         px, py = u[idx].astype(np.int64), v[idx].astype(np.int64)
         a = view.alpha[py, px].astype(np.float64)
@@ -217,16 +206,16 @@ def _push_pull(img: np.ndarray, known: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class BakedTexture:
+class ProjectedTexture:
     image: np.ndarray     # (size, size, 3) float32 in [0, 1], row 0 = v 0
     coverage: float       # fraction of the triangles' texels some view saw
     corner_uvs: np.ndarray
 
 
-def bake_texture(vertices: np.ndarray, faces: np.ndarray, views: Sequence[View], size: int,
-                 *, tolerance: float, corner_uvs: np.ndarray | None = None, power: float = 2.0,
-                 dilate: int = 4, cancel: Callable[[], bool] | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> BakedTexture:
+def project_texture(vertices: np.ndarray, faces: np.ndarray, views: Sequence[View], size: int,
+                    *, tolerance: float, corner_uvs: np.ndarray | None = None, power: float = 2.0,
+                    dilate: int = 4, cancel: Callable[[], bool] | None = None,
+                    progress: Callable[[int, int], None] | None = None) -> ProjectedTexture:
     """Unwrap (unless `corner_uvs` are given), rasterise the UV layout and project `views`."""
     if size < 4:
         raise ValueError(f"texture size must be at least 4, got {size}")
@@ -242,5 +231,5 @@ def bake_texture(vertices: np.ndarray, faces: np.ndarray, views: Sequence[View],
     known[texels.texel[seen]] = True
     coverage = float(seen.mean()) if len(seen) else 0.0
     image = fill_texture(image.reshape(size, size, 3), known.reshape(size, size), dilate=dilate)
-    return BakedTexture(np.clip(image, 0.0, 1.0).astype(np.float32), coverage,
-                        np.asarray(corner_uvs))
+    return ProjectedTexture(np.clip(image, 0.0, 1.0).astype(np.float32), coverage,
+                            np.asarray(corner_uvs))

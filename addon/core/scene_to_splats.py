@@ -1,6 +1,7 @@
-"""Baking a scene to splats, the Blender-free part: cameras around an object, surface points to
-start from, and an in-memory training dataset of RGBA renders. (`addon/blender/bake_operator.py`
-renders the views with Cycles and runs the training.)
+"""A Blender scene to splats (the "Bake to Splats" operator), the Blender-free part: cameras
+around an object, surface points to start from, and an in-memory training dataset of RGBA
+renders. (`addon/blender/scene_to_splats.py` renders the views with Cycles and runs the
+training; splats -> a mesh texture is `mesh_texture`.)
 
 - `sphere_directions(n)`: n unit vectors spread evenly over the sphere (a Fibonacci lattice), or
   over the upper half (`upper_only`, z > 0) for things standing on the ground.
@@ -23,12 +24,11 @@ scene-linear renders to that is `addon.core.colour.display_from_linear`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from .cameras import Camera
-from .dataset import split_indices
+from .dataset import Points, Views, split_indices
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
@@ -94,13 +94,7 @@ def sample_surface(vertices: np.ndarray, triangles: np.ndarray, colours: np.ndar
     return xyz, rgb
 
 
-@dataclass
-class Points:
-    xyz: np.ndarray  # (N, 3) float64
-    rgb: np.ndarray  # (N, 3) float64 in [0, 1], display sRGB
-
-
-class ImageDataset:
+class ImageDataset(Views):
     """Training views held in memory: cameras and premultiplied display-sRGB RGBA targets."""
 
     def __init__(self, cameras: list[Camera], rgba: list[np.ndarray], points: Points, *,
@@ -120,17 +114,6 @@ class ImageDataset:
         self.names = names or [f"view_{i:03d}" for i in range(len(cameras))]
         self.train_indices, self.test_indices = split_indices(len(cameras), test_every)
         self.background = np.zeros(3, np.float32)
-
-    def __len__(self) -> int:
-        return len(self.cameras)
-
-    @property
-    def train_cameras(self) -> list[Camera]:
-        return [self.cameras[i] for i in self.train_indices]
-
-    @property
-    def test_cameras(self) -> list[Camera]:
-        return [self.cameras[i] for i in self.test_indices]
 
     def image(self, i: int) -> np.ndarray:
         """(H, W, 3) float32: the premultiplied target over `self.background`."""

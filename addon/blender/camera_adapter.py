@@ -1,0 +1,104 @@
+"""Blender camera objects <-> the core's pinhole `Camera`: the one bpy-side adapter.
+
+The formulas live in `core/cameras.py` (`camera_from_blender`, `camera_to_blender`); this module
+only reads those parameters off Blender's datablocks and writes them back, so every operator
+that turns a camera object into a `Camera` (render, viewport-free jobs, mesh conversion) or a
+`Camera` into a camera object (COLMAP import, scene-to-splats views) goes through here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.cameras import BlenderCameraParams, Camera, camera_from_blender
+
+# Custom properties that COLMAP import records on a camera object: the photo's own output size,
+# percentage and pixel aspect (the scene's render settings hold only one camera's).
+RESOLUTION_KEY = "colmap_resolution"
+PERCENTAGE_KEY = "colmap_resolution_percentage"
+PIXEL_ASPECT_KEY = "colmap_pixel_aspect"
+RECORDED_KEYS = (RESOLUTION_KEY, PERCENTAGE_KEY, PIXEL_ASPECT_KEY)
+
+
+def to_matrix(m: np.ndarray):
+    """A numpy (4, 4) as a `mathutils.Matrix` (for `matrix_world` and friends)."""
+    import mathutils
+    return mathutils.Matrix([list(row) for row in np.asarray(m, np.float64)])
+
+
+def params_of(camera_obj, render, *, use_recorded: bool = False) -> BlenderCameraParams:
+    """What Blender renders for a perspective camera object with the scene's `render`
+    settings; with `use_recorded`, the camera's own COLMAP resolution, percentage and pixel
+    aspect where it has them (see `record_output_settings`)."""
+    res = (render.resolution_x, render.resolution_y)
+    percentage = render.resolution_percentage
+    aspect = (render.pixel_aspect_x, render.pixel_aspect_y)
+    if use_recorded:
+        res = tuple(camera_obj.get(RESOLUTION_KEY, res))
+        percentage = camera_obj.get(PERCENTAGE_KEY, percentage)
+        aspect = tuple(camera_obj.get(PIXEL_ASPECT_KEY, aspect))
+    cam = camera_obj.data
+    return BlenderCameraParams(
+        matrix_world=np.array(camera_obj.matrix_world, dtype=np.float64), lens=cam.lens,
+        sensor_width=cam.sensor_width, sensor_height=cam.sensor_height,
+        sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
+        resolution_x=int(res[0]), resolution_y=int(res[1]),
+        resolution_percentage=int(percentage),
+        pixel_aspect_x=float(aspect[0]), pixel_aspect_y=float(aspect[1]))
+
+
+def camera_of(camera_obj, render, *, use_recorded: bool = False) -> Camera:
+    """The pinhole `Camera` Blender renders for a perspective camera object."""
+    return camera_from_blender(params_of(camera_obj, render, use_recorded=use_recorded))
+
+
+def frame_size(render) -> tuple[int, int]:
+    """The full frame in pixels (resolution x percentage, truncated as Blender does)."""
+    return (render.resolution_x * render.resolution_percentage // 100,
+            render.resolution_y * render.resolution_percentage // 100)
+
+
+def set_lens(cam, params: BlenderCameraParams) -> None:
+    """Write the intrinsics of `params` into camera data `cam` (a perspective camera)."""
+    cam.type = "PERSP"
+    cam.sensor_fit = params.sensor_fit
+    cam.sensor_width = params.sensor_width
+    cam.sensor_height = params.sensor_height
+    cam.lens = params.lens
+    cam.shift_x = params.shift_x
+    cam.shift_y = params.shift_y
+
+
+def set_camera(camera_obj, params: BlenderCameraParams) -> None:
+    """Place a camera object and set its lens so that it renders `params`' view."""
+    set_lens(camera_obj.data, params)
+    camera_obj.matrix_world = to_matrix(params.matrix_world)
+
+
+def record_output_settings(camera_obj, params: BlenderCameraParams) -> None:
+    """Remember `params`' output size, percentage and pixel aspect on the camera object."""
+    camera_obj[RESOLUTION_KEY] = (params.resolution_x, params.resolution_y)
+    camera_obj[PERCENTAGE_KEY] = params.resolution_percentage
+    camera_obj[PIXEL_ASPECT_KEY] = (params.pixel_aspect_x, params.pixel_aspect_y)
+
+
+def has_recorded_output(camera_obj) -> bool:
+    return camera_obj is not None and all(key in camera_obj for key in RECORDED_KEYS)
+
+
+def apply_recorded_output(render, camera_obj) -> bool:
+    """Set the scene's output size, percentage and pixel aspect from the camera's recorded
+    ones. False (nothing changed) when the camera has none. Writes only what differs, so an
+    unchanged scene is not tagged for a redraw."""
+    if not has_recorded_output(camera_obj):
+        return False
+    width, height = (int(v) for v in camera_obj[RESOLUTION_KEY])
+    percentage = int(camera_obj[PERCENTAGE_KEY])
+    aspect_x, aspect_y = (float(v) for v in camera_obj[PIXEL_ASPECT_KEY])
+    if (render.resolution_x, render.resolution_y) != (width, height):
+        render.resolution_x, render.resolution_y = width, height
+    if render.resolution_percentage != percentage:
+        render.resolution_percentage = percentage
+    if (render.pixel_aspect_x, render.pixel_aspect_y) != (aspect_x, aspect_y):
+        render.pixel_aspect_x, render.pixel_aspect_y = aspect_x, aspect_y
+    return True

@@ -1,0 +1,404 @@
+"""Long jobs from operators, one way: training, scene to splats and mesh conversion hand the
+runner an `OperatorJob` and call `JobOperator.run_job` from their `execute`.
+
+    class SPLAT_OT_something(JobOperator, bpy.types.Operator):
+        interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"})
+
+        def invoke(self, context, event):
+            self.interactive = wants_background(context)
+            ...  # a settings dialog whose OK calls execute, or execute directly
+
+        def execute(self, context):
+            return self.run_job(context, OperatorJob("key", "Title", job, finish, ...))
+
+The job is a `core.jobs.TrainingJob` (work on a worker thread) or a `core.jobs.StagedJob` (work
+in small steps on the main thread, for jobs that touch Blender data). Either way:
+
+- In the UI (`interactive`, set by `invoke` when there is a window): the job starts and a modal
+  handler polls it from a 0.25 s timer on the main thread (bpy is not thread-safe: only the main
+  thread touches Blender data; a `StagedJob` does its next steps there). The status bar shows a
+  progress bar, the status line (`core.jobs.status_line`) and a stop button per job; snapshots
+  (`job.take_snapshot`) go into the target object through `apply`, not while the object is in
+  Edit Mode or a render locks the interface. Esc, the stop button or `splat.train_stop` stop
+  the job after its current step; loading another file or disabling the add-on stops it too.
+  Right-click does not stop it: the user keeps working meanwhile. The dialog's OK calls
+  `execute`, which adds the timer and the modal handler and returns RUNNING_MODAL (as
+  Blender's "Operator Modal Timer" template does).
+- Blocking (scripts, `blender --background`, the bpy wheel): the job runs on the calling
+  thread; with a window the cursor shows the progress (`wm.progress_begin/update`), without one
+  a line is printed at every stage and at most every few seconds (`core.jobs.ProgressPrinter`).
+
+At the end `finish(job, write)` (main thread) writes the result (not when `write` is False: the
+object is in Edit Mode) and returns (level, message, object or None); the runner reports the
+message (headless, Blender prints reports) and makes the object active.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
+
+import bpy
+from bpy.props import BoolProperty, StringProperty
+
+from ..core.gaussians import Gaussians
+from ..core.jobs import Progress, ProgressPrinter, StagedJob, TrainingJob, status_line
+from .registration import register_classes, unregister_classes
+
+TIMER_STEP = 0.25  # seconds between polls of a background job
+STAGE_BUDGET = 0.1  # seconds of main-thread work per poll for a StagedJob
+
+
+@dataclass
+class OperatorJob:
+    """A job as the runner, the modal handler and the status bar see it."""
+
+    key: str  # one running job per key, e.g. "train:garden"
+    title: str  # "Training", "Baking", "Converting to mesh"
+    job: TrainingJob | StagedJob
+    # main thread, at the end: write the result (when `write`); (level, message, object)
+    finish: Callable[["OperatorJob", bool], tuple[str, str, object]]
+    apply: Callable[[int, Gaussians], None] | None = None  # main thread: show a snapshot
+    target: Callable[[], object] = lambda: None  # the object snapshots go into (or None)
+    progress: Progress = field(default_factory=Progress)
+    pending: tuple[int, Gaussians] | None = None
+
+
+RUNNING: dict[str, OperatorJob] = {}
+
+
+def wants_background(context) -> bool:
+    """Whether an operator invoked in `context` should run its job in the background."""
+    return not bpy.app.background and getattr(context, "window", None) is not None
+
+
+def is_running(prefix: str) -> bool:
+    """Whether a job whose key starts with `prefix` is running."""
+    return any(key.startswith(prefix) for key in RUNNING)
+
+
+def make_active(context, obj) -> None:
+    """Select `obj` alone and make it active, when it is in the context's view layer."""
+    layer = getattr(context, "view_layer", None)
+    if layer is None or obj is None:
+        return
+    layer.update()  # objects linked during the job show up in the layer after an update
+    if layer.objects.get(obj.name) is None:
+        return
+    for other in list(context.selected_objects):
+        if other != obj:
+            other.select_set(False)
+    obj.select_set(True, view_layer=layer)
+    layer.objects.active = obj
+
+
+@contextmanager
+def preparing(context, title: str, stage: str) -> Iterator[Callable[[float, str], None]]:
+    """Progress of main-thread work before a job (e.g. Cycles renders), as `(fraction, message)`:
+    the cursor's counter with a window, terminal lines (the stage and its percentage) without."""
+    wm = context.window_manager
+    window = wants_background(context)
+    printer = ProgressPrinter(title) if bpy.app.background else None
+
+    def report(fraction: float, message: str) -> None:
+        if window:
+            wm.progress_update(int(1000 * fraction))
+        if printer is not None:
+            printer(Progress(phase="working", message=stage, prepared=fraction))
+
+    if window:
+        wm.progress_begin(0, 1000)
+    try:
+        yield report
+    finally:
+        if window:
+            wm.progress_end()
+
+
+def _tag_redraw(kinds=("STATUSBAR", "VIEW_3D")) -> None:
+    wm = getattr(bpy.context, "window_manager", None)
+    for window in getattr(wm, "windows", ()):
+        for area in window.screen.areas:
+            if area.type in kinds:
+                area.tag_redraw()
+
+
+def draw_status(self, context) -> None:
+    """Prepended to the status bar: a progress bar, the status line and a stop button per job."""
+    for running in list(RUNNING.values()):
+        p = running.progress
+        row = self.layout.row(align=True)
+        bar = row.row(align=True)
+        bar.ui_units_x = 6
+        bar.progress(factor=p.fraction, type="BAR",
+                     text=f"{running.title} {100 * p.fraction:.0f} %")
+        row.label(text=status_line(p, running.title))
+        stop = row.operator(SPLAT_OT_train_stop.bl_idname, text="", icon="CANCEL", emboss=False)
+        stop.key = running.key
+        self.layout.separator()
+
+
+def ensure_status_draw() -> None:
+    """Keep `draw_status` in the status bar: `WorkSpace.status_text_set` (used by some Python
+    modal tools) swaps the header's draw function and may restore one without it."""
+    header = bpy.types.STATUSBAR_HT_header
+    funcs = getattr(header.draw, "_draw_funcs", None)
+    if funcs is not None:
+        if draw_status not in funcs:
+            funcs.insert(0, draw_status)
+    elif getattr(header, "_draw_orig", header.draw) is header.draw:
+        header.prepend(draw_status)
+
+
+def _can_write(context, obj) -> bool:
+    """Not while a render locks the interface, nor into an object in Edit Mode (the edit mesh
+    would overwrite it). A deleted object is no obstacle: a new one is made."""
+    if getattr(context.window_manager, "is_interface_locked", False):
+        return False
+    try:
+        return obj is None or obj.mode != "EDIT"
+    except ReferenceError:
+        return True
+
+
+def draw_settings(layout, operator, groups) -> None:
+    """An operator's settings dialog: each group (a tuple of property names) in an aligned
+    column, a lone name on its own row."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    for group in groups:
+        if isinstance(group, str):
+            layout.prop(operator, group)
+            continue
+        column = layout.column(align=True)
+        for name in group:
+            column.prop(operator, name)
+
+
+class JobOperator:
+    """Mixin for an operator that runs an `OperatorJob` (see the module docstring)."""
+
+    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"},
+                              description="Run in the background from a modal timer (set by "
+                                          "invoke; scripts get a blocking run)")
+
+    _timer = None
+    _key = ""
+
+    def invoke_settings(self, context, title: str, confirm_text: str) -> set:
+        """`invoke` for a job with a settings dialog: the dialog's OK runs `execute` in the
+        background; without a window `execute` blocks at once."""
+        self.interactive = wants_background(context)
+        if not self.interactive:
+            return self.execute(context)
+        return context.window_manager.invoke_props_dialog(self, width=420, title=title,
+                                                          confirm_text=confirm_text)
+
+    def run_job(self, context, job: OperatorJob) -> set:
+        """The one execute path: in the background when `self.interactive` and there is a
+        window, else blocking."""
+        if job.key in RUNNING:
+            name = job.key.split(":", 1)[-1]
+            self.report({"ERROR"}, f"{job.title}: '{name}' is already running")
+            return {"CANCELLED"}
+        if getattr(self, "interactive", False) and wants_background(context):
+            return self._start_background(context, job)
+        wm = context.window_manager
+        window = wants_background(context)
+        printer = ProgressPrinter(job.title) if bpy.app.background else None
+
+        def on_progress(p: Progress) -> None:
+            if printer is not None:
+                printer(p)
+            if window:
+                wm.progress_update(int(1000 * p.fraction))
+
+        job.job.on_progress = on_progress  # the runner owns a blocking job's progress
+        if window:
+            wm.progress_begin(0, 1000)
+        try:
+            job.job.run(raise_errors=False)  # errors are reported by `finish`
+        finally:
+            if window:
+                wm.progress_end()
+        return self._report_end(context, *job.finish(job, True))
+
+    def _report_end(self, context, level: str, message: str, obj) -> set:
+        if obj is not None:
+            make_active(context, obj)
+        self.report({level}, message)  # headless, Blender prints reports to the terminal
+        return {"CANCELLED"} if level == "ERROR" else {"FINISHED"}
+
+    def _start_background(self, context, job: OperatorJob) -> set:
+        RUNNING[job.key] = job
+        self._key = job.key
+        job.job.start()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(TIMER_STEP, window=context.window)
+        wm.modal_handler_add(self)
+        ensure_status_draw()
+        _tag_redraw(("STATUSBAR",))
+        return {"RUNNING_MODAL"}
+
+    def _stop_timer(self, context) -> None:
+        if self._timer is not None:
+            try:
+                context.window_manager.event_timer_remove(self._timer)
+            except (ReferenceError, ValueError, RuntimeError):
+                pass
+            self._timer = None
+
+    def _show(self, context, running: OperatorJob) -> None:
+        snapshot = running.job.take_snapshot() or running.pending
+        running.pending = None
+        if snapshot is None or running.apply is None:
+            return
+        if not _can_write(context, running.target()):
+            running.pending = snapshot
+            return
+        running.apply(*snapshot)
+
+    def modal(self, context, event):
+        running = RUNNING.get(self._key)
+        if running is None:
+            self._stop_timer(context)
+            return {"CANCELLED"}
+        if event.type == "ESC" and event.value == "PRESS":
+            if not running.job.cancelled:
+                running.job.cancel()
+                self.report({"INFO"}, f"{running.title}: stopping after the current step")
+            return {"RUNNING_MODAL"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            running.job.poll(STAGE_BUDGET)
+            running.progress = running.job.progress()
+            if running.job.done:
+                return self._end(context, running)
+            self._show(context, running)
+        except Exception as error:  # never leave a job without its modal handler
+            running.job.cancel()
+            running.job.join(30.0)
+            self._end(context, running)
+            self.report({"ERROR"}, f"{running.title}: {error}")
+            return {"CANCELLED"}
+        ensure_status_draw()
+        _tag_redraw()
+        return {"PASS_THROUGH"}
+
+    def _end(self, context, running: OperatorJob) -> set:
+        self._stop_timer(context)
+        RUNNING.pop(running.key, None)
+        running.pending = None
+        try:
+            write = _can_write(context, running.target())
+            if not write:
+                self.report({"WARNING"}, f"{running.title}: the object is in Edit Mode or the "
+                                         f"interface is locked: not updated")
+            level, message, obj = running.finish(running, write)
+        finally:
+            _tag_redraw()
+        return self._report_end(context, level, message, obj)
+
+    def cancel(self, context) -> None:
+        """Blender ends the operator (another file loads, the window closes): stop the job (a
+        training job saves its checkpoint). Blender data is not touched here."""
+        self._stop_timer(context)
+        running = RUNNING.pop(self._key, None)
+        if running is not None:
+            running.job.cancel()
+            running.job.join(30.0)
+
+
+def stop_all(timeout: float = 30.0) -> None:
+    """Stop every background job (training jobs save their checkpoints)."""
+    for running in list(RUNNING.values()):
+        running.job.cancel()
+    for running in list(RUNNING.values()):
+        running.job.join(timeout)
+
+
+class SPLAT_OT_train_stop(bpy.types.Operator):
+    """Stop a background job (training, baking to splats, mesh conversion) after its current
+    step, keeping the last state (training saves a checkpoint)"""
+
+    bl_idname = "splat.train_stop"  # the name scripts know from when only training ran here
+    bl_label = "Stop Job"
+
+    key: StringProperty(options={"HIDDEN", "SKIP_SAVE"},
+                        description="The job to stop (empty: all)")
+
+    @classmethod
+    def poll(cls, context):
+        return bool(RUNNING)
+
+    def execute(self, context):
+        stopped = [r for k, r in RUNNING.items() if not self.key or k == self.key]
+        for running in stopped:
+            running.job.cancel()
+        self.report({"INFO"}, f"stopping {len(stopped)} job(s) after the current step")
+        return {"FINISHED"}
+
+
+def menu_parent():
+    """Where job operators go: the 3D View's Gaussian Splats submenu when the edit operators
+    made one, else Object."""
+    return getattr(bpy.types, "VIEW3D_MT_splat", None) or bpy.types.VIEW3D_MT_object
+
+
+_MENU_ENTRIES: list = []  # (menu, draw function) added by `add_menu_entry`
+
+
+def add_menu_entry(draw) -> None:
+    """Append a job operator's menu `draw` function to `menu_parent()` (once)."""
+    parent = menu_parent()
+    parent.remove(draw)
+    parent.append(draw)
+    _MENU_ENTRIES.append((parent, draw))
+
+
+def remove_menu_entry(draw) -> None:
+    for entry in [e for e in _MENU_ENTRIES if e[1] is draw]:
+        entry[0].remove(draw)
+        _MENU_ENTRIES.remove(entry)
+
+
+def registration(classes: tuple, menu_draw) -> tuple[Callable[[], None], Callable[[], None]]:
+    """`register`, `unregister` for a module of job operators with one menu entry."""
+
+    def register() -> None:
+        register_classes(classes)
+        add_menu_entry(menu_draw)
+
+    def unregister() -> None:
+        remove_menu_entry(menu_draw)
+        unregister_classes(classes)
+
+    return register, unregister
+
+
+@bpy.app.handlers.persistent
+def _on_load_pre(*_args) -> None:
+    stop_all()
+    RUNNING.clear()
+
+
+CLASSES = (SPLAT_OT_train_stop,)
+
+
+def register() -> None:
+    register_classes(CLASSES)
+    bpy.types.STATUSBAR_HT_header.remove(draw_status)
+    ensure_status_draw()
+    if _on_load_pre not in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.append(_on_load_pre)
+
+
+def unregister() -> None:
+    stop_all()
+    RUNNING.clear()
+    if _on_load_pre in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(_on_load_pre)
+    bpy.types.STATUSBAR_HT_header.remove(draw_status)
+    unregister_classes(CLASSES)

@@ -1,0 +1,135 @@
+"""Finding a COLMAP model and its photos, and reading the model (pycolmap) after checking it."""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import image_io
+from .checks import check_binary_model, check_text_cameras, is_inside
+from .errors import ColmapError, import_pycolmap
+
+IMAGE_FOLDERS = ("images", "images_2", "images_4", "images_8")
+MODEL_FILES = ("cameras", "images", "points3D")
+
+
+# -- finding the model and the photos ---------------------------------------------------------
+
+def model_format(folder: Path) -> str | None:
+    for ext in (".bin", ".txt"):
+        if all((folder / f"{name}{ext}").is_file() for name in MODEL_FILES):
+            return ext
+    return None
+
+
+def find_model(path: str | os.PathLike) -> Path:
+    """The model folder for `path`: the folder itself, or `sparse/0`, `sparse`, `0` in it
+    (then the lowest-numbered model in `sparse/`)."""
+    path = Path(path)
+    if path.is_file():
+        path = path.parent
+    if not path.is_dir():
+        raise ColmapError(f"{path}: no such folder")
+    candidates = [path, path / "sparse" / "0", path / "sparse", path / "0"]
+    sparse = path / "sparse"
+    if sparse.is_dir():
+        numbered = sorted((p for p in sparse.iterdir() if p.is_dir() and p.name.isdigit()),
+                          key=lambda p: int(p.name))
+        candidates += numbered
+    for folder in candidates:
+        if folder.is_dir() and model_format(folder):
+            return folder
+    partial = [f.name for folder in candidates if folder.is_dir() for f in folder.iterdir()
+               if f.stem in MODEL_FILES and f.suffix in (".bin", ".txt")]
+    if partial:
+        raise ColmapError(
+            f"{path}: incomplete COLMAP model (found {', '.join(sorted(set(partial)))}; "
+            f"cameras, images and points3D are all needed, as .bin or .txt)")
+    raise ColmapError(
+        f"{path}: no COLMAP model (cameras, images, points3D as .bin or .txt) in it or in "
+        f"its sparse/0 or sparse folder")
+
+
+def find_image_dir(path: Path, model_dir: Path, image_folder: str) -> Path | None:
+    """`image_folder` (absolute, or a name looked up beside the model: in `path`, the model
+    folder and up to two folders above it)."""
+    folder = Path(image_folder)
+    if folder.is_absolute():
+        return folder if folder.is_dir() else None
+    path = path if path.is_dir() else path.parent
+    for root in (path, model_dir, model_dir.parent, model_dir.parent.parent):
+        if (root / folder).is_dir():
+            return root / folder
+    return None
+
+
+def folder_factor(image_folder: str) -> int:
+    match = re.search(r"_(\d+)$", Path(image_folder).name)
+    return int(match.group(1)) if match else 1
+
+
+def fits(photo: tuple[int, int], width: int, height: int) -> bool:
+    """Can a photo of size `photo` show a width x height camera, scaled (any rounding)?"""
+    w, h = photo
+    return w > 0 and h > 0 and abs(w * height - h * width) <= width + height
+
+
+@dataclass
+class Photo:
+    source: Path
+    size: tuple[int, int]  # upright size, the one that matches the camera
+    orientation: int  # EXIF orientation to apply to the stored pixels (1: none)
+
+
+def find_photos(registered, rec, image_dir: Path | None,
+                images_file: Path) -> tuple[dict[str, Photo], dict[str, str]]:
+    """The photos of the `registered` images that fit their cameras, and why the others do not.
+    Names were checked on reading (`checks.image_name`); a photo that is a link leading outside
+    `image_dir` is not read (missing, with the reason)."""
+    found, missing = {}, {}
+    for im in registered:
+        src = image_dir / im.name if image_dir is not None else None
+        if src is None or not src.is_file():
+            missing[im.name] = "not found"
+            continue
+        if not is_inside(image_dir, src):
+            missing[im.name] = f"it is a link leading outside {image_dir}; refused"
+            continue
+        try:
+            header = image_io.read_header(src)
+        except image_io.ImageError as error:
+            missing[im.name] = str(error)
+            continue
+        cam = rec.cameras[im.camera_id]
+        if fits(header.size(False), cam.width, cam.height):
+            found[im.name] = Photo(src, header.size(False), 1)
+        elif header.orientation != 1 and fits(header.size(True), cam.width, cam.height):
+            found[im.name] = Photo(src, header.size(True), header.orientation)
+        else:
+            w, h = header.size(False)
+            missing[im.name] = f"its size {w}x{h} does not fit its camera's {cam.width}x{cam.height}"
+    return found, missing
+
+
+def read_reconstruction(model_dir: Path):
+    """pycolmap's Reconstruction of a model folder, after the structural check."""
+    pycolmap = import_pycolmap()
+    model_dir = Path(model_dir)
+    fmt = model_format(model_dir)
+    if fmt is None:
+        raise ColmapError(f"{model_dir}: no COLMAP model (cameras, images, points3D)")
+    if fmt == ".bin":
+        check_binary_model(model_dir)
+    else:
+        check_text_cameras(model_dir / "cameras.txt")
+    rec = pycolmap.Reconstruction()
+    try:
+        if fmt == ".bin":
+            rec.read_binary(str(model_dir))
+        else:
+            rec.read_text(str(model_dir))
+    except Exception as error:  # noqa: BLE001 - pycolmap raises several types
+        raise ColmapError(f"{model_dir}: cannot read the COLMAP model: {error}") from error
+    return rec

@@ -1,0 +1,118 @@
+"""The trained parameters in the layout the kernels take, their Adam moments, and the row edits
+(append, keep, reset) that densification strategies make.
+
+The parameters are one `Gaussians`-shaped set of float32 arrays (`sh` is (N, K, 3), DC and the
+higher bands together), so a step renders and differentiates them without a copy and Adam
+updates the kernels' gradient arrays in place. The SH bands still get two learning rates
+(3DGS's DC rate and its rate / 20 for the rest): see `GaussianParameters.adam_step`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import train_kernels as tk
+from .gaussians import Gaussians
+
+PARAMETERS = ("means", "log_scales", "quats", "opacity_logits", "sh")
+# Learning-rate keys: one per parameter array, except SH, which has one for DC, one for the rest.
+LEARNING_RATES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
+
+
+def logit(p: float) -> float:
+    """The opacity logit of an opacity p in (0, 1)."""
+    return math.log(p / (1.0 - p))
+
+
+class GaussianParameters:
+    """`params[name]` (float32, C-contiguous, in `Gaussians` layout) and `moments[name]`, the
+    Adam pair (exp_avg, exp_avg_sq) shaped like it."""
+
+    def __init__(self, gaussians: Gaussians) -> None:
+        self.params = {name: array.copy() for name, array in gaussians.arrays().items()}
+        self.moments = {name: (np.zeros_like(a), np.zeros_like(a)) for name, a in self.params.items()}
+
+    def __len__(self) -> int:
+        return len(self.params["means"])
+
+    def opacities(self) -> np.ndarray:
+        """sigmoid(opacity logits), (N,) float64."""
+        return 1.0 / (1.0 + np.exp(-self.params["opacity_logits"].astype(np.float64)))
+
+    @property
+    def gaussians(self) -> Gaussians:
+        """The parameters as `Gaussians`: views, no copy (they change with the next step)."""
+        return Gaussians(**self.params)
+
+    def adam_step(self, grads: tk.Gradients, lrs: dict[str, float], step: int, *,
+                  threads: int = 0) -> None:
+        """One Adam update of every parameter from `grads` with the rates `lrs` (keys
+        `LEARNING_RATES`)."""
+        arrays = grads.arrays()
+        for name in PARAMETERS[:-1]:
+            if self.params[name].size:
+                m, v = self.moments[name]
+                tk.adam_step(self.params[name], arrays[name], m, v, lr=lrs[name], step=step,
+                             threads=threads)
+        self._adam_sh(arrays["sh"], lrs["sh_dc"], lrs["sh_rest"], step, threads)
+
+    def _adam_sh(self, grad: np.ndarray, lr_dc: float, lr_rest: float, step: int,
+                 threads: int) -> None:
+        # Adam is elementwise: one pass over all coefficients at the rest rate, then DC again
+        # from its saved state at its own rate. The DC rows are 3 of 3K floats per Gaussian, so
+        # this costs far less than splitting the arrays apart and back every step, and every
+        # element gets exactly the update a separate DC array would.
+        sh, (m, v) = self.params["sh"], self.moments["sh"]
+        if not sh.size:
+            return
+        if sh.shape[1] == 1:
+            tk.adam_step(sh, grad, m, v, lr=lr_dc, step=step, threads=threads)
+            return
+        dc = [a[:, 0].copy() for a in (sh, grad, m, v)]  # copies, even where N = 1
+        tk.adam_step(sh, grad, m, v, lr=lr_rest, step=step, threads=threads)
+        tk.adam_step(dc[0], dc[1], dc[2], dc[3], lr=lr_dc, step=step, threads=threads)
+        sh[:, 0], m[:, 0], v[:, 0] = dc[0], dc[2], dc[3]
+
+    # -- row edits (densification) ------------------------------------------------------------
+    def rows(self, index: np.ndarray) -> dict[str, np.ndarray]:
+        """Copies of the parameter rows at `index` (to edit and append)."""
+        return {name: array[index].copy() for name, array in self.params.items()}
+
+    def append_and_keep(self, new_rows: list[dict[str, np.ndarray]], keep: np.ndarray) -> None:
+        """Keep the rows where `keep` is True, then append `new_rows` (with zero moments)."""
+        for name in PARAMETERS:
+            parts = [self.params[name][keep]] + [rows[name] for rows in new_rows]
+            self.params[name] = np.ascontiguousarray(np.concatenate(parts))
+            m, v = self.moments[name]
+            added = sum(len(rows[name]) for rows in new_rows)
+            pad = np.zeros((added,) + m.shape[1:], np.float32)
+            self.moments[name] = (np.ascontiguousarray(np.concatenate([m[keep], pad])),
+                                  np.ascontiguousarray(np.concatenate([v[keep], pad])))
+
+    def reset_moments(self, name: str, index: np.ndarray | slice = slice(None)) -> None:
+        """Zero the Adam moments of `name` at `index` (as 3DGS does when it replaces a tensor)."""
+        for moment in self.moments[name]:
+            moment[index] = 0.0
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        arrays = {f"param_{k}": v for k, v in self.params.items()}
+        arrays |= {f"m_{k}": m for k, (m, _) in self.moments.items()}
+        arrays |= {f"v_{k}": v for k, (_, v) in self.moments.items()}
+        return arrays
+
+    @classmethod
+    def from_state_arrays(cls, data) -> "GaussianParameters":
+        """From `state_arrays()` as saved (also from checkpoints that stored SH as two arrays,
+        `sh_dc` and `sh_rest`, before they were kept as one)."""
+        def array(prefix: str, name: str) -> np.ndarray:
+            if name == "sh" and f"{prefix}_sh" not in data:
+                return np.concatenate([data[f"{prefix}_sh_dc"], data[f"{prefix}_sh_rest"]], axis=1)
+            return np.ascontiguousarray(data[f"{prefix}_{name}"]).copy()
+
+        out = cls.__new__(cls)
+        out.params = {k: array("param", k) for k in PARAMETERS}
+        out.moments = {k: (array("m", k), array("v", k)) for k in PARAMETERS}
+        return out

@@ -1,0 +1,564 @@
+"""The product as a user gets it: the linux-x64 zip in clean bpy wheels, every feature used.
+
+    .venv/bin/python scripts/test_installed_extension.py [--bpy 4.2.23 ...] [--zip FILE]
+                                                         [--cache DIR] [--keep]
+
+For each bpy version (default BPY_VERSIONS, the newest of each supported line on PyPI), a venv
+holding nothing but that bpy wheel and what pip installs with it (cached in --cache, default
+~/.cache/gaussian-splatting-ci, and made once), and a fresh, empty Blender user folder:
+
+  install   `extension validate` (that Blender's own bl_pkg/cli/blender_ext.py), then
+            `bpy.ops.extensions.package_install_files(enable_on_install=True)` of the zip (the
+            path of Preferences > Get Extensions > Install from Disk); every module the add-on
+            needs must then import (splatcore from the extension's own site-packages).
+  formats   a new session (preferences read as Blender starts; bpy 4.2 enables the extension
+            instead, its read_userpref crashes): import .ply, compressed .ply, .spz (version 4,
+            zstd), .splat and a streamed SOG from ../shared/data; export every format the
+            extension writes and import each back.
+  render    F12 (`render(write_still=True)`) in Cycles and Workbench of PLAYBOT with a cube in
+            front and a plane behind, and a two-frame animation (`render(animation=True)`, as
+            `blender -b -a` runs). Each written PNG must equal the native composite within
+            1/255 and show both the splats and the cube. The expected image is computed here,
+            in the project venv (addon.core.render, OpenImageIO from requirements.txt), from
+            what the Blender process saves beside each frame: the same frame as a multilayer
+            EXR (Blender's own mesh colour and depth), the splats the add-on gathered, and the
+            camera; so a Blender that cannot compose (or read images) fails the check, not
+            the checker.
+  colmap    import the distorted COLMAP model ../shared/data/beer (SIMPLE_RADIAL, images_8),
+            train briefly, Convert to Mesh the result, export it.
+
+Each check prints `PASS name` or `FAIL name: why`; the script exits non-zero on any failure
+(a stage that crashes fails as a whole). Without --zip it builds the zip first
+(scripts/build_extension.py --platform linux-x64, wheels cached). --keep keeps the work folders.
+
+The same file runs inside each bpy venv (`--inside STAGE`): there it imports only the standard
+library, bpy, numpy and the installed extension.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+# The newest of each line on PyPI (`pip index versions bpy`): 4.2 LTS, 4.5 LTS, 5.0.
+BPY_VERSIONS = ("4.2.23", "4.5.15", "5.0.1")
+STAGES = ("install", "formats", "render", "colmap")
+MODULES = ("splatcore", "pycolmap", "OpenImageIO", "xatlas", "zstandard")
+EXTENSION = "bl_ext.user_default.gaussian_splatting"
+
+
+# ============================================================== the driver (project venv)
+
+def default_cache() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "gaussian-splatting-ci"
+
+
+def python311() -> str:
+    for candidate in (os.environ.get("PYTHON311", ""), "python3.11"):
+        if candidate and shutil.which(candidate):
+            return shutil.which(candidate)
+    raise SystemExit("Python 3.11 is needed for the bpy wheels (set PYTHON311=/path/to/python3.11)")
+
+
+def bpy_venv(version: str, cache: Path) -> Path:
+    """The venv with only bpy==version (and its own dependencies), made once."""
+    venv = cache / f"bpy-{version}"
+    ready = venv / ".ready"
+    if ready.exists() and (venv / "bin" / "python").exists():
+        return venv
+    shutil.rmtree(venv, ignore_errors=True)
+    print(f"[bpy {version}] creating {venv}", flush=True)
+    subprocess.run([python311(), "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "-q",
+                    "--disable-pip-version-check", f"bpy=={version}"], check=True)
+    ready.write_text(version)
+    return venv
+
+
+def build_zip(out: Path) -> Path:
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"), "--platform",
+                    "linux-x64", "--out", str(out)], check=True)
+    (zip_path,) = out.glob("gaussian_splatting-*-linux_x64.zip")
+    return zip_path
+
+
+def run_stage(venv: Path, stage: str, zip_path: Path, user: Path, work: Path, data: Path
+              ) -> list[tuple[str, bool, str]]:
+    """[(check, passed, detail)] of one stage, run in a fresh process of the bpy venv."""
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(user))
+    env.pop("PYTHONPATH", None)
+    command = [str(venv / "bin" / "python"), str(Path(__file__).resolve()), "--inside", stage,
+               "--zip", str(zip_path), "--work", str(work), "--data", str(data)]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=900, env=env,
+                              cwd=work)
+        output, code = done.stdout + done.stderr, done.returncode
+    except subprocess.TimeoutExpired as error:
+        output, code = f"{error.stdout or ''}{error.stderr or ''}", "timeout"
+    (work / f"{stage}.log").write_text(output if isinstance(output, str) else str(output))
+    results = []
+    for line in output.splitlines():
+        if line.startswith(("PASS ", "FAIL ")):
+            name, _, detail = line[5:].partition(": ")
+            results.append((name, line.startswith("PASS"), detail))
+        elif line.startswith("COMPARE "):
+            frame = json.loads(line[len("COMPARE "):])
+            try:
+                results.append((frame["name"], True, compare_frame(frame)))
+            except (AssertionError, OSError, ValueError) as error:
+                results.append((frame["name"], False, " ".join(str(error).split())))
+    if code != 0:
+        tail = " | ".join(output.strip().splitlines()[-6:])
+        results.append((f"{stage} (process)", False, f"exit {code}: {tail}"))
+    return results
+
+
+# The expected image, computed in the project venv (addon.core: render, colour; OpenImageIO from
+# requirements.txt): what the installed extension wrote must equal it, whatever that Blender's
+# own modules can do.
+
+def standard_8bit(linear_rgba):
+    """What Blender writes to an 8-bit RGBA PNG under the Standard view transform: straight
+    colour, sRGB-encoded, rounded."""
+    import numpy as np
+    from addon.core.colour import srgb_encode
+
+    linear_rgba = np.asarray(linear_rgba, np.float64)
+    alpha = linear_rgba[..., 3:]
+    straight = np.where(alpha > 0, linear_rgba[..., :3] / np.where(alpha > 0, alpha, 1), 0)
+    out = np.concatenate([srgb_encode(straight), alpha], axis=-1)
+    return np.round(np.clip(out, 0, 1) * 255).astype(np.int32)
+
+
+def read_png(path: Path):
+    import numpy as np
+    import OpenImageIO as oiio
+
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # the file's straight colour, as stored
+    buf = oiio.ImageBuf(str(path), 0, 0, config)
+    if buf.has_error:
+        raise OSError(f"{path}: {buf.geterror()}")
+    return np.asarray(buf.get_pixels(oiio.UINT8), np.int32)
+
+
+def compare_frame(frame: dict) -> str:
+    """Raises AssertionError unless the written PNG is the native composite within 1/255 and
+    shows both the splats and the cube in front of them; else a summary."""
+    import numpy as np
+
+    from addon.core import exr_layers as exr
+    from addon.core.colour import display_from_linear, linear_from_display
+    from addon.core.cameras import BlenderCameraParams, camera_from_blender
+    from addon.core.gaussians import Gaussians
+    from addon.core.render import render
+
+    channels = exr.read_channels(frame["exr"])
+    mesh = exr.find_pass(channels, "ViewLayer", "Combined", "RGBA")
+    depth = exr.find_pass(channels, "ViewLayer", "Depth", "Z")
+    assert mesh is not None and depth is not None, \
+        f"the EXR lacks the view layer's Combined or Depth pass: {sorted(channels)[:12]}"
+    params = dict(frame["camera"], matrix_world=np.array(frame["camera"]["matrix_world"]))
+    camera = camera_from_blender(BlenderCameraParams(**params))
+    with np.load(frame["splats"]) as arrays:
+        gaussians = Gaussians(**{k: arrays[k] for k in arrays.files})
+    result = render(gaussians, camera, mesh_rgba=display_from_linear(mesh),
+                    mesh_depth=depth[..., 0])
+    out = linear_from_display(np.concatenate([result.rgb, result.alpha[..., None]], axis=-1))
+    expected, mesh_only = standard_8bit(out), standard_8bit(mesh)
+    written = read_png(Path(frame["png"]))
+    error = np.abs(written - expected).max()
+    splats_seen = np.abs(written[..., :3] - mesh_only[..., :3]).max()
+    cube = (mesh_only[..., 0] > 150) & (mesh_only[..., 2] < 100)  # the orange cube's pixels
+    assert error <= 1, (f"the written image differs from the native composite by {error}/255 "
+                        f"(written values {written.min()}..{written.max()}, expected "
+                        f"{expected.min()}..{expected.max()})")
+    assert splats_seen > 20, "no splats in the written image"
+    assert cube.sum() > 0 and np.abs(written[cube] - mesh_only[cube]).max() <= 1, \
+        "the cube in front of the splats is missing or covered"
+    return f"max error {error}/255, splats change pixels by up to {splats_seen}/255"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--bpy", action="append", help=f"(repeatable; default {BPY_VERSIONS})")
+    parser.add_argument("--zip", help="test this zip instead of building one")
+    parser.add_argument("--cache", default=str(default_cache()))
+    parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
+    parser.add_argument("--keep", action="store_true", help="keep the work folders")
+    parser.add_argument("--inside", choices=STAGES, help=argparse.SUPPRESS)
+    parser.add_argument("--work", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.inside:
+        return inside(args.inside, Path(args.zip), Path(args.work), Path(args.data))
+
+    sys.path.insert(0, str(ROOT))  # the expected images come from this checkout's addon.core
+    started = time.perf_counter()
+    cache = Path(args.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix="installed-extension-"))
+    zip_path = Path(args.zip).resolve() if args.zip else build_zip(scratch / "dist")
+    print(f"zip: {zip_path} ({zip_path.stat().st_size / 1e6:.1f} MB)", flush=True)
+    summary = []
+    for version in args.bpy or BPY_VERSIONS:
+        t0 = time.perf_counter()
+        venv = bpy_venv(version, cache)
+        user, work = scratch / f"bpy-{version}" / "user", scratch / f"bpy-{version}" / "work"
+        work.mkdir(parents=True)
+        for stage in STAGES:
+            results = run_stage(venv, stage, zip_path, user, work, Path(args.data).resolve())
+            for name, passed, detail in results:
+                print(f"[bpy {version}] {'PASS' if passed else 'FAIL'} {name}"
+                      + (f": {detail}" if detail else ""), flush=True)
+            summary += [(version, name, passed) for name, passed, _ in results]
+            if stage == "install" and not any(n == "install the zip" and p for n, p, _ in results):
+                break  # nothing else can run without the extension
+        print(f"[bpy {version}] {time.perf_counter() - t0:.0f} s (logs: {work})", flush=True)
+    failed = [(v, n) for v, n, p in summary if not p]
+    print(f"{len(summary) - len(failed)} passed, {len(failed)} failed in "
+          f"{time.perf_counter() - started:.0f} s")
+    for version, name in failed:
+        print(f"  FAILED bpy {version}: {name}")
+    if not args.keep and not failed:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return 1 if failed or not summary else 0
+
+
+# ====================================================== inside a clean bpy venv (one stage)
+
+def inside(stage: str, zip_path: Path, work: Path, data: Path) -> int:
+    import bpy
+
+    if stage == "install":
+        stage_install(bpy, zip_path)
+        return 0
+    if bpy.app.version >= (4, 5):
+        bpy.ops.wm.read_userpref()  # what Blender's startup does: enabled extensions load
+    else:  # bpy 4.2.23 crashes in read_userpref (any user folder): enable it as in Preferences
+        bpy.ops.preferences.addon_enable(module=EXTENSION)
+    if EXTENSION not in bpy.context.preferences.addons:
+        print(f"FAIL {stage}: the extension is not enabled after reading the preferences")
+        return 1
+    clear_scene(bpy)
+    {"formats": stage_formats, "render": stage_render, "colmap": stage_colmap}[stage](
+        bpy, work, data)
+    return 0
+
+
+class Check:
+    """`with check("name") as c:` prints PASS name (c.detail) or FAIL name: the error."""
+
+    def __init__(self, name: str):
+        self.name, self.detail = name, ""
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, kind, error, tb):
+        seconds = f"{time.perf_counter() - self.t0:.1f} s"
+        if error is None:
+            print(f"PASS {self.name}: {self.detail + ', ' if self.detail else ''}{seconds}",
+                  flush=True)
+        else:
+            where = traceback.extract_tb(tb)[-1]
+            message = " ".join(f"{kind.__name__}: {error}".split())[:600]
+            print(f"FAIL {self.name}: {message} (at {Path(where.filename).name}:{where.lineno})",
+                  flush=True)
+            traceback.print_exception(kind, error, tb)
+        return True  # the next check still runs
+
+
+check = Check
+
+
+def ext_module(name: str):
+    import importlib
+
+    return importlib.import_module(f"{EXTENSION}.{name}")
+
+
+def clear_scene(bpy) -> None:
+    # Not factory settings: they would also switch the extension off.
+    for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.materials, bpy.data.cameras,
+                       bpy.data.lights, bpy.data.images, bpy.data.collections):
+        for item in list(collection):
+            collection.remove(item)
+
+
+def stage_install(bpy, zip_path: Path) -> None:
+    user = os.environ["BLENDER_USER_RESOURCES"]
+    with check("extension validate"):  # what `blender --command extension validate` runs
+        cli = Path(bpy.utils.system_resource("SCRIPTS")) / "addons_core/bl_pkg/cli/blender_ext.py"
+        done = subprocess.run([sys.executable, str(cli), "validate", str(zip_path)],
+                              capture_output=True, text=True, timeout=120)
+        output = " ".join((done.stdout + done.stderr).split())
+        assert done.returncode == 0 and "FATAL" not in output and "Error" not in output, output
+    with check("install the zip"):
+        result = bpy.ops.extensions.package_install_files(
+            filepath=str(zip_path), repo="user_default", enable_on_install=True)
+        assert result == {"FINISHED"}, result
+        assert EXTENSION in bpy.context.preferences.addons, "not enabled after installing"
+    for name in MODULES:
+        with check(f"import {name}") as c:
+            module = __import__(name)
+            origin = Path(module.__file__)
+            # splatcore exists only in the zip; bpy itself may have loaded zstandard already.
+            assert name != "splatcore" or origin.is_relative_to(user), f"loaded from {origin}"
+            c.detail = (f"from the extension" if origin.is_relative_to(user) else
+                        f"from {origin.parent}")
+    bpy.ops.wm.save_userpref()
+
+
+# ------------------------------------------------------------------------------ formats
+
+FILES = (("playbot_125k_sh2.ply", 125_000), ("guitar.compressed.ply", 90_854),
+         ("biker.spz", 152_746), ("chair.splat", 89_945),
+         ("playbot_sog/lod-meta.json", 500_000))  # streamed SOG: WebP through OpenImageIO
+
+
+def splat_count(obj) -> int:
+    return ext_module("blender.splat_object").point_count(obj.data)
+
+
+def import_file(bpy, path: Path):
+    before = set(bpy.data.objects)
+    result = bpy.ops.splat.import_splats(filepath=str(path))
+    assert result == {"FINISHED"}, result
+    (obj,) = set(bpy.data.objects) - before
+    return obj
+
+
+def stage_formats(bpy, work: Path, data: Path) -> None:
+    splats = data / "splats"
+    chair = None
+    for name, count in FILES:
+        with check(f"import {name}") as c:
+            obj = import_file(bpy, splats / name)
+            assert splat_count(obj) == count, f"{splat_count(obj)} splats, expected {count}"
+            c.detail = f"{count} splats"
+            chair = obj if name.endswith(".splat") else chair
+    registry = ext_module("core.formats.registry")
+    suffixes = [f.endings[0] for f in registry.export_formats() if not f.whole_name]
+    for suffix in suffixes:
+        with check(f"export {suffix} and import it back") as c:
+            assert chair is not None, "no object to export"
+            bpy.context.view_layer.objects.active = chair
+            target = work / f"exported{suffix}"
+            result = bpy.ops.splat.export_splats(filepath=str(target))
+            assert result == {"FINISHED"}, result
+            back = import_file(bpy, target)
+            assert splat_count(back) == splat_count(chair)
+            c.detail = f"{target.stat().st_size / 1e6:.1f} MB"
+
+
+# ------------------------------------------------------------------------------- render
+
+WIDTH, HEIGHT = 64, 48
+
+
+def material(bpy, name: str, colour, engine: str):
+    mat = bpy.data.materials.new(name)
+    mat.diffuse_color = (*colour, 1.0)
+    if engine == "CYCLES":
+        if mat.node_tree is None:  # Blender 4.x; 5.0 materials always have nodes
+            mat.use_nodes = True
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        nodes.clear()
+        emission = nodes.new("ShaderNodeEmission")
+        emission.inputs["Color"].default_value = (*colour, 1.0)
+        output = nodes.new("ShaderNodeOutputMaterial")
+        links.new(emission.outputs[0], output.inputs["Surface"])
+    return mat
+
+
+def build_render_scene(bpy, data: Path, engine: str):
+    """PLAYBOT, a cube in front of it, a plane behind it, a camera looking along +Y."""
+    import math
+
+    import numpy as np
+    from mathutils import Vector
+
+    clear_scene(bpy)
+    scene = bpy.context.scene
+    splats = import_file(bpy, data / "splats" / "playbot_125k_sh2.ply")
+    corners = np.array([splats.matrix_world @ Vector(c) for c in splats.bound_box])
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    centre, radius = (low + high) / 2, float(np.linalg.norm(high - low)) / 2
+    bpy.ops.mesh.primitive_cube_add(size=0.35 * radius, location=(
+        centre[0] + 0.25 * radius, low[1] - 0.4 * radius, centre[2]))
+    cube = bpy.context.active_object
+    cube.data.materials.append(material(bpy, "Cube", (0.9, 0.3, 0.1), engine))
+    bpy.ops.mesh.primitive_plane_add(size=20 * radius, location=(
+        centre[0], high[1] + 0.5 * radius, centre[2]), rotation=(math.pi / 2, 0, 0))
+    bpy.context.active_object.data.materials.append(
+        material(bpy, "Plane", (0.1, 0.35, 0.8), engine))
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    camera.location = (centre[0], centre[1] - 2.2 * radius, centre[2])
+    camera.rotation_euler = (math.pi / 2, 0, 0)
+    camera.data.lens = 35
+    scene.camera = camera
+    render = scene.render
+    render.resolution_x, render.resolution_y, render.resolution_percentage = WIDTH, HEIGHT, 100
+    render.engine = engine
+    if engine == "CYCLES":
+        scene.cycles.device = "CPU"
+        scene.cycles.samples = 4
+        scene.cycles.use_denoising = False
+        scene.cycles.use_adaptive_sampling = False
+        scene.cycles.max_bounces = 0
+    else:
+        scene.display.shading.color_type = "MATERIAL"
+    render.threads_mode, render.threads = "FIXED", 2
+    view = scene.view_settings
+    view.view_transform, view.look, view.exposure, view.gamma = "Standard", "None", 0.0, 1.0
+    render.dither_intensity = 0.0
+    return scene, cube
+
+
+def output_png(bpy, scene, prefix: Path) -> None:
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):  # Blender 5.0
+        settings.media_type = "IMAGE"
+    settings.file_format, settings.color_mode, settings.color_depth = "PNG", "RGBA", "8"
+    scene.render.filepath = str(prefix)
+
+
+def output_multilayer_exr(bpy, scene, prefix: Path) -> None:
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    else:
+        settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    scene.render.filepath = str(prefix)
+
+
+def dump_frame(bpy, scene, name: str, png: Path, exr_path: Path) -> None:
+    """What the driver needs to compute the expected frame: the splats as the add-on gathers
+    them from the depsgraph, Blender's camera, the written PNG and the multilayer EXR (Blender's
+    own mesh colour and depth) of the same frame. Printed as a COMPARE line."""
+    import numpy as np
+
+    gather = ext_module("blender.gather")
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    g = gather.gather(depsgraph).gaussians
+    splats = png.with_suffix(".splats.npz")
+    np.savez(splats, means=g.means, log_scales=g.log_scales, quats=g.quats,
+             opacity_logits=g.opacity_logits, sh=g.sh)
+    cam = scene.camera.evaluated_get(depsgraph)
+    r = scene.render
+    camera = dict(matrix_world=[list(row) for row in cam.matrix_world], lens=cam.data.lens,
+                  sensor_width=cam.data.sensor_width, sensor_height=cam.data.sensor_height,
+                  sensor_fit=cam.data.sensor_fit, shift_x=cam.data.shift_x,
+                  shift_y=cam.data.shift_y, resolution_x=r.resolution_x,
+                  resolution_y=r.resolution_y, resolution_percentage=r.resolution_percentage,
+                  pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y)
+    print("COMPARE " + json.dumps(dict(name=name, png=str(png), exr=str(exr_path),
+                                       splats=str(splats), camera=camera)), flush=True)
+
+
+def stage_render(bpy, work: Path, data: Path) -> None:
+    """Renders; the driver compares (COMPARE lines), independently of this Blender's modules."""
+    for engine in ("CYCLES", "BLENDER_WORKBENCH"):
+        name = f"F12 {engine.split('_')[-1].title()} with meshes"
+        with check(f"{name} (the render call)"):
+            scene, _ = build_render_scene(bpy, data, engine)
+            output_png(bpy, scene, work / f"f12_{engine}")
+            result = bpy.ops.render.render(write_still=True)
+            assert result == {"FINISHED"}, result
+            output_multilayer_exr(bpy, scene, work / f"f12_{engine}_layers")
+            assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+            dump_frame(bpy, scene, name, work / f"f12_{engine}.png",
+                       work / f"f12_{engine}_layers.exr")
+    with check("animation (render -a), Workbench, 2 frames (the render calls)") as c:
+        scene, cube = build_render_scene(bpy, data, "BLENDER_WORKBENCH")
+        scene.frame_start, scene.frame_end = 1, 2
+        x = cube.location.x
+        for frame, dx in ((1, -0.3), (2, 0.3)):
+            cube.location.x = x + dx
+            cube.keyframe_insert("location", frame=frame)
+        output_png(bpy, scene, work / "anim_")
+        assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+        output_multilayer_exr(bpy, scene, work / "anim_layers_")
+        assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+        for frame in (1, 2):
+            scene.frame_set(frame)
+            dump_frame(bpy, scene, f"animation frame {frame}", work / f"anim_{frame:04d}.png",
+                       work / f"anim_layers_{frame:04d}.exr")
+        c.detail = "frames 1-2"
+
+
+# ------------------------------------------------------------------------------- colmap
+
+def stage_colmap(bpy, work: Path, data: Path) -> None:
+    trained = None
+    collection = None
+    with check("COLMAP import of a distorted model (beer, SIMPLE_RADIAL, images_8)") as c:
+        before = set(bpy.data.collections)
+        result = bpy.ops.splat.import_colmap(directory=str(data / "beer"),
+                                             image_folder="images_8",
+                                             cache_dir=str(work / "colmap-cache"))
+        assert result == {"FINISHED"}, result
+        (collection,) = set(bpy.data.collections) - before
+        cameras = [o for o in collection.all_objects if "colmap_image_name" in o]
+        assert len(cameras) == 71, f"{len(cameras)} cameras, expected 71"
+        c.detail = f"{len(cameras)} cameras into '{collection.name}'"
+    with check("training (100 steps)") as c:
+        assert collection is not None, "nothing imported to train"
+        before = set(bpy.data.objects)
+        result = bpy.ops.splat.train(collection=collection.name, steps=100,
+                                     max_gaussians=20_000, sh_degree=1, threads=2,
+                                     update_every=0, checkpoint_every=0,
+                                     checkpoint=str(work / "train.ckpt"))
+        assert result == {"FINISHED"}, result
+        new = [o for o in set(bpy.data.objects) - before if splat_count_or_none(o)]
+        assert len(new) == 1, f"{len(new)} new splat objects"
+        trained = new[0]
+        assert trained.get("splat_trained_steps") == 100, dict(trained.items())
+        c.detail = (f"{splat_count(trained)} splats, held-out PSNR "
+                    f"{trained.get('splat_heldout_psnr', float('nan')):.1f} dB")
+    with check("Convert to Mesh") as c:
+        assert trained is not None, "nothing trained to convert"
+        for obj in bpy.context.view_layer.objects:
+            obj.select_set(False)
+        bpy.context.view_layer.objects.active = trained
+        trained.select_set(True)
+        result = bpy.ops.splat.convert_to_mesh(resolution=32, max_triangles=2000,
+                                               texture_size=64, view_count=8, view_size=48)
+        assert result == {"FINISHED"}, result
+        mesh_obj = bpy.context.view_layer.objects.active
+        assert mesh_obj is not trained and mesh_obj.type == "MESH"
+        mesh = mesh_obj.data
+        assert len(mesh.polygons) > 0 and "UVMap" in mesh.uv_layers
+        images = [n.image for n in mesh.materials[0].node_tree.nodes if n.type == "TEX_IMAGE"]
+        assert images and images[0].size[:] == (64, 64)
+        c.detail = f"{len(mesh.polygons)} triangles, 64 px texture"
+    with check("export the trained splats") as c:
+        assert trained is not None, "nothing trained to export"
+        bpy.context.view_layer.objects.active = trained
+        target = work / "trained.ply"
+        assert bpy.ops.splat.export_splats(filepath=str(target)) == {"FINISHED"}
+        back = import_file(bpy, target)
+        assert splat_count(back) == splat_count(trained)
+        c.detail = f"{target.stat().st_size / 1e6:.2f} MB"
+
+
+def splat_count_or_none(obj):
+    splat_object = ext_module("blender.splat_object")
+    return splat_object.is_splat_object(obj) and splat_object.point_count(obj.data)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

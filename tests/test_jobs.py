@@ -1,0 +1,71 @@
+"""Long jobs, Blender-free (`addon/core/jobs.py`): a `StagedJob` steps, finishes, fails and
+cancels like a `TrainingJob`, and headless runs print one line per stage (and every few seconds),
+never one per step."""
+
+from __future__ import annotations
+
+import pytest
+
+from addon.core.jobs import Progress, ProgressPrinter, StagedJob, status_line
+
+STAGES = ("load", "work", "write")
+
+
+def _steps(log: list, fail_at: str | None = None):
+    try:
+        for stage in STAGES:
+            for k in range(4):
+                if stage == fail_at:
+                    raise ValueError(f"{stage} broke")
+                yield stage, (k + 1) / 4
+        return "result"
+    finally:
+        log.append("cleaned up")
+
+
+def test_staged_job_runs_to_its_result_with_overall_progress() -> None:
+    seen: list[Progress] = []
+    log: list = []
+    job = StagedJob(_steps(log), STAGES, on_progress=seen.append).run()
+    assert job.done and job.result == "result" and job.error is None and log == ["cleaned up"]
+    assert job.progress().phase == "done" and job.progress().fraction == 1.0
+    working = [p.fraction for p in seen if p.phase == "working"]
+    assert working == sorted(working) and working[-1] == pytest.approx(1.0)
+    assert [p.message for p in seen if p.phase == "working"][5] == "work"
+    assert status_line(seen[5], "Converting") == "Converting: work (42 %)"
+
+
+def test_staged_job_polls_cancels_and_fails_cleanly() -> None:
+    log: list = []
+    job = StagedJob(_steps(log), STAGES).start()
+    job.poll()  # one step at a time (no time budget)
+    assert not job.done and job.progress().message == "load"
+    job.cancel()
+    assert job.join() and job.done and job.result is None and log == ["cleaned up"]
+    assert job.progress().phase == "cancelled"
+
+    failing = StagedJob(_steps([], fail_at="write"), STAGES).run(raise_errors=False)
+    assert failing.done and isinstance(failing.error, ValueError)
+    assert failing.progress().phase == "failed" and "write broke" in failing.progress().message
+    assert status_line(failing.progress(), "Converting") == \
+        "Converting failed: ValueError: write broke"
+    with pytest.raises(ValueError, match="load broke"):
+        StagedJob(_steps([], fail_at="load"), STAGES).run()
+
+
+def test_printer_writes_a_line_per_stage_not_per_step() -> None:
+    lines: list[str] = []
+    printer = ProgressPrinter("Converting", interval=3600.0, write=lines.append)
+    StagedJob(_steps([]), STAGES, on_progress=printer).run()
+    assert lines == ["Converting: load (0 %)", "Converting: work (42 %)",
+                     "Converting: write (75 %)", "Converting: done"]
+    training: list[str] = []
+    printer = ProgressPrinter("Training", interval=3600.0, write=training.append)
+    for step in range(1, 500):
+        printer(Progress(phase="training", step=step, total=500, gaussians=10))
+    printer(Progress(phase="done", step=500, total=500, gaussians=10))
+    assert len(training) == 2 and training[0].startswith("Training 1/500")
+    every = ProgressPrinter("Training", interval=0.0, write=training.append)
+    every(Progress(phase="training", step=1, total=5))
+    every(Progress(phase="training", step=2, total=5))
+    assert len(training) == 4  # with no interval, every call
