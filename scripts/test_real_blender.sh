@@ -5,7 +5,7 @@
 #
 #   scripts/test_real_blender.sh [SUITE...]        (default: trixie sid; needs root)
 #
-# In each Blender: `extension validate` and `extension install-file` of the zip that
+# In each Blender: `extension validate` and `extension install-file` of the linux-x64 zip that
 # scripts/build_extension.py builds; a scene with splats, a cube in front and a plane behind
 # (tests/real_blender/scene.py); F12 (`bpy.ops.render.render(write_still=True)`) and
 # `blender -b scene.blend -a`, each written PNG held against the native composite within 1/255
@@ -30,8 +30,8 @@ note() {  # note SUITE CHECK STATUS DETAIL
     echo "test_real_blender: $1 $2: $3 $4"
 }
 
-$PY scripts/build_extension.py || exit 1
-zip=$(ls -t dist/gaussian_splatting-*.zip | head -1)
+$PY scripts/build_extension.py --platform linux-x64 || exit 1
+zip=$(ls -t dist/gaussian_splatting-*-linux_x64.zip | head -1)
 
 for suite in $SUITES; do
     "$RB/setup.sh" "$suite" || { note "$suite" setup FAIL "setup.sh failed"; continue; }
