@@ -11,7 +11,8 @@
 # `blender -b scene.blend -a`, each written PNG held against the native composite within 1/255
 # (tests/real_blender/check.py); forced composite failures (a missing module, splats that cannot
 # be gathered, a native error), each of which must fail the render with a non-zero exit code and
-# no file; and the UI under Xvfb, Solid and Material Preview screenshots of the viewport held
+# no file; and the UI under Xvfb: F12 as a user presses it (tests/real_blender/ui_f12.py, the
+# Render Result held against the native composite), Solid and Material Preview screenshots of the viewport held
 # against the native render (tests/real_blender/viewport_figures.py). Exits non-zero on any
 # failure, after a summary table.
 set -uo pipefail
@@ -80,6 +81,17 @@ for suite in $SUITES; do
         ok=$([ $rc_anim != 0 ] && [ $rc_still != 0 ] && [ "$written" = 0 ] && echo ok || echo FAIL)
         note "$suite" "forced failure: $kind" $ok "-a exit $rc_anim, F12 exit $rc_still, $written files"
     done
+
+    rm -f "$io/out/ui_f12.png"  # F12 as a user presses it: the render runs in a job thread
+    timeout 300 "$RB/run.sh" "$suite" sh -c "xvfb-run -a -s '-screen 0 1600x900x24' \
+        blender $t/scene.blend --python $t/ui_f12.py -- $t/out/ui_f12.png > $t/ui_f12.log 2>&1"
+    rc=$?
+    if [ $rc = 0 ] && [ -f "$io/out/ui_f12.png" ]; then
+        detail=$($PY tests/real_blender/check.py render "$io/out/ui_f12.png" "$io/out/meshes.exr" "$io/splats.npz")
+        rc=$?; note "$suite" "F12 in the UI" "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
+    else
+        note "$suite" "F12 in the UI" FAIL "exit $rc (see $io/ui_f12.log)"
+    fi
 
     rm -rf "$io/ui" && mkdir -p "$io/ui"
     timeout 400 "$RB/run.sh" "$suite" sh -c "xvfb-run -a -s '-screen 0 1600x900x24' \
