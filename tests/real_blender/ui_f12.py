@@ -1,7 +1,7 @@
 """Runs inside a real Blender's UI (under Xvfb): F12 as a user presses it (the render job runs
 in its own thread), then saves the Render Result and quits.
 
-    blender FILE.blend --python ui_f12.py -- OUT.png
+    blender FILE.blend --python ui_f12.py -- [...] OUT.png
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import time
 
 import bpy
 
-OUT = sys.argv[sys.argv.index("--") + 1]
+OUT = sys.argv[-1]  # the last argument (another script may read the first ones)
 state = {"started": None}
 
 
