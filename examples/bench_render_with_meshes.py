@@ -12,10 +12,10 @@ and on, best of `--repeat`, and prints where the difference goes:
 
     gather    splats from the render's depsgraph (world space; cached per object)
     save      Render Result -> float EXR (Blender's Image.save_render, in a RAM folder)
-    read      that EXR -> numpy (OpenImageIO)
+    read      that EXR -> numpy (addon.core.exr_scanlines: views of the file's bytes)
     colour    scene-linear <-> display sRGB conversions of the mesh layer and the composite
     native    the native compositor (projection, sort, binning, per-pixel composite)
-    result    composite -> the helper scene's render result (EXR + RenderResult.load_from_file)
+    result    composite -> the helper scene's render result (RenderPass.rect.foreach_set)
     other     the rest of the difference: the helper scene's render set-up and Blender's
               compositor pass (the new Render Layers node feeding the output)
 """

@@ -217,3 +217,28 @@ def test_draw_handler_is_progressive(rng):
         viewport.renderer.forget(4242)
         viewport._views.clear()
         viewport._texture_cache.clear()
+
+
+def test_splat_objects_show_their_bounds_not_their_vertices(rng):
+    """Blender would draw one dot per splat over the add-on's image: a splat object the add-on
+    draws is displayed as its bounds; with its drawing off it shows its points again; a display
+    the user picked is left alone."""
+    bs.reset_scene()
+    scene = bpy.context.scene
+    obj = splat_object.create_splat_object(random_gaussians(rng, 50, 0), "Splats")
+    viewport._on_load_post()  # what opening a file does (new objects: the depsgraph handler)
+    assert obj.display_type == "BOUNDS"
+    obj.splat.show_in_viewport = False
+    assert obj.display_type == "TEXTURED"
+    obj.splat.show_in_viewport = True
+    assert obj.display_type == "BOUNDS"
+    scene.splat_render.viewport = False
+    assert obj.display_type == "TEXTURED"
+    scene.splat_render.viewport = True
+    obj.display_type = "WIRE"  # the user's choice
+    viewport.sync_scene(scene)
+    assert obj.display_type == "WIRE"
+    plain = bpy.data.objects.new("Plain", bpy.data.meshes.new("Plain"))
+    scene.collection.objects.link(plain)
+    viewport.sync_scene(scene)
+    assert plain.display_type == "TEXTURED"  # not a splat object

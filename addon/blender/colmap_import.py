@@ -48,6 +48,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 
 from ..core import colmap
 from ..core.cameras import camera_to_blender
+from . import dependencies
 from ..core.jobs import StagedJob
 from .camera_adapter import (apply_recorded_output, marker_camera, record_output_settings,
                              recorded_output, set_camera, set_lens, to_matrix)
@@ -298,6 +299,7 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
     """Import a COLMAP model or workspace into `scene` (default: the context's); returns the
     new collection. `progress(fraction, message)` is called as the work goes. Options: those
     of `import_steps`."""
+    require_modules()
     steps = import_steps(directory, image_folder, **options)
     report = progress or (lambda fraction, message: None)
     try:
@@ -307,6 +309,13 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
     except StopIteration as done:
         report(1.0, "done")
         return done.value
+
+
+def require_modules() -> None:
+    """MissingModule unless what an import needs loads: pycolmap (the model), OpenImageIO
+    (the photos)."""
+    for module in ("pycolmap", "OpenImageIO"):
+        dependencies.require(module, "Importing a COLMAP scene")
 
 
 def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
@@ -469,6 +478,11 @@ class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
+        try:
+            require_modules()
+        except dependencies.MissingModule as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
         steps = import_steps(
             self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
             scene_size=self.scene_size, cache_dir=self.cache_dir or None, points=self.points,

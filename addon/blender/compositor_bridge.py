@@ -38,6 +38,7 @@ HELPER_FLAG = "splat_composite_helper"  # ID property marking the helper scene
 BRIDGE_NODE = "Splat Composite"
 BRIDGE_FLAG = "splat_bridge"            # ID property on the bridge node: JSON of what it rewired
 TREE_FLAG = "splat_bridge_created"      # ID property on a node tree the bridge created
+DEVICE_FLAG = "splat_bridge_device"     # ... and the compositor device it replaced
 MOVED_OUTPUTS = ("Image", "Alpha", "Depth")
 
 
@@ -118,6 +119,7 @@ def _tree(scene, create: bool, layer_name: str | None = None):
             output.location = (300, 0)
             tree.links.new(layers.outputs["Image"], output.inputs[0])
             scene.compositing_node_group = tree
+            _compose_on_cpu(scene, tree)
         return tree
     tree = scene.node_tree  # Blender 4.x
     if create and (tree is None or not scene.use_nodes):
@@ -126,7 +128,18 @@ def _tree(scene, create: bool, layer_name: str | None = None):
         tree = scene.node_tree
         if created and tree is not None:
             tree[TREE_FLAG] = True
+            _compose_on_cpu(scene, tree)
     return tree
+
+
+def _compose_on_cpu(scene, tree) -> None:
+    """A compositor the bridge made only passes the composite through: run it on the CPU, so
+    that a machine without a GPU (a render farm, `blender -b`) can render the scene; Blender
+    5.2 defaults to the GPU compositor and aborts without one. `remove_bridge` puts the
+    device back."""
+    if getattr(scene.render, "compositor_device", "CPU") != "CPU":
+        tree[DEVICE_FLAG] = scene.render.compositor_device
+        scene.render.compositor_device = "CPU"
 
 
 def has_shadow_catchers(scene) -> bool:
@@ -265,6 +278,8 @@ def remove_bridge(scene) -> bool:
     _restore_links(tree, node, json.loads(node[BRIDGE_FLAG]))
     tree.nodes.remove(node)
     if tree.get(TREE_FLAG):
+        if tree.get(DEVICE_FLAG):
+            scene.render.compositor_device = tree[DEVICE_FLAG]
         if uses_node_groups():
             scene.compositing_node_group = None
             if tree.users == 0:

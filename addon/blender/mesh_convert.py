@@ -48,7 +48,7 @@ from ..core.cameras import Camera
 from ..core import surface, mesh_texture
 from ..core.surface import Cancelled
 from ..core.jobs import StagedJob
-from . import gather, splat_object
+from . import dependencies, gather, splat_object
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, wants_background
 from .registration import module_registration
@@ -117,6 +117,10 @@ def _check(obj, resolution, max_triangles, texture_size) -> None:
         raise ConversionError(f"max_triangles must be at least 4, got {max_triangles}")
     if not 16 <= texture_size <= 16384:
         raise ConversionError(f"texture_size must be 16..16384, got {texture_size}")
+    try:
+        dependencies.require("xatlas", "Converting splats to a mesh (its UV atlas)")
+    except dependencies.MissingModule as error:
+        raise ConversionError(str(error)) from error
 
 
 def _decimate(vertices: np.ndarray, faces: np.ndarray, max_triangles: int

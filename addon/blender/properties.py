@@ -28,6 +28,13 @@ COLOR_SPACES = [
 ]
 
 
+
+def _viewport_switch(settings, context) -> None:
+    """The splat object's own display follows whether the add-on draws it (`viewport`)."""
+    from . import viewport
+    viewport.on_switch_changed(settings, context)
+
+
 class SplatObjectSettings(bpy.types.PropertyGroup):
     is_splat: BoolProperty(
         name="Gaussian Splats",
@@ -50,7 +57,7 @@ class SplatObjectSettings(bpy.types.PropertyGroup):
     source_path: StringProperty(
         name="Source", description="The file the splats were imported from", subtype="FILE_PATH")
     show_in_viewport: BoolProperty(
-        name="Show in Viewport",
+        name="Show in Viewport", update=_viewport_switch,
         description="Draw these splats in the 3D viewport (Solid and Material Preview); final "
                     "renders follow the object's render visibility",
         default=True)

@@ -45,13 +45,13 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from ..core import exr_layers
+from ..core import exr_layers, exr_scanlines
 from ..core.cameras import Camera
 from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed,
                               render_region, splat_layer)
 from ..core.gaussians import Gaussians
 from . import compositor_bridge as bridge
-from . import gather
+from . import dependencies, gather
 from .camera_adapter import camera_of, frame_size
 from .compositor_bridge import ENGINE_ID
 
@@ -86,7 +86,9 @@ class _State:
         self.pending_passes: dict[str, tuple[int, object]] = {}
         self.cache_restore: dict[str, bool] = {}
         self.force_cache_file = False          # tests: read the render through the cache file
-        self.errors: list[str] = []
+        self.errors: list[str] = []            # why the current (or last) render failed
+        self.failed_frames: set[int] = set()   # frames whose written files must not stay
+        self.camera_restore: dict[str, object] = {}  # scenes whose camera a failure cleared
 
 
 _state = _State()
@@ -220,7 +222,7 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
             image.save_render(path, scene=scene)
     timings["save_ms"] = 1000 * (time.perf_counter() - start)
     start = time.perf_counter()
-    channels = exr_layers.read_channels(path)
+    channels = exr_scanlines.read_channels(path)  # no OpenImageIO: Blender's Python may lack it
     timings["read_ms"] = 1000 * (time.perf_counter() - start)
     rgba = exr_layers.find_pass(channels, layer, "Combined", "RGBA")
     if rgba is None:  # e.g. "Render Single Layer" with another layer active: use what rendered
@@ -274,12 +276,17 @@ def _frame_target(size: tuple[int, int], full: tuple[int, int], region: Region) 
                        f"{full[0]}x{full[1]} frame (border {region})")
 
 
+def _set_pass(render_pass, pixels: np.ndarray) -> None:
+    """Fill a RenderPass from (H, W[, C]) float32 rows top to bottom (a pass stores them bottom
+    to top). `foreach_set` copies the buffer in one go: about 2 ms for 1280x720 RGBA, where
+    assigning `rect` a nested sequence takes a second."""
+    render_pass.rect.foreach_set(np.ascontiguousarray(pixels[::-1], np.float32).reshape(-1))
+
+
 def _write_result(engine, rgba: np.ndarray, depth: np.ndarray, origin: Region,
                   full: tuple[int, int], region: Region) -> None:
     """Fill the engine's render result from `rgba`, `depth` (rows top to bottom) that cover
-    `origin` of the full frame. The pixels go through an uncompressed EXR in a private
-    temporary folder and `RenderResult.load_from_file` (assigning `RenderPass.rect` from
-    Python takes 0.4 s for 1280x720; this takes a tenth of that)."""
+    `origin` of the full frame."""
     result = engine.begin_result(0, 0, engine.resolution_x, engine.resolution_y)
     try:
         target = _frame_target((result.resolution_x, result.resolution_y), full, region)
@@ -288,12 +295,10 @@ def _write_result(engine, rgba: np.ndarray, depth: np.ndarray, origin: Region,
             cols = slice(target.x - origin.x, target.x - origin.x + target.width)
             rgba, depth = rgba[rows, cols], depth[rows, cols]
         layer = result.layers[0]
-        channels = {f"{layer.name}.Combined.{c}": rgba[..., i] for i, c in enumerate("RGBA")}
-        if layer.passes.get("Depth") is not None:
-            channels[f"{layer.name}.Depth.Z"] = depth
-        path = os.path.join(_private_dir(), f"result-{os.getpid()}.exr")
-        exr_layers.write_channels(path, channels)
-        result.load_from_file(path)
+        _set_pass(layer.passes["Combined"], rgba)
+        depth_pass = layer.passes.get("Depth")
+        if depth_pass is not None:
+            _set_pass(depth_pass, depth)
     finally:
         engine.end_result(result)
 
@@ -329,10 +334,11 @@ class SplatRenderEngine(bpy.types.RenderEngine):
                 self._render_splats_only(depsgraph)
         except Exception as error:  # report, never crash the render job
             traceback.print_exc()
-            message = f"Gaussian splats: {error}"
-            _state.errors.append(message)
-            self.report({"ERROR"}, message)
-            self.error_set(message)
+            message = f"the splats could not be composed: {error}"
+            self.report({"ERROR"}, f"Gaussian splats: {message}")
+            self.error_set(f"Gaussian splats: {message}")
+            fail_render(bpy.data.scenes.get(_state.scene or "") or depsgraph.scene,
+                        str(error) if str(error) in _state.errors else message, "compose")
 
     def _compose_for_bridge(self) -> None:
         start = time.perf_counter()
@@ -355,12 +361,15 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         if frame is not None and frame.frame != main.frame_current:
             print(f"Gaussian splats: the splats were gathered at frame {frame.frame}, the render "
                   f"is of frame {main.frame_current}")
+        if _state.errors:  # the render already failed (and was cancelled if it could be)
+            raise RuntimeError(_state.errors[-1])
+        if frame is None and settings.enabled and main.render.engine != ENGINE_ID:
+            raise RuntimeError(f"no splats were gathered for scene {main.name!r}, view layer "
+                               f"{layer_name!r} (the render's frame_change_post handler did "
+                               f"not run for it)")
         if (main.render.engine == ENGINE_ID or not settings.enabled or frame is None
                 or frame.camera is None or len(frame.gaussians) == 0):
             rgba, depth = mesh_rgba, mesh_depth
-            if frame is None and settings.enabled and main.render.engine != ENGINE_ID:
-                print(f"Gaussian splats: no splats were gathered for {main.name!r} / "
-                      f"{layer_name!r}; the render is passed through")
         else:
             if origin != Region(0, 0, *full):  # a cropped border: compose the whole frame
                 mesh_rgba, mesh_depth = embed(mesh_rgba, mesh_depth, origin, *full)
@@ -456,6 +465,82 @@ def written_file(scene) -> str | None:
 
 # ------------------------------------------------------------------------------- handlers
 
+# ------------------------------------------------------------------------ failing loudly
+#
+# A render that cannot compose the splats must fail, never write an image that silently lacks
+# them. Python cannot cancel a render directly; Blender cancels one itself when the scene it
+# renders has no camera ("Cannot render, no camera": the render stops, nothing is written,
+# `bpy.ops.render.render` reports the error and returns CANCELLED, `blender -b -a` exits 1).
+# So a failure found when the render starts (render_init: a missing module, a bridge that is
+# not set up) clears the scene's camera for this render; `render_complete`/`render_cancel` put
+# it back. (Later, from frame_change_post, the camera has already been evaluated: a failure to
+# gather the splats is recorded there and fails the compose step.) That is done in background
+# renders only, which run on the main thread: an interactive render runs its handlers in the
+# render job's thread, where changing data is unsafe, so there the error is reported in the
+# window when the render ends and written files of failed frames are deleted.
+# A failure while composing (the helper engine, after the meshes rendered) is too late for the
+# camera: in background Blender it raises Blender's own break signal (SIGINT, what Ctrl+C does:
+# the render is cancelled and nothing is written; Blender ends the process on a second one,
+# exit code 2); where Blender has no such handler (the `bpy` module) the frame's written files
+# are deleted and `last_errors()` says why.
+
+def _blender_handles_sigint() -> bool:
+    """Blender's command-line break handler is installed (not Python's or the default one)."""
+    import signal
+    return bpy.app.background and signal.getsignal(signal.SIGINT) is None
+
+
+def fail_render(scene, message: str, stage: str) -> None:
+    """Make the current render of `scene` fail with `message` (see above). `stage`: "init"
+    (render_init, before the meshes render: the camera can still stop it), "frame" (while
+    Blender prepares the frame: recorded, the compose step fails with it) or "compose"."""
+    if message not in _state.errors:
+        print(f"Gaussian splats: ERROR: {message}", flush=True)
+        _state.errors.append(message)
+    if scene is None:
+        return
+    _state.failed_frames.add(scene.frame_current)
+    if not bpy.app.background or stage == "frame":
+        return
+    if stage == "init":
+        if scene.name not in _state.camera_restore and scene.camera is not None:
+            _state.camera_restore[scene.name] = scene.camera
+            scene.camera = None
+    elif _blender_handles_sigint():
+        import signal
+        os.kill(os.getpid(), signal.SIGINT)
+
+
+def _render_blockers(scene) -> list[str]:
+    """Why the splats of `scene` cannot be composed into its final render (empty: they can)."""
+    try:
+        dependencies.require("splatcore", "Rendering Gaussian splats")
+        if _wants_splat_passes(scene):
+            dependencies.require("OpenImageIO", "Splat Passes in multilayer EXR files "
+                                                "(Properties > Render > Gaussian Splats; "
+                                                "turn it off to render without them)")
+    except dependencies.MissingModule as error:
+        return [str(error)]
+    found = bridge.problems(scene)
+    if found:
+        return [f"{'; '.join(found)}: set it up in Properties > Render > Gaussian Splats "
+                f"(Set Up / Repair, or bpy.ops.splat.compositor_bridge()) before rendering"]
+    return []
+
+
+def last_errors() -> list[str]:
+    """Why the current or last render failed (empty when it did not)."""
+    return list(_state.errors)
+
+
+# ------------------------------------------------------------------------------- handlers
+# The bridge is set up before any render: when a file loads, and when a scene gains splats.
+# Render handlers leave the compositor alone (from Blender 5.1; see `_SET_UP_AT_RENDER`):
+# Blender 5.2 crashes (SIGSEGV in the compositor's worker threads, or an abort) when a Render
+# Layers node for another scene is added to the compositor from render_init. What they still
+# change is small and was tried on 5.2: `use_render_cache` (read after render_init) and, for a
+# failure, the scene's camera.
+
 @persistent
 def _on_render_init(scene, _depsgraph=None) -> None:
     if bridge.is_helper(scene):
@@ -464,19 +549,28 @@ def _on_render_init(scene, _depsgraph=None) -> None:
     _state.frames.clear()
     _state.pending_passes.clear()
     _state.errors.clear()
+    _state.failed_frames.clear()
     _state.frame_start_ns = time.time_ns()
     settings = settings_of(scene)
     if not settings.enabled or scene.render.engine == ENGINE_ID:
         return
     try:
-        if bridge.bridge_node(scene) is not None or bridge.has_splats(scene):
-            if bridge.ensure_bridge(scene):
-                print(f"Gaussian splats: compositor bridge set up for scene {scene.name!r}")
-            if render_result_image() is None or _state.force_cache_file:
-                _state.cache_restore[scene.name] = scene.render.use_render_cache
-                scene.render.use_render_cache = True
-    except Exception:
+        if bridge.bridge_node(scene) is None and not bridge.has_splats(scene):
+            return
+        if _SET_UP_AT_RENDER and bridge.ensure_bridge(scene):
+            print(f"Gaussian splats: compositor bridge set up for scene {scene.name!r}")
+        blockers = _render_blockers(scene)
+        if blockers:
+            fail_render(scene, "; ".join(blockers), "init")
+            return
+        if render_result_image() is None or _state.force_cache_file:
+            # `blender -b -a`: no Render Result image to read the render from; the render
+            # cache writes it (this flag is read when the render starts, after this handler).
+            _state.cache_restore[scene.name] = scene.render.use_render_cache
+            scene.render.use_render_cache = True
+    except Exception as error:
         traceback.print_exc()
+        fail_render(scene, f"cannot prepare the splat composite: {error}", "init")
 
 
 @persistent
@@ -489,19 +583,34 @@ def _on_render_pre(scene, _depsgraph=None) -> None:
 def _on_frame_change(scene, depsgraph=None) -> None:
     if (depsgraph is None or _state.scene is None or scene.name != _state.scene
             or depsgraph.mode != "RENDER" or bridge.is_helper(scene)
-            or not settings_of(scene).enabled):
+            or not settings_of(scene).enabled or scene.render.engine == ENGINE_ID
+            or _state.errors):
         return
     try:
         frame = capture_frame(scene, depsgraph)
     except Exception as error:
         traceback.print_exc()
-        _state.errors.append(f"Gaussian splats: gathering failed: {error}")
+        fail_render(scene, f"the splats could not be gathered: {error}", "frame")
         return
     _state.frames[(scene.name, depsgraph.view_layer.name)] = frame
 
 
+def _remove_failed_file(scene) -> None:
+    """A frame whose splats failed: the file Blender just wrote lacks them, so it goes."""
+    path = written_file(scene)
+    if path is not None:
+        with contextlib.suppress(OSError):
+            os.remove(path)
+        print(f"Gaussian splats: removed {path}: its splats could not be composed", flush=True)
+
+
 @persistent
 def _on_render_write(scene, _depsgraph=None) -> None:
+    if bridge.is_helper(scene):
+        return
+    if scene.frame_current in _state.failed_frames:
+        _remove_failed_file(scene)
+        return
     pending = _state.pending_passes.pop(scene.name, None)
     if pending is None:
         return
@@ -511,13 +620,15 @@ def _on_render_write(scene, _depsgraph=None) -> None:
     try:
         path = written_file(scene)
         if path is None:
-            print("Gaussian splats: cannot find the written multilayer EXR to add the splat "
-                  "passes to")
-            return
+            raise RuntimeError("cannot find the written multilayer EXR to add the splat "
+                               "passes to")
         exr_layers.append_layers(path, {"Splats.Combined": ("RGBA", layer.rgba),
                                         "Splats.Depth": ("Z", layer.depth[..., None])})
-    except Exception:
+    except Exception as error:
         traceback.print_exc()
+        fail_render(scene, f"the splat passes could not be added to the file: {error}",
+                    "compose")
+        _remove_failed_file(scene)
 
 
 @persistent
@@ -526,33 +637,88 @@ def _on_render_done(scene, _depsgraph=None) -> None:
         return
     if scene.name in _state.cache_restore:
         scene.render.use_render_cache = _state.cache_restore.pop(scene.name)
+    camera = _state.camera_restore.pop(scene.name, None)
+    if camera is not None:
+        scene.camera = camera
     _state.scene = None
     _state.frames.clear()
     _state.pending_passes.clear()
+    if _state.errors and not bpy.app.background:
+        message = _state.errors[-1]
+        bpy.app.timers.register(lambda: _report_in_window(message), first_interval=0.0)
+
+
+def _report_in_window(message: str) -> None:
+    """An interactive render failed: say so in the status bar and the Info editor."""
+    try:
+        bpy.ops.splat.report_render_error(message=message)
+    except RuntimeError:
+        pass  # the report is what the operator is for; bpy raises for ERROR reports
+    return None
+
+
+class SPLAT_OT_report_render_error(bpy.types.Operator):
+    """Report why the last render could not compose its splats"""
+
+    bl_idname = "splat.report_render_error"
+    bl_label = "Splat Render Error"
+    bl_options = {"INTERNAL"}
+
+    message: bpy.props.StringProperty()
+
+    def execute(self, context):
+        self.report({"ERROR"}, self.message)
+        return {"FINISHED"}
 
 
 _object_counts: dict[str, int] = {}
+_helper_made_for: set[str] = set()   # scenes whose helper scene was made in the last update
+
+# Blender up to 5.0 takes the bridge being set up from render_init (a script that adds splats
+# and renders at once relies on it); 5.2 crashes (see the handlers' note), so from 5.1 on a
+# render finds the bridge ready or fails with what to do.
+_SET_UP_AT_RENDER = bpy.app.version < (5, 1, 0)
 
 
 @persistent
 def _on_depsgraph_update(scene, depsgraph) -> None:
-    """In the UI: set the bridge up on the main thread as soon as a scene gains splats, so
-    that F12 (whose handlers run in the render job's thread) finds it ready."""
-    if bpy.app.background or bridge.is_helper(scene) or not depsgraph.id_type_updated("OBJECT"):
+    """Set the bridge up as soon as a scene gains splats, before anything renders it: in the
+    UI on the main thread through a timer (not inside the depsgraph update), in background
+    from the update itself (no event loop runs timers before a script renders). Blender 5.2
+    crashes when one update both makes a scene and points a Render Layers node at it, so a
+    new helper scene is made in one update and the bridge in the next."""
+    if bridge.is_helper(scene) or getattr(depsgraph, "mode", "VIEWPORT") != "VIEWPORT":
+        return
+    waiting = scene.name in _helper_made_for
+    if not waiting and not depsgraph.id_type_updated("OBJECT"):
         return
     count = len(scene.objects)
-    if _object_counts.get(scene.name) == count:
+    if not waiting and _object_counts.get(scene.name) == count:
         return
     _object_counts[scene.name] = count
-    if settings_of(scene).enabled and bridge.bridge_node(scene) is None:
+    if not settings_of(scene).enabled or bridge.bridge_node(scene) is not None \
+            or scene.render.engine == ENGINE_ID or not bridge.has_splats(scene):
+        return
+    if not bpy.app.background:
         name = scene.name
         bpy.app.timers.register(lambda: _set_up_later(name), first_interval=0.0)
+    elif _SET_UP_AT_RENDER:
+        return  # the render sets it up (a script's scene changes nothing before)
+    elif bridge.helper_scene(create=False) is None:
+        bridge.helper_scene()
+        _helper_made_for.add(scene.name)
+    else:
+        _helper_made_for.discard(scene.name)
+        _set_up_later(scene.name)
 
 
 def _set_up_later(scene_name: str) -> None:
     scene = bpy.data.scenes.get(scene_name)
+    if _state.scene is not None or (hasattr(bpy.app, "is_job_running")
+                                    and bpy.app.is_job_running("RENDER")):
+        return 0.5  # never while a render runs: try again when it is done
     if scene is not None and scene.render.engine != ENGINE_ID and bridge.has_splats(scene) \
-            and bridge.bridge_node(scene) is None:
+            and bridge.bridge_node(scene) is None and settings_of(scene).enabled:
         try:
             bridge.ensure_bridge(scene)
         except Exception:
@@ -560,8 +726,19 @@ def _set_up_later(scene_name: str) -> None:
     return None
 
 
+@persistent
+def _on_load_post(*_args) -> None:
+    """A file opened (also `blender -b file.blend -a`, before it renders): bridge its scenes."""
+    _object_counts.clear()
+    _helper_made_for.clear()
+    for scene in list(bpy.data.scenes):
+        if not bridge.is_helper(scene):
+            _set_up_later(scene.name)
+
+
 _HANDLERS = (
     ("depsgraph_update_post", _on_depsgraph_update),
+    ("load_post", _on_load_post),
     ("render_init", _on_render_init),
     ("render_pre", _on_render_pre),
     ("frame_change_post", _on_frame_change),
@@ -577,8 +754,9 @@ _SHARED_PANELS = ("RENDER_PT_color_management", "RENDER_PT_color_management_curv
 
 
 def register() -> None:
-    if not getattr(SplatRenderEngine, "is_registered", False):
-        bpy.utils.register_class(SplatRenderEngine)
+    for cls in (SplatRenderEngine, SPLAT_OT_report_render_error):
+        if not getattr(cls, "is_registered", False):
+            bpy.utils.register_class(cls)
     for name, handler in _HANDLERS:
         handlers = getattr(bpy.app.handlers, name)
         if handler not in handlers:
@@ -600,5 +778,6 @@ def unregister() -> None:
         engines = getattr(panel, "COMPAT_ENGINES", None)
         if isinstance(engines, set):
             engines.discard(ENGINE_ID)
-    if getattr(SplatRenderEngine, "is_registered", False):
-        bpy.utils.unregister_class(SplatRenderEngine)
+    for cls in (SPLAT_OT_report_render_error, SplatRenderEngine):
+        if getattr(cls, "is_registered", False):
+            bpy.utils.unregister_class(cls)

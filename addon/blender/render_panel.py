@@ -24,6 +24,12 @@ from . import compositor_bridge as bridge
 from .registration import add_pointer, register_classes, remove_pointer, unregister_classes
 
 
+def _viewport_switch(settings, context) -> None:
+    """The splat object's own display follows whether the add-on draws it (`viewport`)."""
+    from . import viewport
+    viewport.on_switch_changed(settings, context)
+
+
 class SplatRenderSettings(bpy.types.PropertyGroup):
     enabled: BoolProperty(
         name="Composite Splats",
@@ -55,7 +61,7 @@ class SplatRenderSettings(bpy.types.PropertyGroup):
                     "(layer \"Splats\")",
         default=True)
     viewport: BoolProperty(
-        name="Show in Viewport",
+        name="Show in Viewport", update=_viewport_switch,
         description="Draw splat objects in the 3D viewport (Solid and Material Preview)",
         default=True)
     viewport_coarse_pixels: IntProperty(
@@ -175,6 +181,12 @@ class RENDER_PT_splats(bpy.types.Panel):
         sub.active = settings.viewport
         sub.prop(settings, "viewport_resolution")
         sub.prop(settings, "viewport_coarse_pixels")
+        errors = render_hooks.last_errors()
+        if errors:  # the last render failed: say why where the settings are
+            box = layout.box()
+            box.label(text="The last render failed:", icon="ERROR")
+            for line in errors[-1].split("; "):
+                box.label(text=line)
         stats = render_hooks.last_stats
         if stats.get("total_ms"):
             box = layout.box()

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import bpy
 import numpy as np
+from bpy.app.handlers import persistent
 
 from ..core import colour
 from ..core.cameras import CAMERA_AXIS_FLIP, Camera
@@ -152,7 +153,8 @@ def _shader():
         info.vertex_in(0, "VEC2", "pos")
         info.vertex_out(interface)
         info.fragment_out(0, "VEC4", "frag")
-        info.depth_write("ANY")
+        if hasattr(info, "depth_write"):  # Blender 4.4+; 4.2/4.3 write gl_FragDepth as is
+            info.depth_write("ANY")
         info.vertex_source(_VERTEX)
         info.fragment_source(_FRAGMENT)
         shader = gpu.shader.create_from_info(info)
@@ -436,6 +438,80 @@ def _ensure_timer() -> None:
         bpy.app.timers.register(_tick, first_interval=0.05)
 
 
+# ------------------------------------------------------------------ the object's own drawing
+#
+# Blender draws a mesh without faces as dots, one per vertex, on top of everything drawn from
+# Python (overlays are merged after POST_VIEW): 125k black dots over the splats. A splat object
+# the add-on draws is displayed as its bounding box instead (`display_type = 'BOUNDS'`: a few
+# lines to see and click it, no dots); Edit Mode still shows and selects every point. When the
+# add-on stops drawing it (its or the scene's "Show in Viewport" off), the dots come back.
+
+BOUNDS_FLAG = "splat_bounds_display"   # ID property: this add-on set the bounds display
+
+
+def drawn_by_addon(obj, scene) -> bool:
+    settings = getattr(scene, "splat_render", None)
+    return (getattr(obj, "splat", None) is not None and obj.splat.is_splat
+            and obj.splat.show_in_viewport and (settings is None or settings.viewport))
+
+
+def sync_display(obj, scene) -> None:
+    """Bounds display while the add-on draws the splats, Blender's own otherwise (a display
+    type the user picked, such as Wire, is left alone)."""
+    if not getattr(getattr(obj, "splat", None), "is_splat", False):
+        return
+    if drawn_by_addon(obj, scene):
+        if obj.display_type in ("TEXTURED", "SOLID"):
+            obj.display_type = "BOUNDS"
+            obj[BOUNDS_FLAG] = True
+    elif obj.display_type == "BOUNDS" and obj.get(BOUNDS_FLAG):
+        obj.display_type = "TEXTURED"
+        del obj[BOUNDS_FLAG]
+
+
+def sync_scene(scene) -> None:
+    for obj in scene.objects:
+        sync_display(obj, scene)
+
+
+def on_switch_changed(_settings, context) -> None:
+    """Update callback of `Object.splat.show_in_viewport` and `Scene.splat_render.viewport`."""
+    if context.scene is not None:
+        sync_scene(context.scene)
+
+
+_object_counts: dict[str, int] = {}
+
+
+@persistent
+def _on_depsgraph_update(scene, depsgraph) -> None:
+    """New objects in a scene: give splat objects the bounds display (in the UI through a
+    timer, outside the depsgraph update; in background at once)."""
+    if not depsgraph.id_type_updated("OBJECT") or _object_counts.get(scene.name) == len(scene.objects):
+        return
+    _object_counts[scene.name] = len(scene.objects)
+    if bpy.app.background:
+        sync_scene(scene)
+    else:
+        name = scene.name
+        bpy.app.timers.register(lambda: _sync_later(name), first_interval=0.0)
+
+
+def _sync_later(scene_name: str) -> None:
+    scene = bpy.data.scenes.get(scene_name)
+    if scene is not None:
+        sync_scene(scene)
+    return None
+
+
+@persistent
+def _on_load_post(*_args) -> None:
+    _object_counts.clear()
+    for scene in bpy.data.scenes:
+        sync_scene(scene)
+
+
+_HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_load_post))
 _handle = None
 
 
@@ -443,10 +519,16 @@ def register() -> None:
     global _handle
     if _handle is None:
         _handle = bpy.types.SpaceView3D.draw_handler_add(_draw, (), "WINDOW", "POST_VIEW")
+    for name, handler in _HANDLERS:
+        if handler not in getattr(bpy.app.handlers, name):
+            getattr(bpy.app.handlers, name).append(handler)
 
 
 def unregister() -> None:
     global _handle
+    for name, handler in _HANDLERS:
+        if handler in getattr(bpy.app.handlers, name):
+            getattr(bpy.app.handlers, name).remove(handler)
     if _handle is not None:
         bpy.types.SpaceView3D.draw_handler_remove(_handle, "WINDOW")
         _handle = None

@@ -1,0 +1,117 @@
+#!/usr/bin/env bash
+# The extension in real Blender binaries (not the `bpy` module): Debian's Blender 4.3 ("trixie")
+# and 5.2 LTS ("sid"), each in its own root filesystem (../shared/real-blender; built once by its
+# setup.sh, about 2 minutes and 2 GiB each, then cached under ~/.cache/real-blender).
+#
+#   scripts/test_real_blender.sh [SUITE...]        (default: trixie sid; needs root)
+#
+# In each Blender: `extension validate` and `extension install-file` of the linux-x64 zip that
+# scripts/build_extension.py builds; a scene with splats, a cube in front and a plane behind
+# (tests/real_blender/scene.py); F12 (`bpy.ops.render.render(write_still=True)`) and
+# `blender -b scene.blend -a`, each written PNG held against the native composite within 1/255
+# (tests/real_blender/check.py); forced composite failures (a missing module, splats that cannot
+# be gathered, a native error), each of which must fail the render with a non-zero exit code and
+# no file; and the UI under Xvfb: F12 as a user presses it (tests/real_blender/ui_f12.py, the
+# Render Result held against the native composite), Solid and Material Preview screenshots of the viewport held
+# against the native render (tests/real_blender/viewport_figures.py). Exits non-zero on any
+# failure, after a summary table.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+RB=${REAL_BLENDER_SCRIPTS:-$(cd ../shared/real-blender 2>/dev/null && pwd)}
+[ -n "$RB" ] && [ -x "$RB/run.sh" ] || { echo "test_real_blender: no ../shared/real-blender" >&2; exit 1; }
+SUITES=${*:-trixie sid}
+PY=.venv/bin/python
+start=$(date +%s)
+failures=0
+summary=()
+
+note() {  # note SUITE CHECK STATUS DETAIL
+    summary+=("$(printf '%-7s %-22s %-5s %s' "$1" "$2" "$3" "$4")")
+    [ "$3" = ok ] || failures=$((failures + 1))
+    echo "test_real_blender: $1 $2: $3 $4"
+}
+
+$PY scripts/build_extension.py --platform linux-x64 || exit 1
+zip=$(ls -t dist/gaussian_splatting-*-linux_x64.zip | head -1)
+
+for suite in $SUITES; do
+    "$RB/setup.sh" "$suite" || { note "$suite" setup FAIL "setup.sh failed"; continue; }
+    root=$("$RB/root.sh" "$suite")
+    io=$root/io/splat-test
+    rm -rf "$io" && mkdir -p "$io/out"
+    cp "$zip" "$io/extension.zip"
+    cp tests/real_blender/*.py "$io/"
+    $PY tests/real_blender/check.py make "$io/splats.npz"
+    run() { "$RB/run.sh" "$suite" "$@" > "$io/last.log" 2>&1; }
+    t=/io/splat-test
+
+    run blender --command extension validate $t/extension.zip
+    rc=$?; note "$suite" "extension validate" "$([ $rc = 0 ] && echo ok || echo FAIL)" \
+        "$(grep -m1 -o 'FATAL_ERROR.*' "$io/last.log" | tail -c 120)"
+    run blender --command extension install-file -r user_default -e $t/extension.zip
+    rc=$?; grep -q 'Installed\|Reinstalled' "$io/last.log" && [ $rc = 0 ] \
+        && note "$suite" install ok "" || { note "$suite" install FAIL "rc $rc"; continue; }
+    run blender -b --factory-startup --python $t/scene.py -- $t/splats.npz $t/scene.blend
+    [ -f "$io/scene.blend" ] || { note "$suite" scene FAIL "see $io/last.log"; continue; }
+
+    run blender -b $t/scene.blend --python $t/render_still.py -- $t/out/f12
+    rc=$?; run blender -b $t/scene.blend --python $t/render_still.py -- $t/out/meshes --no-splats --multilayer
+    if [ $rc = 0 ] && [ -f "$io/out/meshes.exr" ]; then
+        detail=$($PY tests/real_blender/check.py render "$io/out/f12.png" "$io/out/meshes.exr" "$io/splats.npz")
+        rc=$?; note "$suite" F12 "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
+    else
+        note "$suite" F12 FAIL "rc $rc"
+    fi
+    run blender -b $t/scene.blend -o $t/out/anim_#### -a
+    rc=$?; ok=ok; detail="rc $rc"
+    for frame in 0001 0002; do
+        if [ $rc != 0 ] || ! line=$($PY tests/real_blender/check.py render "$io/out/anim_$frame.png" \
+                "$io/out/meshes.exr" "$io/splats.npz"); then ok=FAIL; fi
+        detail="${line#*: }"
+    done
+    note "$suite" "-a (2 frames)" $ok "$detail"
+
+    for kind in module gather compose; do
+        rm -f "$io"/out/fail_*
+        run blender -b $t/scene.blend --python $t/force_failure.py -o $t/out/fail_#### -a -- $kind
+        rc_anim=$?
+        run blender -b $t/scene.blend --python $t/force_failure.py -- $kind --still $t/out/fail_still
+        rc_still=$?
+        written=$(ls "$io"/out/fail_* 2>/dev/null | wc -l)
+        ok=$([ $rc_anim != 0 ] && [ $rc_still != 0 ] && [ "$written" = 0 ] && echo ok || echo FAIL)
+        note "$suite" "forced failure: $kind" $ok "-a exit $rc_anim, F12 exit $rc_still, $written files"
+    done
+
+    rm -f "$io/out/ui_f12.png"  # F12 as a user presses it: the render runs in a job thread
+    timeout 300 "$RB/run.sh" "$suite" sh -c "xvfb-run -a -s '-screen 0 1600x900x24' \
+        blender $t/scene.blend --python $t/ui_f12.py -- $t/out/ui_f12.png > $t/ui_f12.log 2>&1"
+    rc=$?
+    if [ $rc = 0 ] && [ -f "$io/out/ui_f12.png" ]; then
+        detail=$($PY tests/real_blender/check.py render "$io/out/ui_f12.png" "$io/out/meshes.exr" "$io/splats.npz")
+        rc=$?; note "$suite" "F12 in the UI" "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
+    else
+        note "$suite" "F12 in the UI" FAIL "exit $rc (see $io/ui_f12.log)"
+    fi
+
+    rm -rf "$io/ui" && mkdir -p "$io/ui"
+    timeout 400 "$RB/run.sh" "$suite" sh -c "xvfb-run -a -s '-screen 0 1600x900x24' \
+        blender $t/scene.blend --python $t/viewport_shot.py -- $t/ui SOLID MATERIAL > $t/ui/ui.log 2>&1"
+    for shading in solid material; do
+        if [ -f "$io/ui/${shading}_plain.png" ]; then
+            detail=$($PY tests/real_blender/check.py viewport "$io/ui/${shading}_splats.png" \
+                "$io/ui/${shading}_plain.png" "$io/ui/view.json" "$io/splats.npz")
+            rc=$?; note "$suite" "viewport $shading" "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
+        else
+            note "$suite" "viewport $shading" FAIL "no screenshot (see $io/ui/ui.log)"
+        fi
+    done
+    if [ -f "$io/ui/view.json" ] && ! $PY -c "import json, sys; e = json.load(open(sys.argv[1]))['errors']; print(*e); sys.exit(bool(e))" \
+            "$io/ui/view.json"; then
+        note "$suite" "viewport errors" FAIL "the draw handler raised (see above)"
+    fi
+done
+
+echo
+echo "real Blender, $(( $(date +%s) - start )) s:"
+printf '%s\n' "${summary[@]}"
+[ $failures = 0 ]

@@ -1,0 +1,191 @@
+"""Runs inside a real Blender's UI (under Xvfb): screenshots of the 3D viewport of the open file.
+
+    blender FILE.blend --python viewport_shot.py -- OUT_DIR [SHADING ...]
+
+The 3D view is made to fill the window (no header, no side bars), looks along the scene
+camera from a little further back, floor grid and axes off, nothing selected. For each shading
+(SOLID, MATERIAL), once the add-on's viewport image has arrived at full resolution, it saves
+OUT_DIR/<shading>_splats.png (splats shown), OUT_DIR/<shading>_plain.png (the add-on's drawing
+switched off) and OUT_DIR/view.json (region size, view and projection matrices), then quits.
+Errors raised in the draw handler are collected in view.json ("errors").
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import sys
+import time
+import traceback
+
+import bpy
+from mathutils import Matrix, Vector
+
+ADDON = "bl_ext.user_default.gaussian_splatting"
+args = sys.argv[sys.argv.index("--") + 1:]
+OUT = args[0]
+SHADINGS = args[1:] or ["SOLID"]
+viewport = importlib.import_module(ADDON + ".blender.viewport")
+errors: list[str] = []
+record: dict = {"shots": {}}
+
+
+def view3d():
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                region = next(r for r in area.regions if r.type == "WINDOW")
+                return window, area, region
+    return None
+
+
+def set_up() -> None:
+    window, area, region = view3d()
+    with bpy.context.temp_override(window=window, area=area, region=region):
+        bpy.ops.screen.screen_full_area(use_hide_panels=True)
+    bpy.ops.object.select_all(action="DESELECT")
+    bpy.context.scene.camera.hide_set(True)  # the view looks from behind it
+    if os.environ.get("SPLAT_EDIT_MODE"):  # a look at Edit Mode (its points must show)
+        splats = bpy.data.objects["Splats"]
+        bpy.context.view_layer.objects.active = splats
+        splats.select_set(True)
+        bpy.ops.object.mode_set(mode="EDIT")
+
+
+def aim() -> None:
+    window, area, region = view3d()
+    space = area.spaces.active
+    space.overlay.show_floor = False
+    space.overlay.show_axis_x = space.overlay.show_axis_y = space.overlay.show_axis_z = False
+    space.overlay.show_cursor = False
+    space.overlay.show_text = False
+    space.show_gizmo = False
+    space.lens = 50.0
+    space.clip_start, space.clip_end = 0.1, 100.0
+    rv3d = space.region_3d
+    rv3d.view_perspective = "PERSP"
+    camera = bpy.context.scene.camera
+    # Look from the camera position, moved back by 1 unit: the splats fill the middle.
+    rotation = camera.matrix_world.to_quaternion()
+    rv3d.view_rotation = rotation
+    rv3d.view_distance = 7.0
+    rv3d.view_location = camera.matrix_world.translation + rotation @ Vector((0, 0, -6.0))
+    for other in window.screen.areas:
+        other.tag_redraw()
+
+
+def shot(path: str) -> None:
+    """The X screen (Blender's own screenshot reads a black front buffer under Xvfb)."""
+    import subprocess
+    subprocess.run(["import", "-window", "root", path], check=True)
+
+
+steps: list = []
+
+
+def state_step():
+    try:
+        if not steps:
+            json.dump({**{k: v for k, v in record.items() if not k.startswith("_")},
+                       "errors": errors + viewport.renderer.errors},
+                      open(os.path.join(OUT, "view.json"), "w"), indent=1)
+            bpy.ops.wm.quit_blender()
+            return None
+        wait = steps[0]()
+        if wait is None:
+            steps.pop(0)
+            return 0.5
+        return wait
+    except Exception:
+        errors.append(traceback.format_exc())
+        steps.clear()
+        return 0.1
+
+
+def wait_until_rested():
+    window, area, region = view3d()
+    image = viewport.renderer.result(region.as_pointer())
+    compiling = bpy.app.is_job_running("SHADER_COMPILATION")  # Material Preview's shaders
+    if image is None or image.coarse or viewport.renderer.busy() or compiling:
+        if time.monotonic() - record.setdefault("_t0", time.monotonic()) > 60:
+            errors.append("no full-resolution viewport image within 60 s")
+            return None
+        area.tag_redraw()
+        return 0.5
+    record.pop("_t0", None)
+    return None
+
+
+def settled_shot(path: str, at_least: float = 0.0):
+    """A step: screenshot every second until three in a row are the same, and `at_least`
+    seconds have passed since the shading was set (EEVEE draws meshes white while it compiles
+    their shaders, with no job to wait for on 5.2), at most 90 s."""
+    state = {"previous": None, "same": 0, "t0": None}
+
+    def step():
+        now = time.monotonic()
+        state["t0"] = state["t0"] or now
+        shot(path)
+        data = open(path, "rb").read()
+        state["same"] = state["same"] + 1 if data == state["previous"] else 0
+        state["previous"] = data
+        if (state["same"] >= 2 and now - record["_shading_set"] >= at_least) \
+                or now - state["t0"] > 90:
+            return None
+        view3d()[1].tag_redraw()
+        return 1.0
+    return step
+
+
+def add_shading(shading: str) -> None:
+    def configure():
+        window, area, region = view3d()
+        area.spaces.active.shading.type = shading
+        record["_shading_set"] = time.monotonic()
+        bpy.context.scene.splat_render.viewport = True
+        area.tag_redraw()
+        return None
+
+    def record_view():
+        window, area, region = view3d()
+        rv3d = area.spaces.active.region_3d
+        record["region"] = [region.width, region.height]
+        record["view_matrix"] = [list(r) for r in rv3d.view_matrix]
+        record["window_matrix"] = [list(r) for r in rv3d.window_matrix]
+        record["version"] = list(bpy.app.version)
+        return None
+
+    def splats_off():
+        bpy.context.scene.splat_render.viewport = False
+        view3d()[1].tag_redraw()
+        return None
+
+    compile_time = 20.0 if shading == "MATERIAL" else 0.0
+    steps.extend([configure, wait_until_rested, record_view,
+                  settled_shot(os.path.join(OUT, f"{shading.lower()}_splats.png"), compile_time),
+                  splats_off, settled_shot(os.path.join(OUT, f"{shading.lower()}_plain.png"))])
+
+
+def catch_draw_errors():
+    """Count exceptions raised by the draw handler (Blender prints and swallows them)."""
+    real = viewport.draw_view
+
+    def checked(context):
+        try:
+            real(context)
+        except Exception:
+            message = traceback.format_exc()
+            if message not in errors:
+                errors.append(message)
+            raise
+    viewport.draw_view = checked
+
+
+catch_draw_errors()
+
+
+steps.extend([lambda: (set_up(), None)[1], lambda: (aim(), None)[1]])
+for name in SHADINGS:
+    add_shading(name)
+bpy.app.timers.register(state_step, first_interval=2.0)
