@@ -233,7 +233,8 @@ def test_failed_render_changes_no_setting(monkeypatch, tmp_path):
     except RuntimeError:
         pass
     assert _render_settings(scene) == before and bs.scene_state() == objects
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]  # no temporary left
+    # No temporary left (the failed frame itself is removed: see the xfail below).
+    assert {p.name for p in tmp_path.iterdir()} <= {"out.png"}
 
 
 @pytest.mark.xfail(strict=True, reason=(

@@ -63,7 +63,7 @@ from ..core.dataset import Points
 from ..core.jobs import TrainingJob, compaction_note
 from ..core.scene_to_splats import ImageDataset, RandomBackground, orbit_cameras, sample_surface
 from ..core.train import Trainer, TrainConfig
-from . import splat_object
+from . import dependencies, splat_object
 from .camera_adapter import set_camera
 from .job_runner import (JobOperator, OperatorJob, draw_settings, is_running, preparing,
                          registration)
@@ -343,7 +343,10 @@ def prepare_scene_to_splats(context, *, cameras: int = 64, resolution=(256, 256)
                  seed: int = 0, threads: int = 0, compact: bool = True, update_every: int = 200,
                  filepath: str = "", progress=None) -> SceneToSplatsRequest:
     """Pick the targets, place the cameras, render the views and build the dataset (main
-    thread: this is where Cycles runs). Raises SceneToSplatsError."""
+    thread: this is where Cycles runs). Raises SceneToSplatsError, or MissingModule (an
+    ImportError) for a module it needs."""
+    for module in ("splatcore", "OpenImageIO"):  # kernels, the rendered views
+        dependencies.require(module, "Baking a scene to splats")
     scene = context.scene
     targets = targets_of(context)
     if not targets:
@@ -533,7 +536,7 @@ class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator)
         try:
             with preparing(context, "Baking", "rendering views") as progress:
                 request = prepare_scene_to_splats(context, progress=progress, **self._options())
-        except (SceneToSplatsError, ValueError, RuntimeError, OSError) as error:
+        except (SceneToSplatsError, ValueError, RuntimeError, OSError, ImportError) as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
         return self.run_job(context, scene_to_splats_job(request))

@@ -57,7 +57,7 @@ from ..core.dataset import NO_CAMERA, Points
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, TrainingJob, compaction_note
 from ..core.train import TrainConfig
-from . import job_runner, splat_object
+from . import dependencies, job_runner, splat_object
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, draw_settings, registration
 
@@ -214,7 +214,9 @@ def train_request(collection, config: TrainConfig | None = None, *, image_folder
                   resume: bool = False, checkpoint_every: int = 1000, update_every: int = 200,
                   compact: bool = False) -> TrainRequest:
     """Read the collection and check the inputs on the main thread; raises ValueError /
-    FileNotFoundError."""
+    FileNotFoundError, or MissingModule (an ImportError) for a module training needs."""
+    for module in ("splatcore", "OpenImageIO", "pycolmap"):  # kernels, photos, the model
+        dependencies.require(module, "Training Gaussians")
     path = checkpoint_path(collection, str(checkpoint), resume=resume)
     return colmap_training.train_request(
         source_of(collection), path, config, resume=resume, image_folder=image_folder,
@@ -422,7 +424,7 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
                                     checkpoint=self.checkpoint, resume=self.resume,
                                     checkpoint_every=self.checkpoint_every,
                                     update_every=self.update_every, compact=self.compact)
-        except (ValueError, OSError) as error:
+        except (ValueError, OSError, ImportError) as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
         return self.run_job(context, training_job(request))
