@@ -78,7 +78,8 @@ def undistort_points(intr: PinholeIntrinsics, camera: Camera, xy: np.ndarray) ->
         normalised = intr.source.cam_from_img(np.ascontiguousarray(xy, np.float64))
     else:
         pin = intr.pinhole
-        normalised = np.stack([(xy[:, 0] - pin.cx) / pin.fx, (xy[:, 1] - pin.cy) / pin.fy], 1)
+        with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are dropped
+            normalised = np.stack([(xy[:, 0] - pin.cx) / pin.fx, (xy[:, 1] - pin.cy) / pin.fy], 1)
     return np.stack([camera.fx * normalised[:, 0] + camera.cx,
                      camera.fy * normalised[:, 1] + camera.cy], 1)
 
