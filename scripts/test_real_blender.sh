@@ -7,7 +7,8 @@
 #
 # In each Blender: `extension validate` and `extension install-file` of the linux-x64 zip that
 # scripts/build_extension.py builds; a scene with splats, a cube in front and a plane behind
-# (tests/real_blender/scene.py); F12 (`bpy.ops.render.render(write_still=True)`) and
+# (tests/real_blender/scene.py); `blender -c gaussian_splatting` (each verb's --help, a conversion,
+# a missing file); F12 (`bpy.ops.render.render(write_still=True)`) and
 # `blender -b scene.blend -a`, each written PNG held against the native composite within 1/255
 # (tests/real_blender/check.py); forced composite failures (a missing module, splats that cannot
 # be gathered, a native error), each of which must fail the render with a non-zero exit code and
@@ -51,6 +52,20 @@ for suite in $SUITES; do
     run blender --command extension install-file -r user_default -e $t/extension.zip
     rc=$?; grep -q 'Installed\|Reinstalled' "$io/last.log" && [ $rc = 0 ] \
         && note "$suite" install ok "" || { note "$suite" install FAIL "rc $rc"; continue; }
+    # The command line (`blender -c gaussian_splatting ...`, addon/cli.py): every verb's help,
+    # a format conversion, and a missing file, which must fail with exit status 1.
+    cp examples/demo_scene.ply "$io/demo_scene.ply"
+    ok=ok; detail=""
+    for verb in "" import-colmap train render convert-to-mesh convert; do
+        run blender -c gaussian_splatting $verb --help
+        rc=$?; [ $rc = 0 ] || { ok=FAIL; detail="$detail ${verb:-(command)} --help exit $rc;"; }
+    done
+    run blender -c gaussian_splatting convert $t/demo_scene.ply $t/out/demo.splat --up -Y
+    rc=$?; { [ $rc = 0 ] && [ -s "$io/out/demo.splat" ]; } || { ok=FAIL; detail="$detail convert exit $rc;"; }
+    run blender -c gaussian_splatting convert $t/missing.ply $t/out/x.ply
+    rc=$?; [ $rc = 1 ] || { ok=FAIL; detail="$detail convert of a missing file exit $rc;"; }
+    note "$suite" "blender -c" $ok "${detail:-every verb's --help, convert, a missing file (exit 1)}"
+
     run blender -b --factory-startup --python $t/scene.py -- $t/splats.npz $t/scene.blend
     [ -f "$io/scene.blend" ] || { note "$suite" scene FAIL "see $io/last.log"; continue; }
 
