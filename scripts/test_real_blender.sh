@@ -64,7 +64,7 @@ for suite in $SUITES; do
     rc=$?; { [ $rc = 0 ] && [ -s "$io/out/demo.splat" ]; } || { ok=FAIL; detail="$detail convert exit $rc;"; }
     run blender -c gaussian_splatting convert $t/missing.ply $t/out/x.ply
     rc=$?; [ $rc = 1 ] || { ok=FAIL; detail="$detail convert of a missing file exit $rc;"; }
-    note "$suite" "blender -c" $ok "${detail:-every verb's --help, convert, a missing file (exit 1)}"
+    note "$suite" "blender -c" $ok "${detail:-the help of every verb, convert, a missing file (exit 1)}"
 
     run blender -b --factory-startup --python $t/scene.py -- $t/splats.npz $t/scene.blend
     [ -f "$io/scene.blend" ] || { note "$suite" scene FAIL "see $io/last.log"; continue; }
