@@ -134,8 +134,10 @@ def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
 
 
 def test_coarse_to_fine_schedule_and_views(dataset, rng) -> None:
-    trainer = Trainer(dataset, short_config(coarse_levels=2, coarse_until=1000))
+    trainer = Trainer(dataset, short_config(steps=4000, coarse_levels=2, coarse_until=1000))
     assert [trainer.resolution_level(s) for s in (1, 500, 501, 1000, 1001)] == [2, 2, 1, 1, 0]
+    short = Trainer(dataset, short_config(steps=100, coarse_levels=2, coarse_until=1000))
+    assert [short.resolution_level(s) for s in (1, 25, 26, 50, 51)] == [2, 2, 1, 1, 0]
     camera, image = dataset.cameras[0], dataset.image(0)
     small_camera, small = downscaled_view(camera, image, 4)
     h, w = image.shape[0] // 4, image.shape[1] // 4
@@ -151,7 +153,7 @@ def test_coarse_to_fine_schedule_and_views(dataset, rng) -> None:
 
 
 def test_coarse_to_fine_training_learns(dataset) -> None:
-    trainer = Trainer(dataset, short_config(steps=90, coarse_levels=2, coarse_until=60))
+    trainer = Trainer(dataset, short_config(steps=90, coarse_levels=2, coarse_until=45))
     start = trainer.evaluate(dataset.train_indices[:6]).psnr
     history = list(trainer.run())
     assert trainer.evaluate(dataset.train_indices[:6]).psnr > start + 3.0

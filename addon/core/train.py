@@ -136,6 +136,9 @@ class Trainer:
         self.converged = False
         self.checks: list[tuple[float, float]] = []  # (seconds, PSNR) at each stopping check
         self.background = np.asarray(config.background, np.float32)
+        # A short run spends at most its first half coarse (fixed now: a resume that asks for
+        # more steps must not go back to coarse images).
+        self.coarse_until = min(config.coarse_until, config.steps // 2)
         self.strategy = strategy or make_strategy(config, self.extent, self.rng)
         if gaussians is None:
             points = dataset.points
@@ -180,9 +183,9 @@ class Trainer:
         """How many times the images of `step` (default: the next one) are halved."""
         c = self.config
         step = self.step + 1 if step is None else step
-        if c.coarse_levels <= 0 or step > c.coarse_until:
+        if c.coarse_levels <= 0 or step > self.coarse_until:
             return 0
-        return math.ceil(c.coarse_levels * (1.0 - (step - 1) / c.coarse_until))
+        return math.ceil(c.coarse_levels * (1.0 - (step - 1) / self.coarse_until))
 
     def _view(self, view: int, level: int) -> tuple[Camera, np.ndarray]:
         camera, image = self.dataset.cameras[view], self.dataset.image(view)
@@ -277,7 +280,8 @@ class Trainer:
         path = Path(path)
         meta = {"step": self.step, "config": asdict(self.config), "order": self._order,
                 "rng": self.rng.bit_generator.state, "seconds": self.seconds,
-                "converged": self.converged, "checks": self.checks}
+                "converged": self.converged, "checks": self.checks,
+                "coarse_until": self.coarse_until}
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez(tmp, meta=np.frombuffer(repr(meta).encode(), np.uint8),
                  **self.strategy.state_arrays(), **self.parameters.state_arrays())
@@ -298,6 +302,7 @@ class Trainer:
         trainer.seconds = float(meta.get("seconds", 0.0))
         trainer.converged = bool(meta.get("converged", False))
         trainer.checks = [tuple(c) for c in meta.get("checks", [])]
+        trainer.coarse_until = int(meta.get("coarse_until", config.coarse_until))
         trainer._order = list(meta["order"])
         trainer.rng.bit_generator.state = meta["rng"]
         return trainer

@@ -37,7 +37,7 @@ class TrainConfig:
     sh_degree_interval: int = 1000
     # Coarse to fine (not in the reference): the first steps train on images halved
     # `coarse_levels` times (box-filtered), the resolution doubling at even intervals until full
-    # at step `coarse_until`. 0 levels: off.
+    # at step `coarse_until` (or half of `steps`, if sooner). 0 levels: off.
     coarse_levels: int = 0
     coarse_until: int = 1000
     # Densification: which strategy (a name in `strategies.STRATEGIES`), and its settings
