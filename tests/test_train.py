@@ -138,6 +138,9 @@ def test_coarse_to_fine_schedule_and_views(dataset, rng) -> None:
     assert [trainer.resolution_level(s) for s in (1, 500, 501, 1000, 1001)] == [2, 2, 1, 1, 0]
     short = Trainer(dataset, short_config(steps=100, coarse_levels=2, coarse_until=1000))
     assert [short.resolution_level(s) for s in (1, 25, 26, 50, 51)] == [2, 2, 1, 1, 0]
+    # 120x90 photos halve once at most with the default 32-pixel minimum side.
+    assert [trainer.training_view(0, level)[1].shape for level in (0, 1, 2)] == \
+        [(90, 120, 3), (45, 60, 3), (45, 60, 3)]
     camera, image = dataset.cameras[0], dataset.image(0)
     small_camera, small = downscaled_view(camera, image, 4)
     h, w = image.shape[0] // 4, image.shape[1] // 4

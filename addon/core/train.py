@@ -187,8 +187,12 @@ class Trainer:
             return 0
         return math.ceil(c.coarse_levels * (1.0 - (step - 1) / self.coarse_until))
 
-    def _view(self, view: int, level: int) -> tuple[Camera, np.ndarray]:
+    def training_view(self, view: int, level: int) -> tuple[Camera, np.ndarray]:
+        """The camera and photo of dataset view `view` halved `level` times (fewer where the
+        photo would fall below `coarse_min_side`)."""
         camera, image = self.dataset.cameras[view], self.dataset.image(view)
+        while level > 0 and min(image.shape[:2]) >> level < self.config.coarse_min_side:
+            level -= 1  # small photos are not shrunk below the minimum side
         if level == 0:
             self._coarse.clear()  # past the coarse steps: free the small copies
             return camera, image
@@ -208,7 +212,7 @@ class Trainer:
         start = time.perf_counter()
         self.step += 1
         view = self._next_view()
-        camera, target = self._view(view, self.resolution_level())
+        camera, target = self.training_view(view, self.resolution_level())
         degree = min(c.sh_degree, (self.step - 1) // c.sh_degree_interval)
         gaussians = self.gaussians
         result, state = tk.render_train(gaussians, camera, background=self.background,

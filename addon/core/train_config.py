@@ -40,6 +40,7 @@ class TrainConfig:
     # at step `coarse_until` (or half of `steps`, if sooner). 0 levels: off.
     coarse_levels: int = 0
     coarse_until: int = 1000
+    coarse_min_side: int = 32  # never below this many pixels a side (demo, 120x90: worse)
     # Densification: which strategy (a name in `strategies.STRATEGIES`), and its settings
     # (the "mcmc" strategy reads densify_from/until/every, prune_opacity and max_gaussians too).
     strategy: str = "default"
