@@ -23,8 +23,9 @@ def dataset() -> ColmapDataset:
 
 
 def short_config(**overrides) -> TrainConfig:
-    # Densify early and often so that a short run exercises clone, split and prune.
-    base = dict(steps=120, sh_degree=1, sh_degree_interval=40, densify_from=30,
+    # The reference strategy, densifying early and often so that a short run exercises clone,
+    # split and prune.
+    base = dict(strategy="default", steps=120, sh_degree=1, sh_degree_interval=40, densify_from=30,
                 densify_every=30, opacity_reset_every=1000, threads=2, seed=3)
     return TrainConfig(**(base | overrides))
 
