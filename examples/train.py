@@ -41,7 +41,8 @@ def arguments(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--steps", type=int, default=None, help="a fixed count (default: until done)")
     parser.add_argument("--stop-gain", type=float, default=STOP_GAIN_DB_PER_MINUTE,
                         help="without --steps: stop below this held-out gain, dB per minute")
-    parser.add_argument("--strategy", default="default", help="densification: default or mcmc")
+    parser.add_argument("--strategy", default=TrainConfig.strategy,
+                        help="densification: mcmc or default (the reference's)")
     parser.add_argument("--max-gaussians", type=int, default=300_000)
     parser.add_argument("--sh-degree", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)

@@ -23,8 +23,9 @@ def dataset() -> ColmapDataset:
 
 
 def short_config(**overrides) -> TrainConfig:
-    # Densify early and often so that a short run exercises clone, split and prune.
-    base = dict(steps=120, sh_degree=1, sh_degree_interval=40, densify_from=30,
+    # The reference strategy, densifying early and often so that a short run exercises clone,
+    # split and prune.
+    base = dict(strategy="default", steps=120, sh_degree=1, sh_degree_interval=40, densify_from=30,
                 densify_every=30, opacity_reset_every=1000, threads=2, seed=3)
     return TrainConfig(**(base | overrides))
 
@@ -134,8 +135,13 @@ def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
 
 
 def test_coarse_to_fine_schedule_and_views(dataset, rng) -> None:
-    trainer = Trainer(dataset, short_config(coarse_levels=2, coarse_until=1000))
+    trainer = Trainer(dataset, short_config(steps=4000, coarse_levels=2, coarse_until=1000))
     assert [trainer.resolution_level(s) for s in (1, 500, 501, 1000, 1001)] == [2, 2, 1, 1, 0]
+    short = Trainer(dataset, short_config(steps=100, coarse_levels=2, coarse_until=1000))
+    assert [short.resolution_level(s) for s in (1, 25, 26, 50, 51)] == [2, 2, 1, 1, 0]
+    # 120x90 photos halve once at most with the default 32-pixel minimum side.
+    assert [trainer.training_view(0, level)[1].shape for level in (0, 1, 2)] == \
+        [(90, 120, 3), (45, 60, 3), (45, 60, 3)]
     camera, image = dataset.cameras[0], dataset.image(0)
     small_camera, small = downscaled_view(camera, image, 4)
     h, w = image.shape[0] // 4, image.shape[1] // 4
@@ -151,7 +157,7 @@ def test_coarse_to_fine_schedule_and_views(dataset, rng) -> None:
 
 
 def test_coarse_to_fine_training_learns(dataset) -> None:
-    trainer = Trainer(dataset, short_config(steps=90, coarse_levels=2, coarse_until=60))
+    trainer = Trainer(dataset, short_config(steps=90, coarse_levels=2, coarse_until=45))
     start = trainer.evaluate(dataset.train_indices[:6]).psnr
     history = list(trainer.run())
     assert trainer.evaluate(dataset.train_indices[:6]).psnr > start + 3.0

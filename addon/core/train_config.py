@@ -37,9 +37,12 @@ class TrainConfig:
     sh_degree_interval: int = 1000
     # Coarse to fine (not in the reference): the first steps train on images halved
     # `coarse_levels` times (box-filtered), the resolution doubling at even intervals until full
-    # at step `coarse_until`. 0 levels: off.
-    coarse_levels: int = 0
+    # at step `coarse_until` (or half of `steps`, if sooner). 0 levels: off. On by measurement
+    # (README, "Densification strategies, stopping, coarse to fine"): a better held-out PSNR
+    # per CPU second on cup, beer and the demo scene with the "default" strategy.
+    coarse_levels: int = 2
     coarse_until: int = 1000
+    coarse_min_side: int = 32  # never below this many pixels a side (demo, 120x90: worse)
     # Densification: which strategy (a name in `strategies.STRATEGIES`), and its settings
     # (the "mcmc" strategy reads densify_from/until/every, prune_opacity and max_gaussians too).
     strategy: str = "default"
