@@ -16,7 +16,7 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender import dependencies, mesh_convert, render_hooks, splat_object
+from addon.blender import dependencies, mesh_convert, render_failures, render_hooks, splat_object
 from scenes import random_gaussians
 
 
@@ -41,7 +41,7 @@ def _render_fails(scene, tmp_path, match: str) -> None:
         result = bpy.ops.render.render(write_still=True)
     except RuntimeError:
         result = {"CANCELLED"}
-    errors = render_hooks.last_errors()
+    errors = render_failures.last_errors()
     written = sorted(p.name for p in tmp_path.glob("frame*"))
     assert written == [], f"a failed render left {written}"
     assert any(match in e for e in errors), errors
@@ -93,11 +93,11 @@ def test_splat_passes_without_openimageio_fail_before_rendering(rng, tmp_path, n
     except RuntimeError:
         pass
     assert not list(tmp_path.glob("frame*"))
-    assert any("Splat Passes" in e and "OpenImageIO" in e for e in render_hooks.last_errors())
+    assert any("Splat Passes" in e and "OpenImageIO" in e for e in render_failures.last_errors())
     # Turning the passes off renders the multilayer file without them.
     scene.splat_render.splat_passes = False
     assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
-    assert render_hooks.last_errors() == []
+    assert render_failures.last_errors() == []
     assert (tmp_path / "frame.exr").exists()
 
 
@@ -107,7 +107,7 @@ def test_a_render_after_a_failure_works(rng, tmp_path, monkeypatch):
     _render_fails(scene, tmp_path, "splatcore")
     monkeypatch.undo()
     assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
-    assert (tmp_path / "frame.png").exists() and render_hooks.last_errors() == []
+    assert (tmp_path / "frame.png").exists() and render_failures.last_errors() == []
 
 
 def test_require_names_the_feature_and_the_fix(no_module):

@@ -18,7 +18,8 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender import camera_adapter, compositor_bridge, render_hooks, splat_object
+from addon.blender import (camera_adapter, compositor_bridge, render_hooks, render_state,
+                           splat_object)
 from addon.core import exr_layers
 from addon.core.render import render
 from scenes import random_gaussians
@@ -288,11 +289,11 @@ def test_render_cache_path_gives_the_same_image(rng, tmp_path):
     render is read from Blender's render cache file instead: same image."""
     scene, *_ = build_scene(rng, "BLENDER_WORKBENCH")
     normal = read_png(render_still(scene, tmp_path / "normal"))
-    render_hooks._state.force_cache_file = True
+    render_state.current.force_cache_file = True
     try:
         cached = read_png(render_still(scene, tmp_path / "cached"))
     finally:
-        render_hooks._state.force_cache_file = False
+        render_state.current.force_cache_file = False
     assert not scene.render.use_render_cache  # put back after the render
     assert np.array_equal(cached, normal)
 
@@ -312,7 +313,7 @@ def test_render_splats_only_engine(rng, tmp_path):
 
 def test_bridge_keeps_and_restores_a_users_compositor(rng):
     scene, *_ = build_scene(rng, "BLENDER_WORKBENCH")
-    render_hooks._set_up_later(scene.name)  # what the UI does once splats appear in a scene
+    render_hooks.set_up_bridge_later(scene.name)  # what the UI does once splats appear in a scene
     assert compositor_bridge.bridge_node(scene) is not None
     assert compositor_bridge.remove_bridge(scene)
     assert scene.compositing_node_group is None

@@ -13,7 +13,7 @@ MODULE_NAMES: list[str] = [
     # one line per module, e.g. "splat_object", "io_operators"
     "properties", "gather", "io_operators", "edit_operators",  # splat objects
     "colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
-    "render_panel", "render_hooks", "viewport",  # rendering with meshes
+    "render_panel", "render_failures", "render_hooks", "viewport",  # rendering with meshes
     "job_runner",  # long jobs: status bar, Esc, splat.train_stop
     "train_operator", "scene_to_splats",  # training: splat.train, splat.bake_to_splats
     "mesh_convert",  # splats to a textured mesh: splat.convert_to_mesh

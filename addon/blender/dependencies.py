@@ -5,7 +5,7 @@ use the system Python and may lack them; pycolmap and xatlas ship with the exten
 where the platform has them. A feature calls `require(module, feature)` before doing anything:
 when the module cannot be imported, `MissingModule` (an `ImportError`) says in words a user can
 act on which feature needs which module, and why the import failed. Operators catch it and
-`self.report({'ERROR'}, str(error))`; final renders fail with it (see `render_hooks`).
+`self.report({'ERROR'}, str(error))`; final renders fail with it (see `render_failures`).
 """
 
 from __future__ import annotations

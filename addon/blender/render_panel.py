@@ -133,7 +133,7 @@ class RENDER_PT_splats(bpy.types.Panel):
         return context.scene is not None and not bridge.is_helper(context.scene)
 
     def draw(self, context):
-        from . import render_hooks
+        from . import render_failures, render_hooks
 
         layout = self.layout
         layout.use_property_split = True
@@ -181,7 +181,7 @@ class RENDER_PT_splats(bpy.types.Panel):
         sub.active = settings.viewport
         sub.prop(settings, "viewport_resolution")
         sub.prop(settings, "viewport_coarse_pixels")
-        errors = render_hooks.last_errors()
+        errors = render_failures.last_errors()
         if errors:  # the last render failed: say why where the settings are
             box = layout.box()
             box.label(text="The last render failed:", icon="ERROR")
