@@ -233,14 +233,9 @@ def test_failed_render_changes_no_setting(monkeypatch, tmp_path):
     except RuntimeError:
         pass
     assert _render_settings(scene) == before and bs.scene_state() == objects
-    # No temporary left (the failed frame itself is removed: see the xfail below).
-    assert {p.name for p in tmp_path.iterdir()} <= {"out.png"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]  # no temporary left
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "when the splat composite fails, F12 reports the error but Blender still saves the frame "
-    "(meshes only) over out.png: the fix belongs to render_hooks / compositor_bridge (owned "
-    "elsewhere): make the render fail (engine.error / cancel the write) so nothing is saved"))
 def test_failed_render_keeps_the_previous_file(monkeypatch, tmp_path):
     scene = _failing_render(monkeypatch, tmp_path)
     try:
@@ -249,3 +244,11 @@ def test_failed_render_keeps_the_previous_file(monkeypatch, tmp_path):
         pass
     assert (tmp_path / "out.png").read_bytes() == b"the previous render"
     assert scene.render.filepath == str(tmp_path / "out")
+
+
+def test_a_render_that_succeeds_replaces_the_previous_file_and_leaves_nothing_aside(monkeypatch, tmp_path):
+    scene = _failing_render(monkeypatch, tmp_path)
+    monkeypatch.undo()  # the composite works again
+    bpy.ops.render.render(write_still=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
+    assert (tmp_path / "out.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

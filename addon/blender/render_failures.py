@@ -16,6 +16,10 @@ camera: in background Blender it raises Blender's own break signal (SIGINT, what
 the render is cancelled and nothing is written; Blender ends the process on a second one,
 exit code 2); where Blender has no such handler (the `bpy` module) the frame's written files
 are deleted and `last_errors()` says why.
+
+Before each frame renders, the files it would overwrite are moved aside (a rename, no copy):
+a frame that fails gets its previous file back, and when the render ends every file it did not
+write again is put back, so a failed render leaves the output folder as it was.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import bpy
 from . import compositor_bridge as bridge
 from . import dependencies, render_state
 from .registration import module_registration
-from .render_layers import wants_splat_passes, written_file
+from .render_layers import output_paths, wants_splat_passes, written_file
 
 
 def _blender_handles_sigint() -> bool:
@@ -81,13 +85,48 @@ def last_errors() -> list[str]:
     return list(render_state.current.errors)
 
 
+def set_aside_outputs(scene) -> None:
+    """Before a frame renders: move the files it would overwrite aside (see the module note)."""
+    for path in output_paths(scene):
+        if path not in render_state.current.set_aside and os.path.isfile(path):
+            head, name = os.path.split(path)
+            aside = os.path.join(head, f".{name}.before-render")
+            with contextlib.suppress(OSError):
+                os.replace(path, aside)
+                render_state.current.set_aside[path] = aside
+
+
+def _put_back(path: str) -> bool:
+    aside = render_state.current.set_aside.pop(path, None)
+    if aside is None:
+        return False
+    with contextlib.suppress(OSError):
+        os.replace(aside, path)
+    return True
+
+
+def settle_outputs() -> None:
+    """When the render ends: files it wrote again stay (their previous copies go), the others
+    come back."""
+    for path, aside in list(render_state.current.set_aside.items()):
+        if os.path.exists(path):
+            with contextlib.suppress(OSError):
+                os.remove(aside)
+            render_state.current.set_aside.pop(path)
+        else:
+            _put_back(path)
+
+
 def remove_failed_file(scene) -> None:
-    """A frame whose splats failed: the file Blender just wrote lacks them, so it goes."""
+    """A frame whose splats failed: the file Blender just wrote lacks them, so it goes, and the
+    file that was there before the render comes back."""
     path = written_file(scene)
     if path is not None:
         with contextlib.suppress(OSError):
             os.remove(path)
-        print(f"Gaussian splats: removed {path}: its splats could not be composed", flush=True)
+        restored = _put_back(path)
+        print(f"Gaussian splats: removed {path}: its splats could not be composed"
+              + ("; the previous file is back" if restored else ""), flush=True)
 
 
 def report_in_window(message: str) -> None:

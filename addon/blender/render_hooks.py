@@ -43,7 +43,8 @@ from . import render_state
 from .camera_adapter import frame_size
 from .compositor_bridge import ENGINE_ID
 from .registration import register_classes, unregister_classes
-from .render_failures import fail_render, remove_failed_file, render_blockers, report_in_window
+from .render_failures import (fail_render, remove_failed_file, render_blockers, report_in_window,
+                              set_aside_outputs, settle_outputs)
 from .render_layers import (frame_target, read_render_layer, render_result_image, splat_passes,
                             wants_splat_passes, world_colour, write_result, written_file)
 from .render_state import capture_frame, render_border, settings_of
@@ -213,8 +214,11 @@ def _on_render_init(scene, _depsgraph=None) -> None:
 
 @persistent
 def _on_render_pre(scene, _depsgraph=None) -> None:
-    if not bridge.is_helper(scene):
-        render_state.current.frame_start_ns = time.time_ns()
+    if bridge.is_helper(scene):
+        return
+    render_state.current.frame_start_ns = time.time_ns()
+    if render_state.current.scene == scene.name and settings_of(scene).enabled:
+        set_aside_outputs(scene)
 
 
 @persistent
@@ -271,6 +275,7 @@ def _on_render_done(scene, _depsgraph=None) -> None:
     camera = render_state.current.camera_restore.pop(scene.name, None)
     if camera is not None:
         scene.camera = camera
+    settle_outputs()
     render_state.current.scene = None
     render_state.current.frames.clear()
     render_state.current.pending_passes.clear()

@@ -217,9 +217,9 @@ def splat_passes(frame: FrameSplats, scene, full: tuple[int, int], region: Regio
     return layer
 
 
-def written_file(scene) -> str | None:
-    """The image file Blender has just written for the current frame (a still or an animation
-    frame: both names are tried, the one written since the frame began wins)."""
+def output_paths(scene) -> list[str]:
+    """Where Blender writes the current frame's image: as an animation frame, and as a still
+    (`render(write_still=True)`), when those differ."""
     render = scene.render
     frame = scene.frame_current
     animation = render.frame_path(frame=frame)
@@ -234,6 +234,12 @@ def written_file(scene) -> str | None:
         if extension and not still.lower().endswith(extension.lower()):
             still += extension
         candidates.append(still)
-    fresh = [(os.stat(p).st_mtime_ns, p) for p in candidates if os.path.exists(p)
+    return candidates
+
+
+def written_file(scene) -> str | None:
+    """The image file Blender has just written for the current frame (a still or an animation
+    frame: both names are tried, the one written since the frame began wins)."""
+    fresh = [(os.stat(p).st_mtime_ns, p) for p in output_paths(scene) if os.path.exists(p)
              and os.stat(p).st_mtime_ns >= render_state.current.frame_start_ns - 50_000_000]
     return max(fresh)[1] if fresh else None

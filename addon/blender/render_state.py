@@ -51,6 +51,7 @@ class RenderState:
         self.errors: list[str] = []            # why the current (or last) render failed
         self.failed_frames: set[int] = set()   # frames whose written files must not stay
         self.camera_restore: dict[str, object] = {}  # scenes whose camera a failure cleared
+        self.set_aside: dict[str, str] = {}    # output file -> where its previous copy waits
 
 
 current = RenderState()
