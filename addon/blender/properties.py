@@ -1,4 +1,5 @@
-"""A splat object's render options: `Object.splat`, a PropertyGroup, and its panel.
+"""The add-on's stored settings: a splat object's render options (`Object.splat`) and its panel,
+and the scene's (`Scene.splat_render`, whose panel is in `render_panel`).
 
 `obj.splat.is_splat` marks the objects this add-on made (import, or `create_splat_object`);
 operators act on those. The options travel with the object (saved in the .blend, copied with
@@ -17,7 +18,7 @@ The panel sits in Properties > Object and shows the splat count and the SH degre
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from .registration import module_registration
 
@@ -26,7 +27,6 @@ COLOR_SPACES = [
                                "reference 3DGS look"),
     ("LINEAR", "Linear", "Colours are scene-linear Rec.709"),
 ]
-
 
 
 def _viewport_switch(settings, context) -> None:
@@ -61,6 +61,54 @@ class SplatObjectSettings(bpy.types.PropertyGroup):
         description="Draw these splats in the 3D viewport (Solid and Material Preview); final "
                     "renders follow the object's render visibility",
         default=True)
+
+
+class SplatRenderSettings(bpy.types.PropertyGroup):
+    enabled: BoolProperty(
+        name="Composite Splats",
+        description="Compose the scene's splat objects with the meshes in final renders (F12, "
+                    "animation, command-line renders), through the compositor",
+        default=True)
+    antialiased: EnumProperty(
+        name="Antialiased",
+        description="Mip-Splatting opacity compensation",
+        items=[("OBJECT", "From Objects", "Use the splat objects' own setting (off when they "
+                                          "disagree)"),
+               ("ON", "On", "Antialiased for every splat object"),
+               ("OFF", "Off", "Not antialiased, whatever the objects say")],
+        default="OBJECT")
+    sh_degree: IntProperty(
+        name="Max SH Degree",
+        description="Evaluate at most this many spherical-harmonics bands (each object's own "
+                    "limit applies too); fewer is faster and less view-dependent",
+        default=3, min=0, max=3)
+    near: FloatProperty(
+        name="Near Plane", description="Splats closer to the camera than this are not drawn",
+        default=0.01, min=1e-6, soft_max=1.0, precision=4, subtype="DISTANCE")
+    threads: IntProperty(
+        name="Threads", description="Threads for the splat renderer (0: every core)",
+        default=0, min=0, max=1024)
+    splat_passes: BoolProperty(
+        name="Splat Passes",
+        description="Multilayer EXR output also holds the splats' own colour, alpha and depth "
+                    "(layer \"Splats\")",
+        default=True)
+    viewport: BoolProperty(
+        name="Show in Viewport", update=_viewport_switch,
+        description="Draw splat objects in the 3D viewport (Solid and Material Preview)",
+        default=True)
+    viewport_coarse_pixels: IntProperty(
+        name="Pixels While Moving",
+        description="While the view moves, splats are drawn at a resolution of about this many "
+                    "pixels; full resolution follows when the view rests",
+        default=150_000, min=10_000, max=8_000_000)
+    viewport_resolution: FloatProperty(
+        name="Viewport Resolution",
+        description="Resolution of the resting viewport image, relative to the viewport",
+        default=1.0, min=0.1, max=1.0, subtype="FACTOR")
+    previous_engine: StringProperty(
+        name="Previous Engine", description="The engine \"Render Splats Only\" switched from",
+        default="")
 
 
 class OBJECT_PT_splat(bpy.types.Panel):
@@ -99,8 +147,9 @@ class OBJECT_PT_splat(bpy.types.Panel):
             col.prop(settings, "source_path")
 
 
-CLASSES = (SplatObjectSettings, OBJECT_PT_splat)
+CLASSES = (SplatObjectSettings, SplatRenderSettings, OBJECT_PT_splat)
 
 
 register, unregister = module_registration(
-    CLASSES, pointers=[(bpy.types.Object, "splat", SplatObjectSettings)])
+    CLASSES, pointers=[(bpy.types.Object, "splat", SplatObjectSettings),
+                       (bpy.types.Scene, "splat_render", SplatRenderSettings)])

@@ -1,9 +1,10 @@
-"""Scene-level splat render options (`Scene.splat_render`) and their panel in Properties >
-Render > Gaussian Splats, with the "Render Splats Only" switch and the compositor bridge's state.
+"""The scene's splat render options (`Scene.splat_render`, declared in `properties`) in their
+panel in Properties > Render > Gaussian Splats, with the "Render Splats Only" switch and the
+compositor bridge's state.
 
 Per-object options (antialiased, SH degree, colour space, shown in the viewport) stay on the
-object (`Object.splat`, Properties > Object > Gaussian Splats); the scene options here apply to
-every splat object of the scene:
+object (`Object.splat`, Properties > Object > Gaussian Splats); the scene options apply to every
+splat object of the scene:
 
 - `enabled`: compose the splats into final renders (F12, animation, command line);
 - `antialiased`: 'OBJECT' (what the splat objects say), 'ON' or 'OFF' for all;
@@ -18,64 +19,10 @@ every splat object of the scene:
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty
 
 from . import compositor_bridge as bridge
-from .registration import add_pointer, register_classes, remove_pointer, unregister_classes
-
-
-def _viewport_switch(settings, context) -> None:
-    """The splat object's own display follows whether the add-on draws it (`viewport`)."""
-    from . import viewport
-    viewport.on_switch_changed(settings, context)
-
-
-class SplatRenderSettings(bpy.types.PropertyGroup):
-    enabled: BoolProperty(
-        name="Composite Splats",
-        description="Compose the scene's splat objects with the meshes in final renders (F12, "
-                    "animation, command-line renders), through the compositor",
-        default=True)
-    antialiased: EnumProperty(
-        name="Antialiased",
-        description="Mip-Splatting opacity compensation",
-        items=[("OBJECT", "From Objects", "Use the splat objects' own setting (off when they "
-                                          "disagree)"),
-               ("ON", "On", "Antialiased for every splat object"),
-               ("OFF", "Off", "Not antialiased, whatever the objects say")],
-        default="OBJECT")
-    sh_degree: IntProperty(
-        name="Max SH Degree",
-        description="Evaluate at most this many spherical-harmonics bands (each object's own "
-                    "limit applies too); fewer is faster and less view-dependent",
-        default=3, min=0, max=3)
-    near: FloatProperty(
-        name="Near Plane", description="Splats closer to the camera than this are not drawn",
-        default=0.01, min=1e-6, soft_max=1.0, precision=4, subtype="DISTANCE")
-    threads: IntProperty(
-        name="Threads", description="Threads for the splat renderer (0: every core)",
-        default=0, min=0, max=1024)
-    splat_passes: BoolProperty(
-        name="Splat Passes",
-        description="Multilayer EXR output also holds the splats' own colour, alpha and depth "
-                    "(layer \"Splats\")",
-        default=True)
-    viewport: BoolProperty(
-        name="Show in Viewport", update=_viewport_switch,
-        description="Draw splat objects in the 3D viewport (Solid and Material Preview)",
-        default=True)
-    viewport_coarse_pixels: IntProperty(
-        name="Pixels While Moving",
-        description="While the view moves, splats are drawn at a resolution of about this many "
-                    "pixels; full resolution follows when the view rests",
-        default=150_000, min=10_000, max=8_000_000)
-    viewport_resolution: FloatProperty(
-        name="Viewport Resolution",
-        description="Resolution of the resting viewport image, relative to the viewport",
-        default=1.0, min=0.1, max=1.0, subtype="FACTOR")
-    previous_engine: StringProperty(
-        name="Previous Engine", description="The engine \"Render Splats Only\" switched from",
-        default="")
+from .registration import module_registration
 
 
 class SPLAT_OT_render_splats_only(bpy.types.Operator):
@@ -195,15 +142,6 @@ class RENDER_PT_splats(bpy.types.Panel):
                            f"{stats['total_ms']:.0f} ms")
 
 
-CLASSES = (SplatRenderSettings, SPLAT_OT_render_splats_only, SPLAT_OT_compositor_bridge,
-           RENDER_PT_splats)
+CLASSES = (SPLAT_OT_render_splats_only, SPLAT_OT_compositor_bridge, RENDER_PT_splats)
 
-
-def register() -> None:
-    register_classes(CLASSES)
-    add_pointer(bpy.types.Scene, "splat_render", SplatRenderSettings)
-
-
-def unregister() -> None:
-    remove_pointer(bpy.types.Scene, "splat_render")
-    unregister_classes(CLASSES)
+register, unregister = module_registration(CLASSES)
