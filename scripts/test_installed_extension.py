@@ -368,18 +368,9 @@ WIDTH, HEIGHT = 64, 48
 
 
 def material(bpy, name: str, colour, engine: str):
-    mat = bpy.data.materials.new(name)
-    mat.diffuse_color = (*colour, 1.0)
-    if engine == "CYCLES":
-        if mat.node_tree is None:  # Blender 4.x; 5.0 materials always have nodes
-            mat.use_nodes = True
-        nodes, links = mat.node_tree.nodes, mat.node_tree.links
-        nodes.clear()
-        emission = nodes.new("ShaderNodeEmission")
-        emission.inputs["Color"].default_value = (*colour, 1.0)
-        output = nodes.new("ShaderNodeOutputMaterial")
-        links.new(emission.outputs[0], output.inputs["Surface"])
-    return mat
+    sys.path.insert(0, str(ROOT / "tests" / "real_blender"))  # plain bpy, no project imports
+    import scene_kit
+    return scene_kit.material(bpy, name, colour, emission=engine == "CYCLES")
 
 
 def build_render_scene(bpy, data: Path, engine: str):
@@ -436,12 +427,9 @@ def output_png(bpy, scene, prefix: Path) -> None:
 
 
 def output_multilayer_exr(bpy, scene, prefix: Path) -> None:
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "MULTI_LAYER_IMAGE"
-    else:
-        settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
+    sys.path.insert(0, str(ROOT / "tests" / "real_blender"))
+    import scene_kit
+    scene_kit.multilayer_exr(scene.render.image_settings)
     scene.render.filepath = str(prefix)
 
 

@@ -22,6 +22,7 @@ from addon.blender import (camera_adapter, compositor_bridge, render_hooks, rend
                            splat_object)
 from addon.core import exr_layers
 from addon.core.render import render
+from real_blender import scene_kit
 from scenes import random_gaussians
 from standard_view import (decode, encode, native_composite, premultiplied, read_png,
                            standard_8bit)
@@ -33,18 +34,7 @@ ENGINES = ["CYCLES", "BLENDER_WORKBENCH"]
 # ---------------------------------------------------------------------------- the scene
 
 def material(name: str, colour, engine: str):
-    mat = bpy.data.materials.new(name)
-    mat.diffuse_color = (*colour, 1.0)
-    if engine == "CYCLES":
-        if mat.node_tree is None:  # Blender 4.x; 5.0 materials always have nodes
-            mat.use_nodes = True
-        nodes, links = mat.node_tree.nodes, mat.node_tree.links
-        nodes.clear()
-        emission = nodes.new("ShaderNodeEmission")
-        emission.inputs["Color"].default_value = (*colour, 1.0)
-        output = nodes.new("ShaderNodeOutputMaterial")
-        links.new(emission.outputs[0], output.inputs["Surface"])
-    return mat
+    return scene_kit.material(bpy, name, colour, emission=engine == "CYCLES")
 
 
 def build_scene(rng, engine: str, *, n: int = 400, meshes: bool = True):

@@ -20,7 +20,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from .registration import module_registration
+from .registration import GaussianSplatsPanel, module_registration
 
 COLOR_SPACES = [
     ("SRGB", "sRGB (display)", "Colours are display sRGB, as splats trained on photos are: the "
@@ -111,11 +111,8 @@ class SplatRenderSettings(bpy.types.PropertyGroup):
         default="")
 
 
-class OBJECT_PT_splat(bpy.types.Panel):
+class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
     bl_idname = "OBJECT_PT_splat"
-    bl_label = "Gaussian Splats"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "object"
 
     @classmethod

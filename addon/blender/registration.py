@@ -60,3 +60,12 @@ def module_registration(classes=(), *, pointers=(), menus=()):
         unregister_classes(classes)
 
     return register, unregister
+
+
+class GaussianSplatsPanel:
+    """What the add-on's panels in the Properties editor share (a mixin, as Blender's own
+    panels use): the editor, the region and the title; a panel adds its `bl_context` tab."""
+
+    bl_label = "Gaussian Splats"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"

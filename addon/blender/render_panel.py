@@ -22,7 +22,7 @@ import bpy
 from bpy.props import BoolProperty
 
 from . import compositor_bridge as bridge
-from .registration import module_registration
+from .registration import GaussianSplatsPanel, module_registration
 
 
 class SPLAT_OT_render_splats_only(bpy.types.Operator):
@@ -68,11 +68,8 @@ class SPLAT_OT_compositor_bridge(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class RENDER_PT_splats(bpy.types.Panel):
+class RENDER_PT_splats(GaussianSplatsPanel, bpy.types.Panel):
     bl_idname = "RENDER_PT_splats"
-    bl_label = "Gaussian Splats"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "render"
 
     @classmethod

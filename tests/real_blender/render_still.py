@@ -9,10 +9,14 @@ sees. --no-splats renders the meshes alone (Composite Splats off), as the refere
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
 import bpy
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # scene_kit, copied beside this
+import scene_kit  # noqa: E402
 
 
 def main(prefix: str, *flags: str) -> int:
@@ -21,11 +25,7 @@ def main(prefix: str, *flags: str) -> int:
         scene.splat_render.enabled = False
     if "--multilayer" in flags:
         settings = scene.render.image_settings
-        if hasattr(settings, "media_type"):
-            settings.media_type = "MULTI_LAYER_IMAGE"
-        else:
-            settings.file_format = "OPEN_EXR_MULTILAYER"
-        settings.color_depth = "32"
+        scene_kit.multilayer_exr(settings)
         settings.exr_codec = "ZIP"
         scene.view_layers[0].use_pass_z = True
     scene.render.filepath = prefix

@@ -11,26 +11,20 @@ CPU with emission materials (the mesh colours do not depend on lighting); 64x48 
 from __future__ import annotations
 
 import math
+import os
 import sys
 
 import bpy
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # scene_kit, copied beside this
+import scene_kit  # noqa: E402
+
 ADDON = "bl_ext.user_default.gaussian_splatting"
 
 
 def emission(name: str, colour) -> bpy.types.Material:
-    mat = bpy.data.materials.new(name)
-    mat.diffuse_color = (*colour, 1.0)   # Solid shading's material colour
-    if mat.node_tree is None:            # Blender 4.x; 5.x materials always have nodes
-        mat.use_nodes = True
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    node = nodes.new("ShaderNodeEmission")
-    node.inputs["Color"].default_value = (*colour, 1.0)
-    out = nodes.new("ShaderNodeOutputMaterial")
-    links.new(node.outputs[0], out.inputs["Surface"])
-    return mat
+    return scene_kit.material(bpy, name, colour)
 
 
 def main(npz: str, out: str) -> None:

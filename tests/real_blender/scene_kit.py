@@ -1,0 +1,31 @@
+"""Scene pieces shared by the bpy tests (tests/test_render_with_meshes.py), the installed-extension
+driver (scripts/test_installed_extension.py, inside a clean bpy venv) and the real-Blender scripts
+(copied beside them): plain bpy, no imports from this project, since each runs in its own Python."""
+
+from __future__ import annotations
+
+
+def material(bpy, name: str, colour, *, emission: bool = True):
+    """A material of `colour` (RGB): its viewport colour, and with `emission` an Emission
+    shader (Cycles renders it flat, so the expected image needs no lighting)."""
+    mat = bpy.data.materials.new(name)
+    mat.diffuse_color = (*colour, 1.0)   # Solid shading and Workbench
+    if emission:
+        if mat.node_tree is None:        # Blender 4.x; 5.x materials always have nodes
+            mat.use_nodes = True
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        nodes.clear()
+        node = nodes.new("ShaderNodeEmission")
+        node.inputs["Color"].default_value = (*colour, 1.0)
+        out = nodes.new("ShaderNodeOutputMaterial")
+        links.new(node.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def multilayer_exr(settings) -> None:
+    """Image settings for a 32-bit multilayer EXR (5.0 moved it to `media_type`)."""
+    if hasattr(settings, "media_type"):
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    else:
+        settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
