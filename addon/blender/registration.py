@@ -7,6 +7,8 @@ Blender raises on a second `register_class`; these helpers skip what is already 
 
 from __future__ import annotations
 
+from typing import Callable
+
 import bpy
 
 
@@ -22,7 +24,6 @@ def unregister_classes(classes) -> None:
             bpy.utils.unregister_class(cls)
 
 
-
 def add_pointer(owner, name: str, group) -> None:
     """`owner.<name>` (e.g. `Object.splat`) as a pointer to the PropertyGroup `group`, once."""
     if name not in owner.bl_rna.properties:
@@ -34,7 +35,8 @@ def remove_pointer(owner, name: str) -> None:
         delattr(owner, name)
 
 
-def module_registration(classes=(), *, pointers=(), menus=()):
+def module_registration(classes=(), *, pointers=(), menus=()
+                        ) -> tuple[Callable[[], None], Callable[[], None]]:
     """`register`, `unregister` for a module that registers `classes`, hangs PropertyGroups on
     types (`pointers`: (owner type, name, group) triples) and appends draw functions to menus
     (`menus`: (menu type name, draw) pairs; a menu this Blender lacks is skipped). Both are
