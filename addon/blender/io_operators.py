@@ -155,6 +155,17 @@ def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True,
     return result.gaussians
 
 
+def writable_format(path: Path) -> registry.SplatFormat:
+    """The format a file named `path` is written in; SplatFileError for an ending no format
+    writes or a missing folder."""
+    fmt = registry.format_for(path)  # SplatFileError for an unknown ending
+    if not fmt.can_write:
+        raise SplatFileError(path, f"{fmt.name} files cannot be written")
+    if not path.parent.is_dir():
+        raise SplatFileError(path, f"folder {str(path.parent)!r} does not exist")
+    return fmt
+
+
 def export_splats(obj, filepath: str | os.PathLike, *, depsgraph=None,
                   world_space: bool = True, forward_axis: str | None = "AUTO",
                   up_axis: str | None = "AUTO") -> list[str]:
@@ -162,11 +173,7 @@ def export_splats(obj, filepath: str | os.PathLike, *, depsgraph=None,
     file's by the axis options (the inverse of import's); the format follows from the name.
     Returns warnings (e.g. SH bands a format cannot hold)."""
     path = Path(filepath)
-    fmt = registry.format_for(path)  # SplatFileError for an unknown ending
-    if not fmt.can_write:
-        raise SplatFileError(path, f"{fmt.name} files cannot be written")
-    if not path.parent.is_dir():
-        raise SplatFileError(path, f"folder {str(path.parent)!r} does not exist")
+    fmt = writable_format(path)
     space = np.linalg.inv(file_axes(path, forward_axis, up_axis))
     gaussians = evaluated_gaussians(obj, depsgraph, world_space=world_space, space=space)
     antialiased = bool(getattr(getattr(obj, "splat", None), "antialiased", False))
@@ -184,11 +191,7 @@ def export_sequence(obj, pattern: str | os.PathLike, frames=None, *, scene=None,
     time. The scene's frame is restored afterwards. Returns the files written."""
     scene = scene or bpy.context.scene
     pattern = Path(pattern)
-    fmt = registry.format_for(pattern)
-    if not fmt.can_write:
-        raise SplatFileError(pattern, f"{fmt.name} files cannot be written")
-    if not pattern.parent.is_dir():
-        raise SplatFileError(pattern, f"folder {str(pattern.parent)!r} does not exist")
+    fmt = writable_format(pattern)
     frames = list(range(scene.frame_start, scene.frame_end + 1) if frames is None else frames)
     space = np.linalg.inv(file_axes(pattern, forward_axis, up_axis))
     antialiased = bool(obj.splat.antialiased) and fmt.stores_antialiased
@@ -216,6 +219,10 @@ def _axis_prop(which: str, blender_axis: str) -> EnumProperty:
                         description=f"File axis that is Blender's {which.lower()} ({blender_axis})")
 
 
+def _sequence_prop(name: str, description: str) -> BoolProperty:
+    return BoolProperty(name=name, description=description, default=False)
+
+
 class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
     """Import Gaussian splats (.ply, .spz, .splat, .sog, .glb, ...) as a splat object"""
 
@@ -231,11 +238,10 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
     directory: StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
     forward_axis: _axis_prop("Forward", "+Y")
     up_axis: _axis_prop("Up", "+Z")
-    sequence: BoolProperty(
-        name="Import as Sequence",
-        description="The chosen file and its numbered siblings (walk_0001.ply, walk_0002.ply, "
-                    "...) as one splat object whose splats change with the frame",
-        default=False)
+    sequence: _sequence_prop(
+        "Import as Sequence", "The chosen file and its numbered siblings (walk_0001.ply, "
+                              "walk_0002.ply, ...) as one splat object whose splats change with "
+                              "the frame")
 
     def paths(self) -> list[Path]:
         names = [f.name for f in self.files if f.name]
@@ -320,11 +326,10 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
         default=True)
     forward_axis: _axis_prop("Forward", "+Y")
     up_axis: _axis_prop("Up", "+Z")
-    sequence: BoolProperty(
-        name="Export as Sequence",
-        description="One file per frame of the scene's frame range; the name's # (or %04d) "
-                    "takes the frame number (added before the extension when missing)",
-        default=False)
+    sequence: _sequence_prop(
+        "Export as Sequence", "One file per frame of the scene's frame range; the name's # (or "
+                              "%04d) takes the frame number (added before the extension when "
+                              "missing)")
 
     @classmethod
     def poll(cls, context):
@@ -345,39 +350,34 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
             self.report({"ERROR"}, "The active object is not a splat object")
             return {"CANCELLED"}
         if self.sequence:
-            return self.export_sequence(context, obj)
-        try:
-            # One stage: the cursor's counter in the UI, a terminal line headless.
-            with preparing(context, "Exporting", f"{obj.name} to {Path(self.filepath).name}") \
-                    as progress:
-                progress(0.0, "")
-                warnings = export_splats(obj, self.filepath,
-                                         depsgraph=context.evaluated_depsgraph_get(),
+            target = sequence.sequence_pattern(self.filepath)
+
+            def write() -> tuple[list[str], str]:
+                written = export_sequence(obj, target, scene=context.scene,
+                                          world_space=self.world_space,
+                                          forward_axis=self.forward_axis, up_axis=self.up_axis)
+                return [], f"Exported {len(written)} frames of {obj.name} to {target}"
+        else:
+            target = self.filepath
+
+            def write() -> tuple[list[str], str]:
+                warnings = export_splats(obj, target, depsgraph=context.evaluated_depsgraph_get(),
                                          world_space=self.world_space,
                                          forward_axis=self.forward_axis, up_axis=self.up_axis)
+                return warnings, f"Exported {obj.name} to {target}"
+        try:
+            # One stage: the cursor's counter in the UI, a terminal line headless.
+            with preparing(context, "Exporting", f"{obj.name} to {Path(target).name}") \
+                    as progress:
+                progress(0.0, "")
+                warnings, message = write()
                 progress(1.0, "")
         except (SplatFileError, splat_object.SplatDataError, OSError, ValueError) as error:
             self.report({"ERROR"}, f"Cannot export: {error}")
             return {"CANCELLED"}
         for warning in warnings:
             self.report({"WARNING"}, warning)
-        self.report({"INFO"}, f"Exported {obj.name} to {self.filepath}")
-        return {"FINISHED"}
-
-    def export_sequence(self, context, obj):
-        pattern = sequence.sequence_pattern(self.filepath)
-        try:
-            with preparing(context, "Exporting a sequence", f"{obj.name} to "
-                                                            f"{Path(pattern).name}") as progress:
-                progress(0.0, "")
-                written = export_sequence(obj, pattern, scene=context.scene,
-                                          world_space=self.world_space,
-                                          forward_axis=self.forward_axis, up_axis=self.up_axis)
-                progress(1.0, "")
-        except (SplatFileError, splat_object.SplatDataError, OSError, ValueError) as error:
-            self.report({"ERROR"}, f"Cannot export: {error}")
-            return {"CANCELLED"}
-        self.report({"INFO"}, f"Exported {len(written)} frames of {obj.name} to {pattern}")
+        self.report({"INFO"}, message)
         return {"FINISHED"}
 
 

@@ -27,6 +27,7 @@ from ..core.formats.errors import SplatFileError
 from ..core.formats.sequence import SplatSequence
 from ..core.gaussians import Gaussians
 from . import splat_object
+from .registration import module_registration
 
 CACHE_FRAMES = 3  # frames each sequence keeps in memory
 SHOWN_KEY = "splat_sequence_frame"  # on the mesh: the file number its splats come from
@@ -136,21 +137,16 @@ def loaded_sequences() -> int:
         return len(_sequences)
 
 
-_HANDLERS = (("frame_change_pre", _on_frame_change_pre), ("load_post", _on_load_post))
+_register_handlers, _unregister_handlers = module_registration(
+    handlers=[("frame_change_pre", _on_frame_change_pre), ("load_post", _on_load_post)])
 
 
 def register() -> None:
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler not in handlers:
-            handlers.append(handler)
+    _register_handlers()
 
 
 def unregister() -> None:
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler in handlers:
-            handlers.remove(handler)
+    _unregister_handlers()
     forget_all()
 
 
