@@ -12,6 +12,7 @@ from types import ModuleType
 MODULE_NAMES: list[str] = [
     # one line per module, e.g. "splat_object", "io_operators"
     "properties", "gather", "io_operators", "edit_operators",  # splat objects
+    "sequence",  # splat sequences: the frame's file on the object (frame_change_pre)
     "colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
     "render_panel", "render_failures", "render_hooks", "viewport",  # rendering with meshes
     "job_runner",  # long jobs: status bar, Esc, splat.train_stop

@@ -29,6 +29,7 @@ import then export with the same options writes the same numbers, bit for bit.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import bpy
@@ -40,14 +41,16 @@ import numpy as np
 from ..core import axes
 from ..core.formats import registry
 from ..core.formats.errors import SplatFileError
+from ..core.formats.sequence import SplatSequence, save_sequence
 from ..core.gaussians import Gaussians
 from ..core.transform import transform_gaussians
-from . import gather, splat_object
+from . import gather, sequence, splat_object
 from .camera_adapter import to_matrix
 from .job_runner import preparing
 from .registration import module_registration
 
 IMPORT_GLOB = registry.filter_glob()
+_DIGITS_AT_END = re.compile(r"[_.\-]*\d+$")  # a frame number ending a name
 EXPORT_GLOB = registry.filter_glob(registry.export_formats())
 
 
@@ -84,7 +87,11 @@ def import_splats(filepath: str | os.PathLike, *, name: str | None = None, colle
         gaussians, name or path.stem, collection=collection, antialiased=antialiased,
         source_path=str(path))
     obj.matrix_world = to_matrix(matrix)
-    view_layer = context.view_layer
+    _select_only(obj, context.view_layer)
+    return obj
+
+
+def _select_only(obj, view_layer) -> None:
     view_layer.update()  # a newly linked object shows in the layer's objects after an update
     for other in view_layer.objects:
         if other.select_get(view_layer=view_layer):
@@ -92,6 +99,36 @@ def import_splats(filepath: str | os.PathLike, *, name: str | None = None, colle
     if obj.name in view_layer.objects:
         obj.select_set(True, view_layer=view_layer)
         view_layer.objects.active = obj
+
+
+def import_sequence(target: str | os.PathLike, *, name: str | None = None, collection=None,
+                    context=None, frame_offset: int = 0, forward_axis: str | None = "AUTO",
+                    up_axis: str | None = "AUTO") -> bpy.types.Object:
+    """Load a splat sequence (a numbered file and its siblings, a `####` pattern or a folder;
+    see `core.formats.sequence`) as ONE splat object showing, at scene frame F, the file numbered
+    F + `frame_offset` (see `sequence`). Only the current frame's file is read now. Raises
+    SplatFileError (no frames, a bad file) with the scene unchanged."""
+    context = context or bpy.context
+    target = Path(target)
+    splat_sequence = SplatSequence(target, cache_frames=sequence.CACHE_FRAMES)
+    first_file = splat_sequence.files[splat_sequence.first]
+    matrix = file_axes(first_file, forward_axis, up_axis)
+    number = splat_sequence.number_for(context.scene.frame_current + frame_offset)
+    gaussians = splat_sequence.gaussians(number)
+    antialiased = registry.read(splat_sequence.files[number])[1] \
+        if registry.format_for(first_file).stores_antialiased else False
+    if collection is None:
+        collection = getattr(context, "collection", None) or context.scene.collection
+    stem = _DIGITS_AT_END.sub("", first_file.stem) or first_file.stem
+    obj = splat_object.create_splat_object(
+        gaussians, name or stem, collection=collection, antialiased=antialiased,
+        source_path=str(target))
+    obj.splat.sequence_source = str(target)
+    obj.splat.sequence_frame_offset = int(frame_offset)
+    sequence.adopt(obj, splat_sequence)
+    sequence.mark_shown(obj, number)
+    obj.matrix_world = to_matrix(matrix)
+    _select_only(obj, context.view_layer)
     return obj
 
 
@@ -118,6 +155,17 @@ def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True,
     return result.gaussians
 
 
+def writable_format(path: Path) -> registry.SplatFormat:
+    """The format a file named `path` is written in; SplatFileError for an ending no format
+    writes or a missing folder."""
+    fmt = registry.format_for(path)  # SplatFileError for an unknown ending
+    if not fmt.can_write:
+        raise SplatFileError(path, f"{fmt.name} files cannot be written")
+    if not path.parent.is_dir():
+        raise SplatFileError(path, f"folder {str(path.parent)!r} does not exist")
+    return fmt
+
+
 def export_splats(obj, filepath: str | os.PathLike, *, depsgraph=None,
                   world_space: bool = True, forward_axis: str | None = "AUTO",
                   up_axis: str | None = "AUTO") -> list[str]:
@@ -125,17 +173,40 @@ def export_splats(obj, filepath: str | os.PathLike, *, depsgraph=None,
     file's by the axis options (the inverse of import's); the format follows from the name.
     Returns warnings (e.g. SH bands a format cannot hold)."""
     path = Path(filepath)
-    fmt = registry.format_for(path)  # SplatFileError for an unknown ending
-    if not fmt.can_write:
-        raise SplatFileError(path, f"{fmt.name} files cannot be written")
-    if not path.parent.is_dir():
-        raise SplatFileError(path, f"folder {str(path.parent)!r} does not exist")
+    fmt = writable_format(path)
     space = np.linalg.inv(file_axes(path, forward_axis, up_axis))
     gaussians = evaluated_gaussians(obj, depsgraph, world_space=world_space, space=space)
     antialiased = bool(getattr(getattr(obj, "splat", None), "antialiased", False))
     if not fmt.stores_antialiased:
         antialiased = False  # the format cannot say it; nothing to warn about on export
     return registry.write(gaussians, path, antialiased=antialiased)
+
+
+def export_sequence(obj, pattern: str | os.PathLike, frames=None, *, scene=None,
+                    world_space: bool = True, forward_axis: str | None = "AUTO",
+                    up_axis: str | None = "AUTO") -> list[Path]:
+    """Write `obj` at each scene frame of `frames` (default the scene's frame range) to
+    `pattern` (`#` or `%04d` where the frame number goes, e.g. `out/walk_####.ply`), one file
+    per frame as `export_splats` writes it, each atomically; only one frame is in memory at a
+    time. The scene's frame is restored afterwards. Returns the files written."""
+    scene = scene or bpy.context.scene
+    pattern = Path(pattern)
+    fmt = writable_format(pattern)
+    frames = list(range(scene.frame_start, scene.frame_end + 1) if frames is None else frames)
+    space = np.linalg.inv(file_axes(pattern, forward_axis, up_axis))
+    antialiased = bool(obj.splat.antialiased) and fmt.stores_antialiased
+    current = scene.frame_current, scene.frame_subframe
+
+    def frames_in_world():
+        for frame in frames:
+            scene.frame_set(frame)
+            yield frame, evaluated_gaussians(obj, bpy.context.evaluated_depsgraph_get(),
+                                             world_space=world_space, space=space)
+
+    try:
+        return save_sequence(frames_in_world(), pattern, antialiased=antialiased)
+    finally:
+        scene.frame_set(current[0], subframe=current[1])
 
 
 AXIS_ITEMS = [("AUTO", "Auto", "The file format's convention (3DGS .ply, .splat, .spz, SOG, "
@@ -146,6 +217,10 @@ AXIS_ITEMS = [("AUTO", "Auto", "The file format's convention (3DGS .ply, .splat,
 def _axis_prop(which: str, blender_axis: str) -> EnumProperty:
     return EnumProperty(name=which, items=AXIS_ITEMS, default="AUTO",
                         description=f"File axis that is Blender's {which.lower()} ({blender_axis})")
+
+
+def _sequence_prop(name: str, description: str) -> BoolProperty:
+    return BoolProperty(name=name, description=description, default=False)
 
 
 class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
@@ -163,6 +238,10 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
     directory: StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
     forward_axis: _axis_prop("Forward", "+Y")
     up_axis: _axis_prop("Up", "+Z")
+    sequence: _sequence_prop(
+        "Import as Sequence", "The chosen file and its numbered siblings (walk_0001.ply, "
+                              "walk_0002.ply, ...) as one splat object whose splats change with "
+                              "the frame")
 
     def paths(self) -> list[Path]:
         names = [f.name for f in self.files if f.name]
@@ -180,6 +259,8 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
             return {"CANCELLED"}
         if context.mode != "OBJECT" and context.active_object is not None:
             bpy.ops.object.mode_set(mode="OBJECT")
+        if self.sequence:
+            return self.import_sequence(context, paths[0])
         loaded = []
         with preparing(context, "Importing splats", ", ".join(p.name for p in paths)) as progress:
             for k, path in enumerate(paths):
@@ -216,6 +297,18 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
         self.report({"INFO"}, f"Imported {total:,} splats from {len(loaded)} file(s)")
         return {"FINISHED"}
 
+    def import_sequence(self, context, path: Path):
+        try:
+            obj = import_sequence(path, context=context, forward_axis=self.forward_axis,
+                                  up_axis=self.up_axis)
+        except (SplatFileError, OSError, ValueError) as error:
+            self.report({"ERROR"}, f"Cannot import: {error}")
+            return {"CANCELLED"}
+        frames = sequence.sequence_of(obj)
+        self.report({"INFO"}, f"Imported a sequence of {len(frames)} frames "
+                              f"({frames.first}-{frames.last}) as {obj.name!r}")
+        return {"FINISHED"}
+
 
 class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
     """Export the active splat object (evaluated, in world space) in any format that writes splats"""
@@ -233,6 +326,10 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
         default=True)
     forward_axis: _axis_prop("Forward", "+Y")
     up_axis: _axis_prop("Up", "+Z")
+    sequence: _sequence_prop(
+        "Export as Sequence", "One file per frame of the scene's frame range; the name's # (or "
+                              "%04d) takes the frame number (added before the extension when "
+                              "missing)")
 
     @classmethod
     def poll(cls, context):
@@ -252,22 +349,35 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
         if not splat_object.is_splat_object(obj):
             self.report({"ERROR"}, "The active object is not a splat object")
             return {"CANCELLED"}
-        try:
-            # One stage: the cursor's counter in the UI, a terminal line headless.
-            with preparing(context, "Exporting", f"{obj.name} to {Path(self.filepath).name}") \
-                    as progress:
-                progress(0.0, "")
-                warnings = export_splats(obj, self.filepath,
-                                         depsgraph=context.evaluated_depsgraph_get(),
+        if self.sequence:
+            target = sequence.sequence_pattern(self.filepath)
+
+            def write() -> tuple[list[str], str]:
+                written = export_sequence(obj, target, scene=context.scene,
+                                          world_space=self.world_space,
+                                          forward_axis=self.forward_axis, up_axis=self.up_axis)
+                return [], f"Exported {len(written)} frames of {obj.name} to {target}"
+        else:
+            target = self.filepath
+
+            def write() -> tuple[list[str], str]:
+                warnings = export_splats(obj, target, depsgraph=context.evaluated_depsgraph_get(),
                                          world_space=self.world_space,
                                          forward_axis=self.forward_axis, up_axis=self.up_axis)
+                return warnings, f"Exported {obj.name} to {target}"
+        try:
+            # One stage: the cursor's counter in the UI, a terminal line headless.
+            with preparing(context, "Exporting", f"{obj.name} to {Path(target).name}") \
+                    as progress:
+                progress(0.0, "")
+                warnings, message = write()
                 progress(1.0, "")
         except (SplatFileError, splat_object.SplatDataError, OSError, ValueError) as error:
             self.report({"ERROR"}, f"Cannot export: {error}")
             return {"CANCELLED"}
         for warning in warnings:
             self.report({"WARNING"}, warning)
-        self.report({"INFO"}, f"Exported {obj.name} to {self.filepath}")
+        self.report({"INFO"}, message)
         return {"FINISHED"}
 
 

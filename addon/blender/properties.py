@@ -8,6 +8,8 @@ the object, kept by undo):
 - `antialiased`: render with the Mip-Splatting opacity compensation (use the mode the splats
   were trained with; an .spz file records it);
 - `sh_degree`: the SH bands to evaluate, 0..3 (at most what the data holds);
+- `sequence_source`, `sequence_frame_offset`: a splat sequence the object shows frame by frame
+  (see `sequence`);
 - `color_space`: what the SH colours mean. 'SRGB' (display sRGB, what splats trained on photos
   hold: the reference look) or 'LINEAR' (scene-linear Rec.709). Conversion happens in the render
   integration, not here.
@@ -56,6 +58,15 @@ class SplatObjectSettings(bpy.types.PropertyGroup):
         default="SRGB")
     source_path: StringProperty(
         name="Source", description="The file the splats were imported from", subtype="FILE_PATH")
+    sequence_source: StringProperty(
+        name="Sequence", subtype="FILE_PATH",
+        description="A splat sequence (a numbered file, a #### pattern or a folder): the "
+                    "splats are those of the frame's file (empty: not a sequence)")
+    sequence_frame_offset: IntProperty(
+        name="Frame Offset",
+        description="Added to the scene's frame to choose the sequence's file (0: scene frame "
+                    "N shows file number N)",
+        default=0)
     show_in_viewport: BoolProperty(
         name="Show in Viewport", update=_viewport_switch,
         description="Draw these splats in the 3D viewport (Solid and Material Preview); final "
@@ -142,6 +153,9 @@ class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
         col.prop(settings, "show_in_viewport")
         if settings.source_path:
             col.prop(settings, "source_path")
+        if settings.sequence_source:
+            col.prop(settings, "sequence_source")
+            col.prop(settings, "sequence_frame_offset")
 
 
 CLASSES = (SplatObjectSettings, SplatRenderSettings, OBJECT_PT_splat)

@@ -35,15 +35,20 @@ def remove_pointer(owner, name: str) -> None:
         delattr(owner, name)
 
 
-def module_registration(classes=(), *, pointers=(), menus=()
+def module_registration(classes=(), *, pointers=(), menus=(), handlers=()
                         ) -> tuple[Callable[[], None], Callable[[], None]]:
     """`register`, `unregister` for a module that registers `classes`, hangs PropertyGroups on
-    types (`pointers`: (owner type, name, group) triples) and appends draw functions to menus
-    (`menus`: (menu type name, draw) pairs; a menu this Blender lacks is skipped). Both are
-    harmless to call twice."""
+    types (`pointers`: (owner type, name, group) triples), appends draw functions to menus
+    (`menus`: (menu type name, draw) pairs; a menu this Blender lacks is skipped) and adds
+    application handlers (`handlers`: (`bpy.app.handlers` list name, function) pairs). Both
+    are harmless to call twice."""
 
     def register() -> None:
         register_classes(classes)
+        for list_name, handler in handlers:
+            handler_list = getattr(bpy.app.handlers, list_name)
+            if handler not in handler_list:
+                handler_list.append(handler)
         for owner, name, group in pointers:
             add_pointer(owner, name, group)
         for menu_name, draw in menus:
@@ -53,6 +58,10 @@ def module_registration(classes=(), *, pointers=(), menus=()
                 menu.append(draw)
 
     def unregister() -> None:
+        for list_name, handler in handlers:
+            handler_list = getattr(bpy.app.handlers, list_name)
+            if handler in handler_list:
+                handler_list.remove(handler)
         for menu_name, draw in menus:
             menu = getattr(bpy.types, menu_name, None)
             if menu is not None:

@@ -67,7 +67,7 @@ from . import dependencies, splat_object
 from .camera_adapter import set_camera
 from .job_runner import (JobOperator, OperatorJob, draw_settings, is_running, preparing,
                          registration)
-from .train_operator import COMPACT_DESCRIPTION, TrainingSettings, replace_gaussians
+from .train_operator import COMPACT_DESCRIPTION, TrainingSettings
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "CURVES", "POINTCLOUD", "VOLUME",
                   "GREASEPENCIL"}
@@ -392,7 +392,7 @@ def write_splats(request: SceneToSplatsRequest, gaussians, obj=None, *, final: b
     except ReferenceError:
         alive = False
     if alive:
-        replace_gaussians(obj, gaussians)
+        splat_object.replace_gaussians(obj, gaussians)
     else:
         obj = splat_object.create_splat_object(
             gaussians, request.name, collection=_collection(request.collection_name),

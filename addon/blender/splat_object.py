@@ -193,6 +193,22 @@ def mesh_from_gaussians(gaussians: Gaussians, name: str) -> bpy.types.Mesh:
     return mesh
 
 
+def replace_gaussians(obj, gaussians: Gaussians) -> None:
+    """Rewrite a splat object's mesh with `gaussians` (any count; the mesh is kept)."""
+    bad = gaussians.non_finite()
+    if bad is not None:
+        raise ValueError(f"Gaussians.{bad} holds NaN or Inf")
+    mesh = obj.data
+    if len(mesh.vertices) != len(gaussians):
+        mesh.clear_geometry()
+        mesh.vertices.add(len(gaussians))
+    write_gaussians(mesh, gaussians)
+    settings = obj.splat
+    if settings.sh_degree > gaussians.degree or not settings.is_splat:
+        settings.sh_degree = gaussians.degree
+    settings.is_splat = True
+
+
 def create_splat_object(gaussians: Gaussians, name: str = "Splats", *, collection=None,
                         antialiased: bool = False, sh_degree: int | None = None,
                         color_space: str = "SRGB", source_path: str = "") -> bpy.types.Object:

@@ -166,22 +166,6 @@ def checkpoint_path(collection, explicit: str = "", *, resume: bool = False) -> 
         collection.name, str(collection.get("colmap_model_dir", "")), blend)
 
 
-def replace_gaussians(obj, gaussians: Gaussians) -> None:
-    """Rewrite a splat object's mesh with `gaussians` (any count; the mesh is kept)."""
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise ValueError(f"Gaussians.{bad} holds NaN or Inf")
-    mesh = obj.data
-    if len(mesh.vertices) != len(gaussians):
-        mesh.clear_geometry()
-        mesh.vertices.add(len(gaussians))
-    splat_object.write_gaussians(mesh, gaussians)
-    settings = obj.splat
-    if settings.sh_degree > gaussians.degree or not settings.is_splat:
-        settings.sh_degree = gaussians.degree
-    settings.is_splat = True
-
-
 def _alive(obj):
     try:
         return obj if obj is not None and obj.name is not None else None
@@ -196,7 +180,7 @@ def write_splats(collection_name: str, gaussians: Gaussians, *, antialiased: boo
     collection = bpy.data.collections.get(collection_name)
     obj = _alive(collection.get(OBJECT_KEY)) if collection is not None else None
     if obj is not None and splat_object.is_splat_object(obj) and obj.users:
-        replace_gaussians(obj, gaussians)
+        splat_object.replace_gaussians(obj, gaussians)
     else:
         target = collection if collection is not None else bpy.context.scene.collection
         obj = splat_object.create_splat_object(
@@ -247,7 +231,7 @@ class SceneBefore:
                 bpy.data.meshes.remove(mesh)
             del collection[OBJECT_KEY]
         elif obj is not None and self.gaussians is not None:
-            replace_gaussians(obj, self.gaussians)
+            splat_object.replace_gaussians(obj, self.gaussians)
             if self.steps is None:
                 obj.pop("splat_trained_steps", None)
             else:
