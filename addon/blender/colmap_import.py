@@ -53,7 +53,7 @@ from ..core.jobs import StagedJob
 from .camera_adapter import (apply_recorded_output, marker_camera, record_output_settings,
                              recorded_output, set_camera, set_lens, to_matrix)
 from .job_runner import JobOperator, OperatorJob, wants_background
-from .registration import register_classes, unregister_classes
+from .registration import module_registration
 
 SENSOR_WIDTH = 36.0
 
@@ -542,33 +542,24 @@ def _menu_import(self, context):
 _CLASSES = (SPLAT_OT_import_colmap, SPLAT_OT_colmap_set_camera)
 
 
+_register, _unregister = module_registration(
+    _CLASSES, handlers=_HANDLERS,
+    menus=[("TOPBAR_MT_file_import", _menu_import), ("RENDER_PT_format", _draw_switch)])
+
+
 def register() -> None:
-    register_classes(_CLASSES)
     if SWITCH not in bpy.types.Scene.bl_rna.properties:
         setattr(bpy.types.Scene, SWITCH, BoolProperty(
             name="Use COLMAP Camera Output", default=True,
             description="Set the resolution and pixel aspect from each imported COLMAP camera's "
                         "photo when it becomes the scene camera (also through markers) or a "
                         "render starts"))
-    bpy.types.TOPBAR_MT_file_import.remove(_menu_import)  # no-op unless registered before
-    bpy.types.TOPBAR_MT_file_import.append(_menu_import)
-    bpy.types.RENDER_PT_format.remove(_draw_switch)
-    bpy.types.RENDER_PT_format.append(_draw_switch)
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler not in handlers:
-            handlers.append(handler)
+    _register()
     _subscribe()
 
 
 def unregister() -> None:
     bpy.msgbus.clear_by_owner(_MSGBUS_OWNER)
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler in handlers:
-            handlers.remove(handler)
-    bpy.types.RENDER_PT_format.remove(_draw_switch)
-    bpy.types.TOPBAR_MT_file_import.remove(_menu_import)
-    unregister_classes(_CLASSES)
+    _unregister()
     if SWITCH in bpy.types.Scene.bl_rna.properties:
         delattr(bpy.types.Scene, SWITCH)

@@ -42,7 +42,7 @@ from . import compositor_bridge as bridge
 from . import render_state
 from .camera_adapter import frame_size
 from .compositor_bridge import ENGINE_ID
-from .registration import register_classes, unregister_classes
+from .registration import module_registration
 from .render_failures import (fail_render, remove_failed_file, render_blockers, report_in_window,
                               set_aside_outputs, settle_outputs)
 from .render_layers import (frame_target, read_render_layer, render_result_image, splat_passes,
@@ -366,27 +366,24 @@ _SHARED_PANELS = ("RENDER_PT_color_management", "RENDER_PT_color_management_curv
                   "RENDER_PT_color_management_white_balance", "RENDER_PT_format")
 
 
-def register() -> None:
-    register_classes((SplatRenderEngine,))
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler not in handlers:
-            handlers.append(handler)
+_register, _unregister = module_registration((SplatRenderEngine,), handlers=_HANDLERS)
+
+
+def _shared_panel_engines():
+    """The COMPAT_ENGINES sets of `_SHARED_PANELS` this Blender has."""
     for name in _SHARED_PANELS:
-        panel = getattr(bpy.types, name, None)
-        engines = getattr(panel, "COMPAT_ENGINES", None)
+        engines = getattr(getattr(bpy.types, name, None), "COMPAT_ENGINES", None)
         if isinstance(engines, set):
-            engines.add(ENGINE_ID)
+            yield engines
+
+
+def register() -> None:
+    _register()
+    for engines in _shared_panel_engines():
+        engines.add(ENGINE_ID)
 
 
 def unregister() -> None:
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler in handlers:
-            handlers.remove(handler)
-    for name in _SHARED_PANELS:
-        panel = getattr(bpy.types, name, None)
-        engines = getattr(panel, "COMPAT_ENGINES", None)
-        if isinstance(engines, set):
-            engines.discard(ENGINE_ID)
-    unregister_classes((SplatRenderEngine,))
+    for engines in _shared_panel_engines():
+        engines.discard(ENGINE_ID)
+    _unregister()
