@@ -3,6 +3,8 @@ orientations and SH colours, plus a few anywhere (behind the camera, far outside
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from addon.core.cameras import Camera
@@ -77,3 +79,14 @@ def fast_random_gaussians(rng: np.random.Generator, n: int, degree: int = 1) -> 
     opacity_logits = rng.standard_normal(n, dtype=f) * f(2)
     sh = rng.standard_normal((n, sh_count(degree), 3), dtype=f) * f(0.3)
     return Gaussians(means, log_scales, quats, opacity_logits, sh)
+
+
+def playbot_camera() -> Camera:
+    """A fixed 160x120 view of ../shared/data/splats/playbot_125k_sh2.ply (its frame is y-down)."""
+    return Camera.look_at((0.0, -1.2, -2.6), (0.0, -0.45, 0.0), (0, -1, 0), width=160, height=120,
+                          fov_x_degrees=50)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b) ** 2))
+    return math.inf if mse == 0 else -10.0 * math.log10(mse)

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from addon.core import splat_io
-from addon.core.cameras import Camera
 from addon.core.formats import compressed_ply_write as writer
 from addon.core.formats import ply
 from addon.core.formats.errors import SplatFileError
 from addon.core.formats.morton import morton_order
 from addon.core.gaussians import Gaussians
 from addon.core.render import render
+from scenes import playbot_camera, psnr
 
 SH_C0 = 0.28209479177387814
 PACKED = ["packed_position", "packed_rotation", "packed_scale", "packed_color"]
@@ -96,11 +96,8 @@ def test_playbot_round_trip_render(shared_data: Path, tmp_path: Path) -> None:
     g = ply.load(shared_data / "splats" / "playbot_125k_sh2.ply")
     writer.save(g, tmp_path / "playbot.compressed.ply")
     back = ply.load(tmp_path / "playbot.compressed.ply")
-    camera = Camera.look_at((0.0, -1.2, -2.6), (0.0, -0.45, 0.0), (0, -1, 0), width=160, height=120,
-                            fov_x_degrees=50)
-    a, b = render(back, camera).rgb, render(g, camera).rgb
-    psnr = -10 * math.log10(float(np.mean((a.astype(np.float64) - b) ** 2)))
-    assert psnr >= 48.0  # measured 51.6 dB at 320x240; 5.0 MB against the PLY's 20.5 MB
+    camera = playbot_camera()
+    assert psnr(render(back, camera).rgb, render(g, camera).rgb) >= 48.0  # measured 51.6 dB at 320x240; 5.0 MB against the PLY's 20.5 MB
     assert (tmp_path / "playbot.compressed.ply").stat().st_size < 5_100_000
 
 

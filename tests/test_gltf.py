@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from addon.core import splat_io
-from addon.core.cameras import Camera
 from addon.core.formats import gltf, ply
 from addon.core.formats.errors import SplatFileError
 from addon.core.formats.frames import rdf_to_rub
 from addon.core.gaussians import Gaussians
 from addon.core.render import render
+from scenes import playbot_camera
 from addon.core.transform import covariances, transform_gaussians
 
 EXT = "KHR_gaussian_splatting"
@@ -171,8 +171,7 @@ def test_playbot_round_trip_renders_identically(shared_data: Path, tmp_path: Pat
     g = ply.load(shared_data / "splats" / "playbot_125k_sh2.ply")
     gltf.save(g, tmp_path / "playbot.glb")
     back = gltf.load(tmp_path / "playbot.glb")
-    camera = Camera.look_at((0.0, -1.2, -2.6), (0.0, -0.45, 0.0), (0, -1, 0), width=160, height=120,
-                            fov_x_degrees=50)
+    camera = playbot_camera()
     a, b = render(back, camera).rgb, render(g, camera).rgb
     assert np.abs(a - b).max() < 1e-5  # measured PSNR 171 dB: float rounding of scale and opacity
     assert (tmp_path / "playbot.glb").stat().st_size < 19_600_000

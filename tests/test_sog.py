@@ -19,27 +19,17 @@ import numpy as np
 import pytest
 
 from addon.core import splat_io
-from addon.core.cameras import Camera
 from addon.core.formats import codebook, ply, sog, sog_lod, webp
 from addon.core.formats.errors import SplatFileError
 from addon.core.formats.morton import morton_order
 from addon.core.gaussians import Gaussians
 from addon.core.render import render
+from scenes import playbot_camera, psnr
 
 LOD_COUNTS = [500_000, 250_000, 125_000, 31_000, 8_406, 3_000, 1_873]
 # Render PSNR of each LOD level against the PLY (= level 2) at 160x120 with `playbot_camera`:
 # the levels are different decimations of one capture, so coarser levels differ more.
 LOD_MIN_PSNR = [28.5, 30.0, math.inf, 25.0, 23.5, 21.5, 21.3]  # measured 29.4, 31.0, inf, 26.2, 24.6, 22.5, 22.4
-
-
-def playbot_camera() -> Camera:
-    return Camera.look_at((0.0, -1.2, -2.6), (0.0, -0.45, 0.0), (0, -1, 0), width=160, height=120,
-                          fov_x_degrees=50)
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b) ** 2))
-    return math.inf if mse == 0 else -10.0 * math.log10(mse)
 
 
 def random_gaussians(rng: np.random.Generator, n: int, degree: int) -> Gaussians:
