@@ -100,9 +100,7 @@ def test_a_bad_frame_keeps_the_previous_splats(tmp_path, capfd):
     assert len(obj.data.vertices) == COUNTS[3]
 
 
-def test_animation_render_gives_each_frames_image(tmp_path):
-    """F12 animation (Workbench): frame F's PNG is the reference render of file F's splats."""
-    files = write_frames(tmp_path, COUNTS)
+def _animation_scene(tmp_path, files):
     scene = bpy.context.scene
     scene.frame_set(1)
     io_operators.import_sequence(files[1])
@@ -117,6 +115,13 @@ def test_animation_render_gives_each_frames_image(tmp_path):
     settings.color_depth = "8"
     scene.frame_start, scene.frame_end = 1, 3
     scene.render.filepath = str(tmp_path / "anim_")
+    return scene, camera
+
+
+def test_animation_render_gives_each_frames_image(tmp_path):
+    """F12 animation (Workbench): frame F's PNG is the reference render of file F's splats."""
+    files = write_frames(tmp_path, COUNTS)
+    scene, camera = _animation_scene(tmp_path, files)
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
     images = []
     for frame in (1, 2, 3):
@@ -182,3 +187,14 @@ def test_frames_of_the_same_count_gather_their_own_splats(tmp_path):
         matrix = np.array(obj.matrix_world, dtype=np.float64)
         expected = file_gaussians(files[frame]).means @ matrix[:3, :3].T + matrix[:3, 3]
         assert np.allclose(gathered.means, expected, atol=1e-5), frame
+
+
+def test_a_frame_that_cannot_be_read_fails_the_render_not_shows_stale_splats(tmp_path):
+    files = write_frames(tmp_path, COUNTS)
+    scene, _camera = _animation_scene(tmp_path, files)
+    files[2].write_bytes(b"ply\nformat nonsense\n")
+    try:
+        bpy.ops.render.render(animation=True)
+    except RuntimeError:
+        pass  # the render failed, as it must
+    assert not (tmp_path / "anim_0002.png").exists()  # never frame 1's splats under frame 2

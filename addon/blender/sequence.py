@@ -11,7 +11,8 @@ session id), whose cache keeps the last few frames read; scrubbing over them rea
 frame number the mesh shows is stored on the mesh (`SHOWN_KEY`), so undo and saved files stay
 consistent with it and an unchanged frame rewrites nothing. Objects in Edit Mode are left
 alone. A frame that cannot be read keeps the previous splats and prints the error (once per
-frame): a handler has no operator to report through.
+frame): a handler has no operator to report through; during a final render it fails the render
+instead, so no frame is written with another frame's splats.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from bpy.app.handlers import persistent
 from ..core.formats.errors import SplatFileError
 from ..core.formats.sequence import SplatSequence
 from ..core.gaussians import Gaussians
-from . import splat_object
+from . import render_failures, render_state, splat_object
 from .registration import module_registration
 
 CACHE_FRAMES = 3  # frames each sequence keeps in memory
@@ -95,7 +96,8 @@ def show_frame(obj, frame: int) -> bool:
 
 def update_scene(scene, frame: int | None = None) -> None:
     """Show the frame (default the scene's current) on every sequence object of `scene`;
-    errors are printed once per file and leave the object as it was."""
+    errors are printed once per file and leave the object as it was, except during a final
+    render, which they fail (see `render_failures`)."""
     frame = scene.frame_current if frame is None else frame
     for obj in scene.objects:
         if obj.type != "MESH" or not source_of(obj):
@@ -103,6 +105,11 @@ def update_scene(scene, frame: int | None = None) -> None:
         try:
             show_frame(obj, frame)
         except (SplatFileError, OSError, ValueError) as error:
+            if render_state.current.scene == scene.name:  # a final render must not show stale splats
+                render_failures.fail_render(
+                    scene, f"{obj.name!r} cannot show frame {frame} of its sequence: {error}",
+                    "frame")
+                continue
             key = (source_of(obj), frame)
             if key not in _reported:
                 _reported.add(key)
