@@ -1,10 +1,16 @@
 """The loss and optimizer kernels (`addon.core.train_kernels.l1_ssim_loss`, `adam_step`)
 against float64 NumPy references (tests/reference_backward.py).
 
-Tolerances: the loss is computed in double from float32 images, so loss, L1 and SSIM match the
-float64 reference to 1e-10 relative; its gradient is rounded to float32 once (1e-6 of the
-largest element). The reference's own analytic SSIM gradient is held against central finite
-differences (1e-6 relative). Adam works in float32 like torch: 1e-5 relative per step."""
+Tolerances: the loss kernel works in float32 (as the 3DGS training code does on the GPU), with
+the image means summed in double. L1 is exact differences of the float32 inputs summed in double:
+1e-10 relative. SSIM: the variance s1 = w*x^2 - mu1^2 cancels in float32, with an error of a few
+float32 ulps of mu1^2 <= 1 against a denominator s1 + s2 + C2 >= C2 = 9e-4, so per pixel ~1e-4
+relative at worst (flat regions, where the variance is far below C2), ~1e-7 on textured images;
+measured: the mean SSIM within 3e-6 absolute and the gradient within 1.2e-4 of its largest element
+on flat images, 1e-6 on random ones. The tests allow 1e-5 absolute on SSIM, 2e-5 of the largest
+gradient element on random images and 5e-4 on flat ones. The reference's own analytic SSIM
+gradient is held against central finite differences (1e-6 relative). Adam works in float32 like
+torch: 1e-5 relative per step."""
 
 from __future__ import annotations
 
@@ -14,7 +20,7 @@ import pytest
 from addon.core import train_kernels as tk
 from tests import reference_backward as rb
 
-SIZES = [(23, 17), (16, 16), (5, 3), (1, 1), (40, 9)]
+SIZES = [(23, 17), (16, 16), (5, 3), (1, 1), (40, 9), (7, 600)]  # 600: several column chunks
 
 
 def _images(rng, height, width):
@@ -53,14 +59,30 @@ def test_reference_filter_is_torch_conv2d_with_zero_padding():
 @pytest.mark.parametrize("lam", [0.0, 0.2, 1.0])
 def test_loss_and_gradient_match_reference(rng, size, lam):
     image, target = _images(rng, *size)
+    _check_loss(image, target, lam, grad_tolerance=2e-5)
+
+
+@pytest.mark.parametrize("size", SIZES)
+@pytest.mark.parametrize("level", [0.02, 0.5, 0.98])
+def test_loss_on_flat_images_matches_reference(rng, size, level):
+    # The float32 worst case: variances (1e-6) far below C2, so s1 = e11 - mu1^2 is all
+    # cancellation (module docstring).
+    image = (level + rng.normal(0, 1e-3, (*size, 3))).astype(np.float32)
+    target = (level + rng.normal(0, 1e-3, (*size, 3))).astype(np.float32)
+    for lam in (0.2, 1.0):
+        _check_loss(image, target, lam, grad_tolerance=5e-4)
+
+
+def _check_loss(image, target, lam, *, grad_tolerance):
     got = tk.l1_ssim_loss(image, target, lambda_dssim=lam)
     loss, l1, ssim, grad = rb.l1_ssim_loss(image, target, lam)
-    assert got.loss == pytest.approx(loss, rel=1e-10, abs=1e-14)
     assert got.l1 == pytest.approx(l1, rel=1e-10)
-    assert got.ssim == pytest.approx(ssim, rel=1e-10)
+    assert got.ssim == pytest.approx(ssim, abs=1e-5)
+    assert got.loss == pytest.approx((1 - lam) * got.l1 + lam * (1 - got.ssim), rel=1e-12, abs=1e-15)
+    assert got.loss == pytest.approx(loss, rel=1e-10, abs=lam * 1e-5)
     assert got.grad.dtype == np.float32 and got.grad.shape == image.shape
     err = np.abs(got.grad - grad)
-    assert np.all(err <= 1e-6 * np.abs(grad).max() + 1e-6 * np.abs(grad)), err.max()
+    assert np.all(err <= grad_tolerance * np.abs(grad).max()), err.max() / np.abs(grad).max()
 
 
 def test_loss_gradient_matches_finite_differences_of_reference(rng):
@@ -80,8 +102,9 @@ def test_loss_gradient_matches_finite_differences_of_reference(rng):
 def test_identical_images():
     image = np.random.default_rng(0).uniform(0, 1, (12, 10, 3)).astype(np.float32)
     got = tk.l1_ssim_loss(image, image.copy())
-    assert got.loss == pytest.approx(0, abs=1e-12) and got.ssim == pytest.approx(1, abs=1e-12)
-    assert np.abs(got.grad).max() < 1e-9  # both terms at their minimum
+    # Float32 (module docstring): S = 1 up to rounding of its numerator against its denominator.
+    assert got.loss == pytest.approx(0, abs=1e-8) and got.ssim == pytest.approx(1, abs=1e-7)
+    assert np.abs(got.grad).max() < 1e-7  # both terms at their minimum
 
 
 def test_loss_identical_for_any_thread_count_and_reusable_output(rng):

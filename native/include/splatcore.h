@@ -228,7 +228,8 @@ sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const 
  * L1 the mean absolute difference, SSIM the mean of the SSIM map with an 11x11 Gaussian window
  * (sigma 1.5), C1 = 0.01^2, C2 = 0.03^2, each channel filtered separately with zero padding of
  * 5 pixels (the 3DGS training code's conv2d(padding = 5)), the map the same size as the image.
- * Writes dL/d(image) (H,W,3) into grad when non-NULL (d|x|/dx at 0 is 0). Computed in double.
+ * Writes dL/d(image) (H,W,3) into grad when non-NULL (d|x|/dx at 0 is 0). Float32 arithmetic (as the
+ * 3DGS training code), the means summed in double.
  * Returns SC_ERR_MEMORY or SC_OK. */
 sc_status sc_l1_ssim(const float *image, const float *target, int width, int height,
                      double lambda, int threads, float *grad, double *loss, double *l1,

@@ -338,6 +338,15 @@ static int check_mesh(const float *rgba, const float *depth, int64_t pixels) {
 }
 
 static int check_finite_array(const float *v, int64_t n, const char *name) {
+    /* One branch-free pass (it vectorises: these arrays are whole images and gradients); the
+     * index is looked for only when there is something to report. */
+    uint32_t bad = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        uint32_t bits;
+        memcpy(&bits, v + i, sizeof bits);
+        bad |= (bits & 0x7f800000u) == 0x7f800000u; /* exponent all ones: Inf or NaN */
+    }
+    if (!bad) return 0;
     for (int64_t i = 0; i < n; ++i)
         if (!isfinite(v[i])) {
             PyErr_Format(PyExc_ValueError, "%s has a non-finite value (NaN or Inf) at flat index %lld",
