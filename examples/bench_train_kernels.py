@@ -1,12 +1,17 @@
-"""Training-kernel benchmark: the backward pass against the forward, and one training step's
-kernels (render_train, L1+SSIM loss, backward, Adam over every parameter array).
+"""Training-kernel benchmark: the backward pass against the forward, and one training step split
+into its stages (render_train's project/sort/bin/composite, the L1+SSIM loss, the backward's
+composite and per-Gaussian parts, Adam dense and over the visible Gaussians only, and what the
+trainer's Python adds around them).
 
     .venv/bin/python examples/bench_train_kernels.py           # playbot 1280x720 and 50k at 200x150
     .venv/bin/python examples/bench_train_kernels.py --quick   # the 200x150 case only
+    .venv/bin/python examples/bench_train_kernels.py --quick --cup 1500   # also cup, trained 1500 steps
 
 Prints median wall-clock ms (and the best run's stages) for 1 and 2 threads, and single-thread
 CPU ms, which is steadier on a shared machine. The 50k scene: random Gaussians (SH degree 3)
-seen at 200x150, the training size of issue 6. Never a test: numbers only.
+seen at 200x150, the training size of issue 6. --cup N: the Gaussians the default trainer has
+after N steps on ../shared/data/cup (images_4, 200x150), stepped over its training views, so
+visibility and overlap are a real scene's. Never a test: numbers only.
 """
 
 from __future__ import annotations
@@ -66,43 +71,95 @@ def backward_table(scenes: dict, repeats: int) -> None:
                  "bw per-Gaussian", "bw/render", "bw/render CPU", "tile pairs"])
 
 
-def step_table(gaussians, camera, repeats: int) -> None:
-    target = np.random.default_rng(1).uniform(0, 1, (camera.height, camera.width, 3)).astype(np.float32)
-    moments = {k: (np.zeros_like(a), np.zeros_like(a)) for k, a in gaussians.arrays().items()}
-    rows = []
-    for threads in (1, 2):
-        result, state = tk.render_train(gaussians, camera, threads=threads)
-        grads = tk.Gradients.zeros_like(gaussians)
-        d_rgb = np.empty_like(target)
-        times = {}
-        times["render_train"] = median_ms(lambda: tk.render_train(gaussians, camera, threads=threads), repeats)[0]
-        times["l1_ssim"] = median_ms(lambda: tk.l1_ssim_loss(result.rgb, target, out_grad=d_rgb,
-                                                               threads=threads), repeats)[0]
-        times["backward"] = median_ms(lambda: tk.backward(state, gaussians, d_rgb, threads=threads,
-                                                          out=grads), repeats)[0]
-        params = {k: a.copy() for k, a in gaussians.arrays().items()}
+def step_profile(label: str, gaussians, views, repeats: int) -> None:
+    """One training step's stages as the trainer runs them (`views`: (camera, target) pairs,
+    stepped through in turn). Single-thread CPU ms (best of `repeats` per stage, steadiest
+    under load) and 2-thread wall ms (median)."""
+    from addon.core.optimizer import GaussianParameters
 
-        def adam_all():
-            for k, p in params.items():
-                tk.adam_step(p, grads.arrays()[k], *moments[k], lr=1e-3, step=1, threads=threads)
-        times["adam"] = median_ms(adam_all, repeats)[0]
-        rows.append([threads] + [f"{v:.1f}" for v in times.values()] + [f"{sum(times.values()):.1f}"])
-    print(f"One training step's kernels, {len(gaussians)} Gaussians (SH degree {gaussians.degree}) "
-          f"at {camera.width}x{camera.height} (median wall ms)")
-    table(rows, ["threads", "render_train", "l1_ssim", "backward", "adam (all arrays)", "sum"])
+    lrs = {"means": 1e-6, "log_scales": 1e-6, "quats": 1e-6, "opacity_logits": 1e-6,
+           "sh_dc": 1e-6, "sh_rest": 1e-6}  # tiny: the Gaussians stay what they were
+    rows = []
+    for threads, clock in ((1, time.process_time), (2, time.perf_counter)):
+        params = GaussianParameters(gaussians)
+        g = params.gaussians
+        grads = tk.Gradients.zeros_like(g)
+        samples: dict[str, list[float]] = {}
+        for r in range(repeats + 1):
+            camera, target = views[r % len(views)]
+            d_rgb = np.empty_like(target)
+            t0 = clock()
+            result, state = tk.render_train(g, camera, threads=threads)
+            t1 = clock()
+            tk.l1_ssim_loss(result.rgb, target, out_grad=d_rgb, threads=threads)
+            t2 = clock()
+            tk.backward(state, g, d_rgb, threads=threads, out=grads)
+            t3 = clock()
+            params.adam_step(grads, lrs, r + 1, threads=threads)
+            t4 = clock()
+            try:
+                params.adam_step(grads, lrs, r + 1, rows=state.visible, threads=threads)
+                sparse = clock() - t4
+            except TypeError:  # an optimizer without visible-rows Adam
+                sparse = float("nan")
+            if r == 0:
+                continue  # warm-up
+            stats, bstats = result.stats, grads.stats
+            for key, value in (("project", stats["ms_project"]), ("sort", stats["ms_sort"]),
+                               ("bin", stats["ms_bin"]), ("composite", stats["ms_composite"]),
+                               ("render_train", 1e3 * (t1 - t0)), ("loss", 1e3 * (t2 - t1)),
+                               ("bw composite", bstats["ms_composite"]),
+                               ("bw per-Gaussian", bstats["ms_project"]),
+                               ("backward", 1e3 * (t3 - t2)), ("adam", 1e3 * (t4 - t3)),
+                               ("adam visible", 1e3 * sparse), ("step", 1e3 * (t4 - t0)),
+                               ("visible %", 100 * state.visible.mean())):
+                samples.setdefault(key, []).append(value)
+        pick = min if threads == 1 else statistics.median
+        rows.append([f"{threads} ({'CPU' if threads == 1 else 'wall'})"] +
+                    [f"{pick(v):.1f}" for v in samples.values()])
+        header = list(samples)
+    print(f"One training step, {label}: {len(gaussians)} Gaussians (SH degree {gaussians.degree}) "
+          f"at {views[0][0].width}x{views[0][0].height}, ms (stages inside render_train and "
+          f"backward are the native timers, wall; 'step' = render_train + loss + backward + dense "
+          f"Adam)")
+    table(rows, ["threads"] + header)
+
+
+def trained_cup(steps: int):
+    """The default trainer's Gaussians after `steps` on cup at 200x150, and its training views."""
+    from addon.core.colmap import read_colmap
+    from addon.core.dataset import ColmapDataset
+    from addon.core.train import Trainer, TrainConfig
+
+    dataset = ColmapDataset(read_colmap(ROOT.parent / "shared" / "data" / "cup",
+                                        image_folder="images_4"))
+    dataset.preload()
+    trainer = Trainer(dataset, TrainConfig(steps=steps, threads=2))
+    for _ in trainer.run():
+        pass
+    views = [(dataset.cameras[i], dataset.image(i)) for i in dataset.train_indices]
+    return trainer.gaussians.copy(), views
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="the 200x150 case only")
+    parser.add_argument("--cup", type=int, default=0, metavar="STEPS",
+                        help="also profile cup's Gaussians after this many training steps")
+    parser.add_argument("--skip-backward-table", action="store_true")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     small = (fast_random_gaussians(rng, 50_000, degree=3), random_camera(rng, 200, 150))
     scenes = {"50k sh3 200x150": small}
     if not args.quick:
         scenes["playbot 1280x720"] = (splat_io.load(str(PLAYBOT)), playbot_camera(1280, 720))
-    backward_table(scenes, 5 if args.quick else 7)
-    step_table(*small, 9)
+    if not args.skip_backward_table:
+        backward_table(scenes, 5 if args.quick else 7)
+    target = np.random.default_rng(1).uniform(0, 1, (150, 200, 3)).astype(np.float32)
+    step_profile("random 50k", small[0], [(small[1], target)], 15)
+    if args.cup:
+        gaussians, views = trained_cup(args.cup)
+        step_profile(f"cup after {args.cup} steps", gaussians, views, 30)
 
 
 if __name__ == "__main__":

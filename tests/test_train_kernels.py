@@ -217,3 +217,97 @@ def test_adam_rejects_bad_input(rng):
         with pytest.raises(error, match=keyword):
             tk.adam_step(args["param"], args["grad"], args["exp_avg"], args["exp_avg_sq"], **kwargs)
     assert not p.any()  # nothing was touched by a refused call
+
+
+def _adam_reference_rows(param, grad, m, v, *, lr, step, rows, lead=0, lead_lr=None):
+    """The float64 twin of a masked, two-rate step: rb.adam on the selected rows only (the rest
+    unchanged), the first `lead` values of each row at lead_lr."""
+    want = [a.astype(np.float64) for a in (param, m, v)]
+    flat = lambda a: a.reshape(len(a), -1)  # noqa: E731
+    for r in np.flatnonzero(rows):
+        for cols, rate in ((slice(0, lead), lead_lr), (slice(lead, None), lr)):
+            p, mm, vv = rb.adam(flat(param)[r, cols], flat(grad)[r, cols], flat(m)[r, cols],
+                                flat(v)[r, cols], lr=rate, step=step)
+            flat(want[0])[r, cols], flat(want[1])[r, cols], flat(want[2])[r, cols] = p, mm, vv
+    return want
+
+
+@pytest.mark.parametrize("shape, lead", [((500, 3), 0), ((300, 16, 3), 3), ((257,), 0), ((40, 4, 3), 12)])
+def test_sparse_adam_matches_reference_and_leaves_unselected_rows(rng, shape, lead):
+    param = rng.normal(size=shape).astype(np.float32)
+    m, v = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
+    for step in range(1, 6):
+        grad = rng.normal(size=shape).astype(np.float32)
+        rows = rng.uniform(size=shape[0]) < 0.6
+        rows[:3] = [True, False, True]  # runs of both kinds at a chunk's start
+        lr, lead_lr = 10.0 ** rng.uniform(-4, -2), 10.0 ** rng.uniform(-4, -2)
+        before = [a.copy() for a in (param, m, v)]
+        want_p, want_m, want_v = _adam_reference_rows(param, grad, m, v, lr=lr, step=step,
+                                                      rows=rows, lead=lead, lead_lr=lead_lr)
+        tk.adam_step(param, grad, m, v, lr=lr, step=step, rows=rows, lead=lead, lead_lr=lead_lr)
+        for got, old in zip((param, m, v), before):  # not selected: bit for bit as before
+            assert np.array_equal(got[~rows], old[~rows])
+        # Selected rows: the tolerances of test_adam_matches_reference_over_steps.
+        assert np.all(np.abs(m - want_m) <= 1e-6 * (np.abs(before[1]) + np.abs(grad)))
+        assert np.all(np.abs(v - want_v) <= 1e-6 * np.abs(want_v) + 1e-30)
+        assert np.all(np.abs(param - want_p) <= 1e-5 * np.abs(want_p - before[0]) + 1e-7 * np.abs(before[0]))
+
+
+def test_sparse_adam_with_every_row_is_dense_adam_and_thread_independent(rng):
+    shape = (70_001, 16, 3)  # several chunks per thread
+    base = [rng.normal(size=shape).astype(np.float32) for _ in range(3)]
+    grad = rng.normal(size=shape).astype(np.float32)
+    base[2] = np.abs(base[2])
+    dense = [a.copy() for a in base]
+    tk.adam_step(*dense[:1], grad, *dense[1:], lr=1e-3, step=3, threads=1)
+    rows = rng.uniform(size=shape[0]) < 0.5
+    results = []
+    for threads in (1, 2, 3):
+        everything = [a.copy() for a in base]
+        tk.adam_step(everything[0], grad, everything[1], everything[2], lr=1e-3, step=3,
+                     rows=np.ones(shape[0], bool), threads=threads)
+        assert all(np.array_equal(a, b) for a, b in zip(everything, dense))
+        some = [a.copy() for a in base]
+        tk.adam_step(some[0], grad, some[1], some[2], lr=1e-3, step=3, rows=rows, lead=3,
+                     lead_lr=2e-3, threads=threads)
+        results.append(some)
+    for other in results[1:]:
+        assert all(np.array_equal(a, b) for a, b in zip(results[0], other))
+
+
+def test_sparse_adam_rejects_bad_rows_and_lead(rng):
+    p = np.zeros((10, 3), np.float32)
+    g, m, v = p.copy(), p.copy(), p.copy()
+    for kwargs, error, keyword in [
+        (dict(rows=np.ones(9, bool)), ValueError, "shape"),
+        (dict(rows=np.ones(10, np.int64)), TypeError, "uint8"),
+        (dict(lead=4), ValueError, "lead"),
+        (dict(lead=-1), ValueError, "lead"),
+        (dict(lead=1, lead_lr=float("inf")), ValueError, "lead_lr"),
+    ]:
+        with pytest.raises(error, match=keyword):
+            tk.adam_step(p, g, m, v, lr=0.1, step=1, **kwargs)
+    assert not p.any()
+
+
+def test_parameters_adam_step_over_visible_rows(rng):
+    from addon.core.optimizer import GaussianParameters
+    from tests.scenes import random_gaussians
+
+    g = random_gaussians(rng, 50, 2)
+    lrs = {"means": 1e-3, "log_scales": 2e-3, "quats": 3e-3, "opacity_logits": 4e-3,
+           "sh_dc": 2.5e-3, "sh_rest": 1.25e-4}
+    dense, sparse = GaussianParameters(g), GaussianParameters(g)
+    rows = rng.uniform(size=50) < 0.5
+    for step in range(1, 4):
+        grads = tk.Gradients.zeros_like(g)
+        for array in grads.arrays().values():
+            array[:] = rng.normal(size=array.shape)
+        before = {k: (a.copy(), dense.moments[k][0].copy()) for k, a in sparse.params.items()}
+        dense.adam_step(grads, lrs, step)
+        sparse.adam_step(grads, lrs, step, rows=rows)
+        for name, array in sparse.params.items():
+            assert np.array_equal(array[~rows], before[name][0][~rows])
+            assert not sparse.moments[name][0][~rows].any()  # never selected, never moved
+            if step == 1:  # from equal states, the selected rows get the dense update
+                assert np.array_equal(array[rows], dense.params[name][rows])

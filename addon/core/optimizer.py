@@ -4,7 +4,8 @@
 The parameters are one `Gaussians`-shaped set of float32 arrays (`sh` is (N, K, 3), DC and the
 higher bands together), so a step renders and differentiates them without a copy and Adam
 updates the kernels' gradient arrays in place. The SH bands still get two learning rates
-(3DGS's DC rate and its rate / 20 for the rest): see `GaussianParameters.adam_step`.
+(3DGS's DC rate and its rate / 20 for the rest) in one kernel call: see
+`GaussianParameters.adam_step`.
 """
 
 from __future__ import annotations
@@ -24,13 +25,6 @@ LEARNING_RATES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh
 def logit(p: float) -> float:
     """The opacity logit of an opacity p in (0, 1)."""
     return math.log(p / (1.0 - p))
-
-
-def _dc_column(sh: np.ndarray) -> np.ndarray:
-    """The DC coefficients of (N, K, 3) float32 SH as an (N,) view of 12-byte items: numpy
-    copies a strided column of such items about 2.5x faster than the (N, 3) float slice."""
-    n = sh.shape[0]
-    return np.ascontiguousarray(sh).reshape(n, -1).view(np.dtype((np.void, 12)))[:, 0]
 
 
 class GaussianParameters:
@@ -54,35 +48,23 @@ class GaussianParameters:
         return Gaussians(**self.params)
 
     def adam_step(self, grads: tk.Gradients, lrs: dict[str, float], step: int, *,
-                  threads: int = 0) -> None:
+                  rows: np.ndarray | None = None, threads: int = 0) -> None:
         """One Adam update of every parameter from `grads` with the rates `lrs` (keys
-        `LEARNING_RATES`)."""
+        `LEARNING_RATES`). rows: (N,) bool, or None for all: only these Gaussians are updated,
+        the others keep their parameters and moments (`train_kernels.adam_step`; the step's
+        visible Gaussians make this gsplat's `visible_adam`)."""
         arrays = grads.arrays()
         for name in PARAMETERS[:-1]:
             if self.params[name].size:
                 m, v = self.moments[name]
                 tk.adam_step(self.params[name], arrays[name], m, v, lr=lrs[name], step=step,
-                             threads=threads)
-        self._adam_sh(arrays["sh"], lrs["sh_dc"], lrs["sh_rest"], step, threads)
-
-    def _adam_sh(self, grad: np.ndarray, lr_dc: float, lr_rest: float, step: int,
-                 threads: int) -> None:
-        # Adam is elementwise and its moments do not depend on the rate: one pass over every
-        # coefficient at the rest rate, then DC again from copies of its old state at its own
-        # rate, and only the DC values written back (the moments already agree). The DC rows
-        # are 3 of 3K floats per Gaussian: far cheaper than splitting the arrays apart and back
-        # every step, and every element gets exactly the update a separate DC array would.
-        sh, (m, v) = self.params["sh"], self.moments["sh"]
-        if not sh.size:
-            return
-        if sh.shape[1] == 1:
-            tk.adam_step(sh, grad, m, v, lr=lr_dc, step=step, threads=threads)
-            return
-        dc = [_dc_column(a).copy() for a in (sh, grad, m, v)]
-        tk.adam_step(sh, grad, m, v, lr=lr_rest, step=step, threads=threads)
-        dc_params, dc_grad, dc_m, dc_v = (c.view(np.float32) for c in dc)
-        tk.adam_step(dc_params, dc_grad, dc_m, dc_v, lr=lr_dc, step=step, threads=threads)
-        _dc_column(sh)[:] = dc[0]
+                             rows=rows, threads=threads)
+        # SH: one array, DC (the first 3 values of each row) at its own rate, the higher bands
+        # at theirs: every element gets exactly the update a separate array would.
+        if self.params["sh"].size:
+            m, v = self.moments["sh"]
+            tk.adam_step(self.params["sh"], arrays["sh"], m, v, lr=lrs["sh_rest"], step=step,
+                         rows=rows, lead=3, lead_lr=lrs["sh_dc"], threads=threads)
 
     # -- row edits (densification) ------------------------------------------------------------
     def rows(self, index: np.ndarray) -> dict[str, np.ndarray]:

@@ -226,7 +226,8 @@ class Trainer:
 
         info = StepInfo(self.step, camera, state, grads, self.learning_rates())
         self.strategy.after_backward(self.parameters, info)
-        self.parameters.adam_step(grads, info.learning_rates, self.step, threads=c.threads)
+        self.parameters.adam_step(grads, info.learning_rates, self.step, threads=c.threads,
+                                  rows=state.visible if c.sparse_adam else None)
         densified = self.strategy.after_step(self.parameters, info)
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
                 "psnr": psnr(result.rgb, target), "gaussians": len(self), "sh_degree": degree,

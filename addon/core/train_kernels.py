@@ -236,7 +236,8 @@ def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float =
 
 def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_sq: np.ndarray,
               *, lr: float, step: int, beta1: float = ADAM_BETA1, beta2: float = ADAM_BETA2,
-              eps: float = ADAM_EPS, threads: int = 0) -> None:
+              eps: float = ADAM_EPS, rows: np.ndarray | None = None, lead: int = 0,
+              lead_lr: float | None = None, threads: int = 0) -> None:
     """One Adam update of `param` in place, with its moments `exp_avg`, `exp_avg_sq` (in place).
 
     torch.optim.Adam's formula (no weight decay, no amsgrad), in float32:
@@ -244,6 +245,18 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
         param -= lr / (1 - b1^step) * m / (sqrt(v) / sqrt(1 - b2^step) + eps)
     step counts from 1. All four arrays: float32, C-contiguous, one shape (no copies are made:
     a converted copy would not be updated in place, so other dtypes are an error).
+
+    rows: bool or uint8 (param.shape[0],), or None (every row): only the rows along the first
+        axis where it is set are updated; the others keep their values and moments exactly
+        (gsplat's `visible_adam`: a Gaussian not seen this step neither moves nor decays its
+        moments; `step` still counts every step, as there).
+    lead, lead_lr: the first `lead` values of each row step at `lead_lr` instead of `lr` (the
+        SH DC coefficients of an (N, K, 3) array: lead 3).
     """
+    if rows is not None:
+        rows = np.asarray(rows)
+        if rows.dtype == np.bool_:
+            rows = rows.view(np.uint8)
     native.splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1),
-                            float(beta2), float(eps), int(step), native.thread_count(threads))
+                            float(beta2), float(eps), int(step), native.thread_count(threads),
+                            rows, int(lead), float(lr if lead_lr is None else lead_lr))

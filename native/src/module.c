@@ -683,15 +683,20 @@ static float *get_any_float(buffers *b, PyObject *obj, const char *name, int wri
 
 static PyObject *py_adam(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *objs[4];
+    PyObject *objs[4], *mask_obj = Py_None;
     sc_adam_options o;
-    long long step;
+    long long step, lead = 0;
+    double lead_lr = NAN;
     int threads;
-    if (!PyArg_ParseTuple(args, "OOOOddddLO&:adam", &objs[0], &objs[1], &objs[2], &objs[3], &o.lr,
-                          &o.beta1, &o.beta2, &o.eps, &step, parse_threads, &threads))
+    if (!PyArg_ParseTuple(args, "OOOOddddLO&|OLd:adam", &objs[0], &objs[1], &objs[2], &objs[3],
+                          &o.lr, &o.beta1, &o.beta2, &o.eps, &step, parse_threads, &threads,
+                          &mask_obj, &lead, &lead_lr))
         return NULL;
     o.step = step;
+    if (isnan(lead_lr)) lead_lr = o.lr;
     if (!isfinite(o.lr) || o.lr < 0) return value_error("lr must be finite and >= 0, got %g", o.lr), NULL;
+    if (!isfinite(lead_lr) || lead_lr < 0)
+        return value_error("lead_lr must be finite and >= 0, got %g", lead_lr), NULL;
     if (!(o.beta1 >= 0 && o.beta1 < 1) || !(o.beta2 >= 0 && o.beta2 < 1))
         return value_error("beta1 and beta2 must be in [0, 1), got %g, %g", o.beta1, o.beta2), NULL;
     if (!(o.eps > 0) || !isfinite(o.eps))
@@ -704,13 +709,27 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
     float *param = get_any_float(&b, objs[0], "param", 1, NULL, &n);
     if (!param) goto fail;
     const Py_buffer *like = &b.views[0];
+    /* Rows along the first axis (a 0-d array is one row). */
+    const int64_t rows = like->ndim > 0 ? (int64_t)like->shape[0] : 1;
+    const int64_t width = rows > 0 ? n / rows : 0;
     const float *grad = get_any_float(&b, objs[1], "grad", 0, like, NULL);
     float *m = grad ? get_any_float(&b, objs[2], "exp_avg", 1, like, NULL) : NULL;
     float *v = m ? get_any_float(&b, objs[3], "exp_avg_sq", 1, like, NULL) : NULL;
     if (!v) goto fail;
+    const uint8_t *mask = NULL;
+    if (mask_obj != Py_None) {
+        const Py_ssize_t mask_shape[] = {(Py_ssize_t)rows};
+        if (!(mask = get_array(&b, mask_obj, "rows", 'B', 1, mask_shape, 0))) goto fail;
+    }
+    if (lead < 0 || lead > width) {
+        PyErr_Format(PyExc_ValueError, "lead must be in 0..%lld (the values in a row), got %lld",
+                     (long long)width, lead);
+        goto fail;
+    }
     if (check_finite_array(grad, n, "grad") != 0) goto fail;
     Py_BEGIN_ALLOW_THREADS
-    sc_adam(param, grad, m, v, n, &o, threads ? threads : sc_cpu_count());
+    sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, &o,
+                 threads ? threads : sc_cpu_count());
     Py_END_ALLOW_THREADS
     release_all(&b);
     Py_RETURN_NONE;
@@ -772,8 +791,11 @@ static PyMethodDef methods[] = {
      "(1 - lambda) L1 + lambda (1 - SSIM) of (H, W, 3) float32 images; dL/d(image) into "
      "out_grad when it is not None."},
     {"adam", py_adam, METH_VARARGS,
-     "adam(param, grad, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, step, threads)\n\n"
-     "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape."},
+     "adam(param, grad, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, step, threads, rows=None, "
+     "lead=0, lead_lr=lr)\n\n"
+     "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape. rows: "
+     "uint8 (shape[0],) or None: rows where it is 0 are left as they are (moments too). The "
+     "first `lead` values of each row (along the first axis) step at lead_lr."},
     {"composite_microbench", py_composite_microbench, METH_VARARGS,
      "composite_microbench(count, iterations) -> seconds for the compositor's inner loop over "
      "one in-cache tile covered by `count` Gaussians."},
