@@ -22,7 +22,7 @@
 
 #include "internal.h"
 
-enum { PIXELS = SC_PIXELS, BLOCK = SC_BLOCK, NG = SC_DG_COUNT };
+enum { PIXELS = SC_PIXELS, BLOCK = SC_BLOCK, NG = SC_DG_COUNT, PREFETCH = 4 };
 
 typedef struct {
     float T[PIXELS];                           /* transmittance in front of the current Gaussian */
@@ -39,7 +39,7 @@ typedef struct {
 /* One Gaussian over the 8 pixels of a half row starting at `first`. */
 static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, int first, float dy,
                               float power_y, float cb_dy, const sc_columns *c, float ca, float cb,
-                              float cc, int32_t entry) {
+                              float cc, int32_t entry, const int depth) {
     const int col = first % SC_TILE;
     float *restrict T = st->T + first;
     float *restrict ar = st->acc_r + first, *restrict ag = st->acc_g + first,
@@ -67,16 +67,19 @@ static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, int fir
         const float drawn = alpha >= SC_ALPHA_MIN ? mine : 0.0f;
         const float use = power <= 0.0f ? drawn : 0.0f;
 
-        const float one_minus = 1.0f - alpha;
-        const float t = T[x] / one_minus; /* T_i */
-        const float w = use * alpha * t;
+        /* Where the Gaussian was not added, used_alpha is 0, so the division by 1 - 0 and the
+         * updates below leave T and the colour behind exactly as they were (no blend needed). */
+        const float used_alpha = use * alpha;
+        const float inv = 1.0f / (1.0f - used_alpha);
+        const float t = T[x] * inv; /* T_i */
+        const float w = used_alpha * t;
         s_r[x] += w * gr[x];
         s_g[x] += w * gg[x];
         s_bl[x] += w * gb[x];
-        s_z[x] += w * gz[x];
+        if (depth) s_z[x] += w * gz[x];
         const float d_alpha = t * ((cr - ar[x]) * gr[x] + (cg - ag[x]) * gg[x] +
-                                   (cbl - ab[x]) * gb[x] + (cz - az[x]) * gz[x]) +
-                              gt[x] / one_minus;
+                                   (cbl - ab[x]) * gb[x] + (depth ? (cz - az[x]) * gz[x] : 0.0f)) +
+                              gt[x] * inv;
         const float free_alpha = raw < SC_ALPHA_MAX ? use : 0.0f; /* not clamped */
         const float d_power = free_alpha * d_alpha * alpha;
         s_o[x] += free_alpha * d_alpha * g;
@@ -91,23 +94,24 @@ static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, int fir
         s_b[x] += -dx * dy * d_power;
         s_c[x] += -0.5f * dy * dy * d_power;
 
-        /* use ? new : old, as an exact 0/1 blend (GCC does not if-convert this many
-         * selected stores, and the loop would not vectorise). */
-        const float keep = 1.0f - use;
-        ar[x] = use * (alpha * cr + one_minus * ar[x]) + keep * ar[x];
-        ag[x] = use * (alpha * cg + one_minus * ag[x]) + keep * ag[x];
-        ab[x] = use * (alpha * cbl + one_minus * ab[x]) + keep * ab[x];
-        az[x] = use * (alpha * cz + one_minus * az[x]) + keep * az[x];
-        T[x] = use * t + keep * T[x];
+        /* acc_i = a_i c_i + (1 - a_i) acc_{i+1} = acc_{i+1} + a_i (c_i - acc_{i+1}). */
+        ar[x] += used_alpha * (cr - ar[x]);
+        ag[x] += used_alpha * (cg - ag[x]);
+        ab[x] += used_alpha * (cbl - ab[x]);
+        if (depth) az[x] += used_alpha * (cz - az[x]);
+        T[x] = t;
     }
 }
 
 static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *block_last, int x0,
                                               int y0, int32_t kmax, const sc_splat *splats,
-                                              const uint32_t *list, float *records) {
+                                              const uint32_t *list, float *records,
+                                              const int depth) {
     const float px0 = (float)x0 + 0.5f;
     int64_t evaluations = 0;
     for (int32_t k = kmax - 1; k >= 0; --k) {
+        /* The splats are read in list order but lie apart in memory: fetch a few ahead. */
+        if (k >= PREFETCH) SC_PREFETCH(&splats[list[k - PREFETCH]]);
         const sc_splat *s = &splats[list[k]];
         int j0, j1, i0, i1;
         sc_tile_span(s, x0, y0, &j0, &j1, &i0, &i1);
@@ -121,7 +125,8 @@ static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *bl
             for (int i = i0; i < i1; i += BLOCK) {
                 const int p = j * SC_TILE + i;
                 if (k >= block_last[p / BLOCK]) continue; /* every pixel stopped before k */
-                back_block(st, &sums, p, dy, power_y, cb_dy, &c, s->ca, s->cb, s->cc, k + 1);
+                back_block(st, &sums, p, dy, power_y, cb_dy, &c, s->ca, s->cb, s->cc, k + 1,
+                           depth);
                 evaluations += BLOCK;
             }
         }
@@ -135,11 +140,19 @@ static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *bl
     return evaluations;
 }
 
+/* Two builds of the tile loop: with the expected-depth gradient, and without (training on
+ * colour alone; its terms are all zero then), `depth` a constant in each. */
 SC_MULTIVERSION(int64_t, back_tile,
                 (back_state *st, const int32_t *block_last, int x0, int y0, int32_t kmax,
                  const sc_splat *splats, const uint32_t *list, float *records),
                 (st, block_last, x0, y0, kmax, splats, list, records),
-                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records))
+                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 0))
+
+SC_MULTIVERSION(int64_t, back_tile_depth,
+                (back_state *st, const int32_t *block_last, int x0, int y0, int32_t kmax,
+                 const sc_splat *splats, const uint32_t *list, float *records),
+                (st, block_last, x0, y0, kmax, splats, list, records),
+                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 1))
 
 int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list, int64_t count,
                                    int tile_x, int tile_y, const sc_camera *cam,
@@ -176,5 +189,6 @@ int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list,
     }
     if (kmax > count) kmax = (int32_t)count; /* cannot happen with a matching state */
     memset(records + (int64_t)kmax * NG, 0, sizeof(float) * (size_t)((count - kmax) * NG));
-    return back_tile(&st, block_last, x0, y0, kmax, splats, list, records);
+    return im->d_depth ? back_tile_depth(&st, block_last, x0, y0, kmax, splats, list, records)
+                       : back_tile(&st, block_last, x0, y0, kmax, splats, list, records);
 }

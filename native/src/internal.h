@@ -155,15 +155,27 @@ sc_isa sc_cpu_isa(void);
 #define SC_ALWAYS_INLINE inline
 #endif
 
-/* Whether every input value of Gaussian i is finite (projection forward and backward). */
+/* A hint to fetch memory a loop will read soon (scattered reads the hardware cannot guess). */
+#if defined(__GNUC__)
+#define SC_PREFETCH(address) __builtin_prefetch(address)
+#else
+#define SC_PREFETCH(address) ((void)(address))
+#endif
+
+/* Whether every input value of Gaussian i is finite (projection forward and backward).
+ * Branch-free (an exponent of all ones is Inf or NaN): the SH row vectorises. */
 static inline int sc_gaussian_finite(const sc_gaussians *g, int64_t i) {
-    const float *rows[4] = {g->means + 3 * i, g->log_scales + 3 * i, g->quats + 4 * i,
-                            g->sh + (int64_t)3 * g->sh_coeffs * i};
-    const int counts[4] = {3, 3, 4, 3 * g->sh_coeffs};
-    for (int r = 0; r < 4; ++r)
-        for (int k = 0; k < counts[r]; ++k)
-            if (!isfinite(rows[r][k])) return 0;
-    return isfinite(g->opacity_logits[i]);
+    const float *rows[5] = {g->means + 3 * i, g->log_scales + 3 * i, g->quats + 4 * i,
+                            g->opacity_logits + i, g->sh + (int64_t)3 * g->sh_coeffs * i};
+    const int counts[5] = {3, 3, 4, 1, 3 * g->sh_coeffs};
+    uint32_t bad = 0;
+    for (int r = 0; r < 5; ++r)
+        for (int k = 0; k < counts[r]; ++k) {
+            uint32_t bits;
+            memcpy(&bits, rows[r] + k, sizeof bits);
+            bad |= (bits & 0x7f800000u) == 0x7f800000u;
+        }
+    return !bad;
 }
 
 /* A world point in the camera frame: p = R mean + t, in double. */
