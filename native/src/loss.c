@@ -51,6 +51,7 @@ typedef struct {
     float *h;                    /* (PRODUCTS * 3, H + 2 RADIUS, W) horizontal sums with zero
                                   * rows above and below, reused for the partials */
     double *row_ssim, *row_l1;   /* (H) sums over a row's pixels and channels */
+    int pass;                    /* the pass running (run_pass) */
 } job;
 
 /* Row y of plane `plane` in a horizontally padded array (the row's first padding column). */
@@ -202,30 +203,24 @@ static SC_ALWAYS_INLINE int vertical_gradient_body(job *j, int64_t begin, int64_
     return 0;
 }
 
-SC_MULTIVERSION(int, horizontal_products_isa, (job *j, int64_t begin, int64_t end), (j, begin, end),
-                horizontal_products_body(j, begin, end))
-SC_MULTIVERSION(int, vertical_ssim_isa, (job *j, int64_t begin, int64_t end), (j, begin, end),
-                vertical_ssim_body(j, begin, end))
-SC_MULTIVERSION(int, horizontal_partials_isa, (job *j, int64_t begin, int64_t end), (j, begin, end),
-                horizontal_partials_body(j, begin, end))
-SC_MULTIVERSION(int, vertical_gradient_isa, (job *j, int64_t begin, int64_t end), (j, begin, end),
-                vertical_gradient_body(j, begin, end))
+/* The four passes, in order; job.pass says which one a parallel_for runs. */
+enum { HORIZONTAL_PRODUCTS, VERTICAL_SSIM, HORIZONTAL_PARTIALS, VERTICAL_GRADIENT };
 
-static void horizontal_products(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    horizontal_products_isa(ctx, begin, end);
+static SC_ALWAYS_INLINE int pass_body(job *j, int64_t begin, int64_t end) {
+    switch (j->pass) {
+    case HORIZONTAL_PRODUCTS: return horizontal_products_body(j, begin, end);
+    case VERTICAL_SSIM: return vertical_ssim_body(j, begin, end);
+    case HORIZONTAL_PARTIALS: return horizontal_partials_body(j, begin, end);
+    default: return vertical_gradient_body(j, begin, end);
+    }
 }
-static void vertical_ssim(void *ctx, int64_t begin, int64_t end, int thread) {
+
+SC_MULTIVERSION(int, pass_isa, (job *j, int64_t begin, int64_t end), (j, begin, end),
+                pass_body(j, begin, end))
+
+static void run_pass(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
-    vertical_ssim_isa(ctx, begin, end);
-}
-static void horizontal_partials(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    horizontal_partials_isa(ctx, begin, end);
-}
-static void vertical_gradient(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    vertical_gradient_isa(ctx, begin, end);
+    pass_isa(ctx, begin, end);
 }
 
 sc_status sc_l1_ssim(const float *image, const float *target, int width, int height,
@@ -265,12 +260,9 @@ sc_status sc_l1_ssim(const float *image, const float *target, int width, int hei
         memset(sums_row(&j, p, height), 0, sizeof(float) * RADIUS * (size_t)width);
     }
 
-    const int64_t grain = 4;
-    sc_parallel_for(threads, height, grain, horizontal_products, &j);
-    sc_parallel_for(threads, height, grain, vertical_ssim, &j);
-    if (grad) {
-        sc_parallel_for(threads, height, grain, horizontal_partials, &j);
-        sc_parallel_for(threads, height, grain, vertical_gradient, &j);
+    for (int pass = HORIZONTAL_PRODUCTS; pass <= (grad ? VERTICAL_GRADIENT : VERTICAL_SSIM); ++pass) {
+        j.pass = pass;
+        sc_parallel_for(threads, height, 4, run_pass, &j);
     }
     double ssim_sum = 0.0, l1_sum = 0.0;
     for (int64_t r = 0; r < height; ++r) {
