@@ -116,7 +116,8 @@ def step_profile(label: str, gaussians, views, repeats: int) -> None:
                 samples.setdefault(key, []).append(value)
         pick = min if threads == 1 else statistics.median
         rows.append([f"{threads} ({'CPU' if threads == 1 else 'wall'})"] +
-                    [f"{pick(v):.1f}" for v in samples.values()])
+                    [f"{(statistics.median if k == 'visible %' else pick)(v):.1f}"
+                     for k, v in samples.items()])
         header = list(samples)
     print(f"One training step, {label}: {len(gaussians)} Gaussians (SH degree {gaussians.degree}) "
           f"at {views[0][0].width}x{views[0][0].height}, ms (stages inside render_train and "
