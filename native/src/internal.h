@@ -24,8 +24,16 @@
 
 /* Evaluate SH of `degree` (0..3) for one Gaussian: coeffs (K,3), dir a unit vector. */
 void sc_sh_colour(int degree, const float *coeffs, const double dir[3], double rgb[3]);
+/* The same in float (the renderer's projection). */
+void sc_sh_colour_f(int degree, const float *coeffs, const float dir[3], float rgb[3]);
 
 /* ---------------------------------------------------------------- stages */
+
+/* Projection (project.c), in float, vectorised: sc_project with `cull`, which leaves out
+ * (valid 0) the Gaussians that cannot reach the image before their covariance and colour are
+ * computed. */
+sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                          int cull, sc_projection *out, sc_stats *stats);
 
 /* Stable ascending sort of `count` float keys, carrying a payload: on entry order[i] is the
  * payload of keys[i], on return the payloads are in key order. `scratch` holds 3*count values. */
@@ -36,14 +44,16 @@ void sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_
  * Allocates *offsets and *list (free with free()). With pair_offsets and pairs non-NULL, also
  * the inverse, Gaussian-major index (for the backward pass's deterministic reduction): splat k's
  * entries in `list` are at positions pairs[pair_offsets[k] .. pair_offsets[k+1]), in tile order;
- * *pair_offsets has count + 1 entries. */
-sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
-                 const sc_camera *cam, int threads, int64_t **offsets, uint32_t **list,
-                 int64_t **pair_offsets, uint32_t **pairs);
+ * *pair_offsets has count + 1 entries. *peak_bytes: the most it held allocated at once. */
+sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, int threads,
+                 int64_t **offsets, uint32_t **list, int64_t **pair_offsets, uint32_t **pairs,
+                 int64_t *peak_bytes);
 
-/* Composite one tile front to back. Returns the number of Gaussian/pixel evaluations made. */
+/* Composite one tile front to back (`exhaustive` as in sc_options). Returns the number of
+ * Gaussian/pixel evaluations made. */
 int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
-                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *image);
+                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *image,
+                          int exhaustive);
 
 /* The training variant of sc_composite_tile: no mesh layer (image->mesh_rgba is ignored), the
  * same rgb, alpha and depth bit for bit, and per pixel of the tile, into (H,W) arrays:
@@ -63,7 +73,8 @@ void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ct
 double sc_now_ms(void);
 
 /* Project, sort and bin (the first three stages of sc_render); with_pairs also builds the
- * Gaussian-major pair index. Fills stats' project/sort/bin times, visible and tile_pairs.
+ * Gaussian-major pair index. Fills stats' project/sort/bin times, visible, tile_pairs and
+ * peak_bytes.
  * On success free with sc_frame_free; on failure nothing is left allocated. */
 sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                            int with_pairs, sc_frame *frame, sc_stats *stats);
@@ -151,8 +162,22 @@ sc_isa sc_cpu_isa(void);
 /* Inner blocks must be inlined into the SC_MULTIVERSION kernels to be vectorised for their level. */
 #if defined(__GNUC__)
 #define SC_ALWAYS_INLINE __attribute__((always_inline)) inline
+#define SC_PREFETCH(address) __builtin_prefetch(address)
+static inline int sc_popcount(uint32_t v) { return __builtin_popcount(v); }
+static inline int sc_lowest_bit(uint32_t v) { return __builtin_ctz(v); } /* v != 0 */
 #else
+static inline int sc_popcount(uint32_t v) {
+    int n = 0;
+    for (; v; v &= v - 1) ++n;
+    return n;
+}
+static inline int sc_lowest_bit(uint32_t v) { /* v != 0 */
+    int n = 0;
+    for (; !(v & 1u); v >>= 1) ++n;
+    return n;
+}
 #define SC_ALWAYS_INLINE inline
+#define SC_PREFETCH(address) ((void)(address))
 #endif
 
 /* Whether every input value of Gaussian i is finite (projection forward and backward). */

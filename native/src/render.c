@@ -1,6 +1,7 @@
 /* The forward pipeline: project -> sort by depth -> bin into tiles -> composite each tile.
- * Working memory is O(Gaussians + tile pairs + tiles); nothing is kept per pixel beyond the
- * caller's images. The front half (project, sort, bin) is shared with the training forward
+ * Working memory is O(Gaussians + tile pairs + tiles): about 70 bytes per Gaussian at its peak,
+ * 4 per Gaussian/tile pair (8 more for training's pair index) and 12 per tile and binning chunk;
+ * nothing is kept per pixel beyond the caller's images. The front half (project, sort, bin) is shared with the training forward
  * (train.c), which keeps it for the backward pass. */
 #include <math.h>
 #include <stdlib.h>
@@ -12,19 +13,15 @@ enum { MAX_THREADS = 256, PAD = 8 }; /* PAD: one counter per cache line */
 /* Copies the drawn Gaussians into depth order, so that binning and compositing read them
  * sequentially (and a tile's list touches memory in ascending order). */
 typedef struct {
-    const sc_projection *proj;
+    const sc_splat *projected;
     const uint32_t *order;
     sc_splat *splats;
-    sc_footprint *footprints;
 } gather_job;
 
 static void gather_sorted(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     gather_job *j = ctx;
-    for (int64_t k = begin; k < end; ++k) {
-        j->splats[k] = j->proj->splats[j->order[k]];
-        j->footprints[k] = j->proj->footprints[j->order[k]];
-    }
+    for (int64_t k = begin; k < end; ++k) j->splats[k] = j->projected[j->order[k]];
 }
 
 void sc_frame_free(sc_frame *f) {
@@ -37,52 +34,65 @@ void sc_frame_free(sc_frame *f) {
     *f = (sc_frame){0};
 }
 
+/* Working memory: each buffer is freed as soon as the next stage no longer needs it, and the
+ * largest moment is counted in stats->peak_bytes (besides what sc_bin allocates, counted there). */
 sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                            int with_pairs, sc_frame *frame, sc_stats *stats) {
     const double start = sc_now_ms();
     const int64_t n = g->count;
+    const size_t rows = (size_t)(n ? n : 1);
     sc_status status = SC_ERR_MEMORY;
     uint32_t *scratch = NULL;
     float *keys = NULL;
-    sc_footprint *sorted_fp = NULL;
     *frame = (sc_frame){0};
     frame->tiles_x = (cam->width + SC_TILE - 1) / SC_TILE;
     frame->ntiles = (int64_t)frame->tiles_x * ((cam->height + SC_TILE - 1) / SC_TILE);
-    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)),
-                          malloc(sizeof(sc_footprint) * (size_t)(n ? n : 1)),
-                          malloc((size_t)(n ? n : 1))};
-    if (!proj.splats || !proj.footprints || !proj.valid) goto done;
-    if ((status = sc_project(g, cam, opt, &proj, stats)) != SC_OK) goto done;
+    sc_projection proj = {malloc(sizeof(sc_splat) * rows), malloc(rows)};
+    if (!proj.splats || !proj.valid) goto done;
+    if ((status = sc_project_fast(g, cam, opt, 1, &proj, stats)) != SC_OK) goto done;
+    free(proj.valid);
+    proj.valid = NULL;
     const double projected = sc_now_ms();
 
     /* Only Gaussians that reach a pixel take part, sorted front to back. */
     status = SC_ERR_MEMORY;
-    frame->order = malloc(sizeof(uint32_t) * (size_t)(n ? n : 1));
-    keys = malloc(sizeof(float) * (size_t)(n ? n : 1));
+    frame->order = malloc(sizeof(uint32_t) * rows);
+    keys = malloc(sizeof(float) * rows);
     if (!frame->order || !keys) goto done;
     int64_t drawn = 0;
     for (int64_t i = 0; i < n; ++i) {
-        const sc_footprint *f = &proj.footprints[i];
-        if (f->tx1 > f->tx0 && f->ty1 > f->ty0) {
+        const sc_splat *s = &proj.splats[i];
+        if (s->row1 >= s->row0 && s->col1 >= s->col0) {
             frame->order[drawn] = (uint32_t)i;
-            keys[drawn++] = proj.splats[i].depth;
+            keys[drawn++] = s->depth;
         }
     }
     scratch = malloc(sizeof(uint32_t) * (size_t)(3 * drawn + 1));
     if (!scratch) goto done;
     sc_sort_by_depth(keys, drawn, frame->order, scratch);
+    int64_t peak = (int64_t)(sizeof(sc_splat) * rows + (sizeof(uint32_t) + sizeof(float)) * rows +
+                             sizeof(uint32_t) * (size_t)(3 * drawn + 1));
+    free(keys), free(scratch);
+    keys = NULL, scratch = NULL;
     frame->splats = malloc(sizeof(sc_splat) * (size_t)(drawn ? drawn : 1));
-    sorted_fp = malloc(sizeof(sc_footprint) * (size_t)(drawn ? drawn : 1));
-    if (!frame->splats || !sorted_fp) goto done;
-    gather_job gather = {&proj, frame->order, frame->splats, sorted_fp};
+    if (!frame->splats) goto done;
+    gather_job gather = {proj.splats, frame->order, frame->splats};
     sc_parallel_for(opt->threads, drawn, 8192, gather_sorted, &gather);
+    const int64_t gathered = (int64_t)(sizeof(sc_splat) * (rows + (size_t)drawn) +
+                                       sizeof(uint32_t) * rows);
+    peak = gathered > peak ? gathered : peak;
+    free(proj.splats);
+    proj.splats = NULL;
     frame->drawn = drawn;
     const double sorted_ms = sc_now_ms();
 
-    if ((status = sc_bin(sorted_fp, frame->splats, drawn, cam, opt->threads, &frame->offsets,
-                         &frame->list, with_pairs ? &frame->pair_offsets : NULL,
-                         with_pairs ? &frame->pairs : NULL)) != SC_OK)
+    int64_t bin_bytes = 0;
+    if ((status = sc_bin(frame->splats, drawn, cam, opt->threads, &frame->offsets, &frame->list,
+                         with_pairs ? &frame->pair_offsets : NULL,
+                         with_pairs ? &frame->pairs : NULL, &bin_bytes)) != SC_OK)
         goto done;
+    bin_bytes += (int64_t)((sizeof(sc_splat) + sizeof(uint32_t)) * (size_t)drawn);
+    stats->peak_bytes = bin_bytes > peak ? bin_bytes : peak;
     stats->ms_project = projected - start;
     stats->ms_sort = sorted_ms - projected;
     stats->ms_bin = sc_now_ms() - sorted_ms;
@@ -92,11 +102,9 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
 
 done:
     free(proj.splats);
-    free(proj.footprints);
     free(proj.valid);
     free(keys);
     free(scratch);
-    free(sorted_fp);
     if (status != SC_OK) sc_frame_free(frame);
     return status;
 }
@@ -105,6 +113,7 @@ typedef struct {
     const sc_frame *frame;
     const sc_camera *cam;
     const sc_image *image;
+    int exhaustive;
     int64_t evaluations[MAX_THREADS * PAD];
 } composite_job;
 
@@ -115,7 +124,7 @@ static void composite_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
         const int64_t first = f->offsets[t], count = f->offsets[t + 1] - first;
         j->evaluations[thread * PAD] +=
             sc_composite_tile(f->splats, f->list + first, count, (int)(t % f->tiles_x),
-                              (int)(t / f->tiles_x), j->cam, j->image);
+                              (int)(t / f->tiles_x), j->cam, j->image, j->exhaustive);
     }
 }
 
@@ -127,7 +136,8 @@ sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_option
     if (status != SC_OK) return status;
     const double binned = sc_now_ms();
 
-    composite_job job = {.frame = &frame, .cam = cam, .image = image};
+    composite_job job = {.frame = &frame, .cam = cam, .image = image,
+                         .exhaustive = opt->exhaustive};
     sc_parallel_for(opt->threads < MAX_THREADS ? opt->threads : MAX_THREADS, frame.ntiles, 1,
                     composite_tiles, &job);
     const double composited = sc_now_ms();

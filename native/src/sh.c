@@ -108,3 +108,45 @@ void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const 
         d_dir[2] += gz[i] * along;
     }
 }
+
+/* sc_sh_colour in float, for the renderer's projection (the constants above, rounded). */
+void sc_sh_colour_f(int degree, const float *coeffs, const float dir[3], float rgb[3]) {
+    float basis[16];
+    const float x = dir[0], y = dir[1], z = dir[2];
+    int k = 1;
+    basis[0] = (float)C0;
+    if (degree >= 1) {
+        basis[1] = (float)-C1 * y;
+        basis[2] = (float)C1 * z;
+        basis[3] = (float)-C1 * x;
+        k = 4;
+    }
+    if (degree >= 2) {
+        const float xx = x * x, yy = y * y, zz = z * z;
+        basis[4] = (float)C2[0] * x * y;
+        basis[5] = (float)C2[1] * y * z;
+        basis[6] = (float)C2[2] * (2.0f * zz - xx - yy);
+        basis[7] = (float)C2[3] * x * z;
+        basis[8] = (float)C2[4] * (xx - yy);
+        k = 9;
+        if (degree >= 3) {
+            basis[9] = (float)C3[0] * y * (3.0f * xx - yy);
+            basis[10] = (float)C3[1] * x * y * z;
+            basis[11] = (float)C3[2] * y * (4.0f * zz - xx - yy);
+            basis[12] = (float)C3[3] * z * (2.0f * zz - 3.0f * xx - 3.0f * yy);
+            basis[13] = (float)C3[4] * x * (4.0f * zz - xx - yy);
+            basis[14] = (float)C3[5] * z * (xx - yy);
+            basis[15] = (float)C3[6] * x * (xx - 3.0f * yy);
+            k = 16;
+        }
+    }
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    for (int i = 0; i < k; ++i) {
+        r += basis[i] * coeffs[3 * i + 0];
+        g += basis[i] * coeffs[3 * i + 1];
+        b += basis[i] * coeffs[3 * i + 2];
+    }
+    rgb[0] = r;
+    rgb[1] = g;
+    rgb[2] = b;
+}
