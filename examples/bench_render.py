@@ -15,8 +15,9 @@ Gaussians drawn, Gaussian/tile pairs, Gaussian/pixel evaluations per frame (and,
 has the footprint masks, the evaluations without them: the same image's pre-mask work), and
 peak memory: the process's resident-set high-water mark during one render above what it held
 before (Linux; `VmHWM` reset through /proc/self/clear_refs), which counts the renderer's working
-memory and the output images. Never a test: numbers only. Wall-clock numbers on a shared machine
-are noisy: compare runs taken back to back.
+memory and the output images, and the renderer's own count of its working memory at its
+largest (stats["peak_bytes"], where the code reports it). Never a test: numbers only.
+Wall-clock numbers on a shared machine are noisy: compare runs taken back to back.
 """
 
 from __future__ import annotations
@@ -97,6 +98,12 @@ def peak_mib(run) -> float | None:
     """MiB by which the resident set's high-water mark rose above the resident set during
     `run()`, or None where Linux's /proc interface is not there."""
     try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)  # freed heap back to the system: counted again
+    except (OSError, AttributeError):
+        pass
+    try:
         Path("/proc/self/clear_refs").write_text("5")  # reset VmHWM to the current RSS
     except OSError:
         return None
@@ -126,6 +133,11 @@ def measure(gaussians, camera, repeats: int, threads: int) -> list[str]:
     render(gaussians, camera, threads=threads)  # warm-up: page in, start the pool
     runs = [render(gaussians, camera, threads=threads).stats for _ in range(repeats)]
     median = lambda key: statistics.median(s[key] for s in runs)  # noqa: E731
+    import splatcore
+
+    # Renders keep their working buffers for the next frame (where the code has that): measure
+    # the peak of a frame that starts without them.
+    getattr(splatcore, "release_buffers", lambda: None)()
     peak = peak_mib(lambda: render(gaussians, camera, threads=threads))
     unmasked = "-"
     if masks:
@@ -134,7 +146,8 @@ def measure(gaussians, camera, repeats: int, threads: int) -> list[str]:
     return [f"{median('ms_total'):.1f}", f"{median('ms_project'):.1f}", f"{median('ms_sort'):.1f}",
             f"{median('ms_bin'):.1f}", f"{median('ms_composite'):.1f}", f"{s['visible'] / 1e3:.0f}k",
             f"{s['tile_pairs'] / 1e6:.2f}", f"{s['evaluations'] / 1e6:.1f}", unmasked,
-            "-" if peak is None else f"{peak:.0f}"]
+            "-" if peak is None else f"{peak:.0f}",
+            f"{s['peak_bytes'] / 2**20:.0f}" if "peak_bytes" in s else "-"]
 
 
 def scenes(quick: bool) -> list[tuple[str, callable, callable, list[tuple[int, int]]]]:
@@ -166,9 +179,10 @@ def main_table(args) -> None:
     print(f"Render stages ({args.threads} threads, median of {args.repeats}; code: {args.code}); "
           "evaluations = Gaussian/pixel evaluations per frame, 'no masks' = the same frame "
           "evaluated over each tile's whole bounding span; peak = resident-set high-water mark "
-          "above the resident set before the render")
+          "above the resident set before the render (working buffers released first; images "
+          "included); working = the renderer's own count of its largest working memory")
     table(rows, ["scene", "size", "ms", "project", "sort", "bin", "composite", "drawn", "Mpairs",
-                 "Meval", "no masks", "peak MiB"])
+                 "Meval", "no masks", "peak MiB", "working MiB"])
 
 
 # ---------------------------------------------------------------- --more

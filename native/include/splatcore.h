@@ -19,6 +19,7 @@
  *                training variant that records what the backward pass needs
  *   render.c     the pipeline above, with timings
  *   threadpool.c a small persistent pool (POSIX threads, or Win32 threads on Windows)
+ *   buffers.c    large working buffers, kept for the next frame
  *   cpu.c        the instruction set the compositor kernels run with, picked once at run time
  *
  * Training (backward passes, loss and optimizer):
@@ -95,6 +96,7 @@ typedef struct {
 typedef struct {
     sc_splat *splats; /* (N) */
     uint8_t *valid;   /* (N) */
+    float *keys;      /* optional (N): the depth where the splat reaches a pixel, else +inf */
 } sc_projection;
 
 /* The image outputs; mesh and background inputs are optional (NULL). */
@@ -129,6 +131,10 @@ sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_option
 /* Time `iterations` passes of the composite inner loop over one in-cache tile of `count`
  * Gaussians that all cover it (no early stop): the kernel's arithmetic limit. Returns seconds. */
 double sc_composite_microbench(int count, int iterations);
+
+/* Frames keep their large working buffers (the last frame's, at most 8 blocks) for the next
+ * frame, which saves the page faults of fresh memory; this frees them. */
+void sc_release_buffers(void);
 
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);

@@ -174,7 +174,7 @@ static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
          * pixels would add exactly 0), and a tile whose pixels have all stopped is finished. */
         if ((k & 15) == 15 && !(alive = live_half_rows(st))) break;
         const sc_splat *s = &splats[list[k]];
-        if (k + 4 < count) SC_PREFETCH(&splats[list[k + 4]]); /* the list jumps about */
+        if (k + 8 < count) SC_PREFETCH(&splats[list[k + 8]]); /* the list jumps about */
         if (has_mesh && s->depth >= ms->next_mesh_z) flush_mesh(st, ms, cam, im, s->depth);
         int j0, j1, i0, i1;
         sc_tile_span(s, ms->x0, ms->y0, &j0, &j1, &i0, &i1);

@@ -27,6 +27,13 @@ void sc_sh_colour(int degree, const float *coeffs, const double dir[3], double r
 /* The same in float (the renderer's projection). */
 void sc_sh_colour_f(int degree, const float *coeffs, const float dir[3], float rgb[3]);
 
+/* ---------------------------------------------------------------- working memory */
+
+/* Large working buffers, kept for reuse between frames (buffers.c); NULL when out of memory.
+ * Every array of an sc_frame comes from here. */
+void *sc_buffer_alloc(size_t bytes);
+void sc_buffer_free(void *p);
+
 /* ---------------------------------------------------------------- stages */
 
 /* Projection (project.c), in float, vectorised: sc_project with `cull`, which leaves out
@@ -36,12 +43,15 @@ sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_
                           int cull, sc_projection *out, sc_stats *stats);
 
 /* Stable ascending sort of `count` float keys, carrying a payload: on entry order[i] is the
- * payload of keys[i], on return the payloads are in key order. `scratch` holds 3*count values. */
-void sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
+ * payload of keys[i], on return the payloads are in key order. Keys of +inf (Gaussians not
+ * drawn) go last; returns how many keys are finite. `scratch` holds 3 * count + SC_SORT_EXTRA
+ * values. */
+enum { SC_SORT_BITS = 13, SC_SORT_EXTRA = 3 << SC_SORT_BITS /* the histograms */ };
+int64_t sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
 
 /* Tile lists for `count` splats already in front-to-back order: for each tile t,
  * list[offsets[t] .. offsets[t+1]) are indices into `splats`, ascending (so front to back).
- * Allocates *offsets and *list (free with free()). With pair_offsets and pairs non-NULL, also
+ * Allocates *offsets and *list (free with sc_buffer_free()). With pair_offsets and pairs non-NULL, also
  * the inverse, Gaussian-major index (for the backward pass's deterministic reduction): splat k's
  * entries in `list` are at positions pairs[pair_offsets[k] .. pair_offsets[k+1]), in tile order;
  * *pair_offsets has count + 1 entries. *peak_bytes: the most it held allocated at once. */

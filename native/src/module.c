@@ -273,7 +273,7 @@ static PyObject *py_project(PyObject *self, PyObject *args) {
         release_all(&b);
         return NULL;
     }
-    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid};
+    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL};
     sc_stats stats = {0};
     sc_status status = SC_ERR_MEMORY;
     if (proj.splats) {
@@ -726,6 +726,12 @@ static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(seconds);
 }
 
+static PyObject *py_release_buffers(PyObject *self, PyObject *args) {
+    (void)self, (void)args;
+    sc_release_buffers();
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_cpu_count(PyObject *self, PyObject *args) {
     (void)self, (void)args;
     return PyLong_FromLong(sc_cpu_count());
@@ -739,8 +745,11 @@ static PyMethodDef methods[] = {
     {"render", py_render, METH_VARARGS,
      "render(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
      "intrinsics, width, height, near, antialiased, threads, background, mesh_rgba, mesh_depth, "
-     "out_rgb, out_alpha, out_depth) -> stats\n\nRender into the out_* arrays; returns timings "
-     "(ms) and counts."},
+     "out_rgb, out_alpha, out_depth[, exhaustive]) -> stats\n\nRender into the out_* arrays; "
+     "returns timings (ms) and counts. exhaustive: evaluate each Gaussian over its tiles' whole "
+     "bounding spans (the same image, for tests)."},
+    {"release_buffers", py_release_buffers, METH_NOARGS,
+     "release_buffers()\n\nFree the working buffers renders keep for the next frame."},
     {"render_train", py_render_train, METH_VARARGS,
      "render_train(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
      "intrinsics, width, height, near, antialiased, threads, background, out_rgb, out_alpha, "

@@ -315,6 +315,12 @@ static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int6
 SC_MULTIVERSION(void, select_chunk, (const fast_job *fj, int64_t begin, int64_t end, uint8_t *keep),
                 (fj, begin, end, keep), select_body(fj, begin, end, keep))
 
+/* The sort key of splat i, if the caller asked for keys. */
+static void set_key(const sc_projection *out, int64_t i) {
+    const sc_splat *s = &out->splats[i];
+    if (out->keys) out->keys[i] = s->row1 >= s->row0 && s->col1 >= s->col0 ? s->depth : INFINITY;
+}
+
 /* The float values of lane l into the splat of Gaussian i. */
 static void finish_lane(const fast_job *fj, const batch *o, int l, int64_t i) {
     const sc_gaussians *g = fj->base.g;
@@ -329,12 +335,14 @@ static void finish_lane(const fast_job *fj, const batch *o, int l, int64_t i) {
                     .depth = o->depth[l], .row0 = o->row0[l], .row1 = o->row1[l],
                     .col0 = o->col0[l], .col1 = o->col1[l], .k2 = o->k2[l]};
     fj->base.out->valid[i] = 1;
+    set_key(fj->base.out, i);
 }
 
 static void clear(const fast_job *fj, int64_t i) {
     sc_splat *s = &fj->base.out->splats[i];
     *s = (sc_splat){.row1 = -1, .col1 = -1};
     fj->base.out->valid[i] = 0;
+    set_key(fj->base.out, i);
 }
 
 /* Whether every input value of Gaussians [begin, end) is finite: one pass over each array,
@@ -385,10 +393,12 @@ static void project_fast_chunk(fast_job *fj, int64_t begin, int64_t end) {
             const int64_t i = idx[at + l];
             if (o.ok[l])
                 finish_lane(fj, &o, l, i);
-            else if (project_one(j, i, &j->out->splats[i]) == 1) /* overflow: in double */
+            else if (project_one(j, i, &j->out->splats[i]) == 1) { /* overflow: in double */
                 j->out->valid[i] = 1;
-            else
+                set_key(j->out, i);
+            } else {
                 clear(fj, i);
+            }
         }
     }
 }

@@ -1,7 +1,8 @@
 /* The forward pipeline: project -> sort by depth -> bin into tiles -> composite each tile.
- * Working memory is O(Gaussians + tile pairs + tiles): about 70 bytes per Gaussian at its peak,
- * 4 per Gaussian/tile pair (8 more for training's pair index) and 12 per tile and binning chunk;
- * nothing is kept per pixel beyond the caller's images. The front half (project, sort, bin) is shared with the training forward
+ * Working memory is O(Gaussians + tile pairs + tiles): at most 132 bytes per Gaussian (the
+ * projected and the depth-sorted splats side by side during the gather), 4 per Gaussian/tile
+ * pair (12 more for training's pair index) and 12 per tile and binning chunk; nothing is kept
+ * per pixel beyond the caller's images. The front half (project, sort, bin) is shared with the training forward
  * (train.c), which keeps it for the backward pass. */
 #include <math.h>
 #include <stdlib.h>
@@ -25,12 +26,12 @@ static void gather_sorted(void *ctx, int64_t begin, int64_t end, int thread) {
 }
 
 void sc_frame_free(sc_frame *f) {
-    free(f->splats);
-    free(f->order);
-    free(f->offsets);
-    free(f->list);
-    free(f->pair_offsets);
-    free(f->pairs);
+    sc_buffer_free(f->splats);
+    sc_buffer_free(f->order);
+    sc_buffer_free(f->offsets);
+    sc_buffer_free(f->list);
+    sc_buffer_free(f->pair_offsets);
+    sc_buffer_free(f->pairs);
     *f = (sc_frame){0};
 }
 
@@ -47,41 +48,36 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     *frame = (sc_frame){0};
     frame->tiles_x = (cam->width + SC_TILE - 1) / SC_TILE;
     frame->ntiles = (int64_t)frame->tiles_x * ((cam->height + SC_TILE - 1) / SC_TILE);
-    sc_projection proj = {malloc(sizeof(sc_splat) * rows), malloc(rows)};
-    if (!proj.splats || !proj.valid) goto done;
+    sc_projection proj = {sc_buffer_alloc(sizeof(sc_splat) * rows), sc_buffer_alloc(rows),
+                          sc_buffer_alloc(sizeof(float) * rows)};
+    keys = proj.keys;
+    if (!proj.splats || !proj.valid || !keys) goto done;
     if ((status = sc_project_fast(g, cam, opt, 1, &proj, stats)) != SC_OK) goto done;
-    free(proj.valid);
+    sc_buffer_free(proj.valid);
     proj.valid = NULL;
     const double projected = sc_now_ms();
 
-    /* Only Gaussians that reach a pixel take part, sorted front to back. */
+    /* Only Gaussians that reach a pixel take part (the projection keyed the others +inf, which
+     * sort last), front to back. */
     status = SC_ERR_MEMORY;
-    frame->order = malloc(sizeof(uint32_t) * rows);
-    keys = malloc(sizeof(float) * rows);
-    if (!frame->order || !keys) goto done;
-    int64_t drawn = 0;
-    for (int64_t i = 0; i < n; ++i) {
-        const sc_splat *s = &proj.splats[i];
-        if (s->row1 >= s->row0 && s->col1 >= s->col0) {
-            frame->order[drawn] = (uint32_t)i;
-            keys[drawn++] = s->depth;
-        }
-    }
-    scratch = malloc(sizeof(uint32_t) * (size_t)(3 * drawn + 1));
-    if (!scratch) goto done;
-    sc_sort_by_depth(keys, drawn, frame->order, scratch);
-    int64_t peak = (int64_t)(sizeof(sc_splat) * rows + (sizeof(uint32_t) + sizeof(float)) * rows +
-                             sizeof(uint32_t) * (size_t)(3 * drawn + 1));
-    free(keys), free(scratch);
+    frame->order = sc_buffer_alloc(sizeof(uint32_t) * rows);
+    scratch = sc_buffer_alloc(sizeof(uint32_t) * (3 * rows + SC_SORT_EXTRA));
+    if (!frame->order || !scratch) goto done;
+    for (int64_t i = 0; i < n; ++i) frame->order[i] = (uint32_t)i;
+    const int64_t drawn = sc_sort_by_depth(keys, n, frame->order, scratch);
+    int64_t peak = (int64_t)((sizeof(sc_splat) + sizeof(uint32_t) + sizeof(float)) * rows +
+                             sizeof(uint32_t) * (3 * rows + SC_SORT_EXTRA));
+    sc_buffer_free(keys);
+    sc_buffer_free(scratch);
     keys = NULL, scratch = NULL;
-    frame->splats = malloc(sizeof(sc_splat) * (size_t)(drawn ? drawn : 1));
+    frame->splats = sc_buffer_alloc(sizeof(sc_splat) * (size_t)(drawn ? drawn : 1));
     if (!frame->splats) goto done;
     gather_job gather = {proj.splats, frame->order, frame->splats};
     sc_parallel_for(opt->threads, drawn, 8192, gather_sorted, &gather);
     const int64_t gathered = (int64_t)(sizeof(sc_splat) * (rows + (size_t)drawn) +
                                        sizeof(uint32_t) * rows);
     peak = gathered > peak ? gathered : peak;
-    free(proj.splats);
+    sc_buffer_free(proj.splats);
     proj.splats = NULL;
     frame->drawn = drawn;
     const double sorted_ms = sc_now_ms();
@@ -101,10 +97,10 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     status = SC_OK;
 
 done:
-    free(proj.splats);
-    free(proj.valid);
-    free(keys);
-    free(scratch);
+    sc_buffer_free(proj.splats);
+    sc_buffer_free(proj.valid);
+    sc_buffer_free(keys);
+    sc_buffer_free(scratch);
     if (status != SC_OK) sc_frame_free(frame);
     return status;
 }
