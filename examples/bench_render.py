@@ -162,7 +162,7 @@ def scenes(quick: bool) -> list[tuple[str, callable, callable, list[tuple[int, i
         print(f"({PLAYBOT} not found: the real-capture rows are skipped)\n")
     sizes = [(1280, 720)] if quick else [(1280, 720), (1920, 1080)]
     out.append(("synthetic 1M SH3", lambda: synthetic(1_000_000), synthetic_camera, sizes))
-    out.append((f"demo scene", lambda: splat_io.load(DEMO), demo_camera, [(960, 540), (1920, 1080)]))
+    out.append(("demo scene", lambda: splat_io.load(DEMO), demo_camera, [(960, 540), (1920, 1080)]))
     return out
 
 

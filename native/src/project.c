@@ -19,25 +19,30 @@ typedef struct {
     atomic_llong first_bad; /* smallest index holding a non-finite value, or count */
 } job;
 
-/* Pixel-centre index range [lo, hi] covered by the interval [c - r, c + r], clipped to [0, n). */
-static void pixel_range(double c, double r, int n, int32_t *lo, int32_t *hi) {
-    double a = ceil(sc_clamp(c - r - 0.5, -1.0, (double)n));
-    double b = floor(sc_clamp(c + r - 0.5, -1.0, (double)n));
-    *lo = (int32_t)(a < 0 ? 0 : a);
-    *hi = (int32_t)(b > n - 1 ? n - 1 : b);
+/* Pixel-centre index range [lo, hi] covered by the interval [c - r, c + r], clipped to [0, n).
+ * Branch-free, so that it vectorises in project_lanes. */
+static SC_ALWAYS_INLINE void pixel_range(double c, double r, int n, int32_t *lo, int32_t *hi) {
+    const double a = ceil(sc_clamp(c - r - 0.5, -1.0, (double)n));
+    const double b = floor(sc_clamp(c + r - 0.5, -1.0, (double)n));
+    *lo = (int32_t)(a < 0.0 ? 0.0 : a);
+    *hi = (int32_t)(b > n - 1 ? (double)(n - 1) : b);
+}
+
+/* The footprint's k2 from ln(255 opacity): 2 ln(255 opacity), inflated by 1e-4 so that float
+ * rounding in the compositor cannot put a drawn pixel outside it. */
+static SC_ALWAYS_INLINE float footprint_k2(float log_255_opacity) {
+    return 2.0f * log_255_opacity * (1.0f + 1e-4f) + 1e-4f;
 }
 
 /* The footprint of splat `s` (all else set): the compositor draws where opacity exp(power) >=
- * 1/255, i.e. inside the ellipse d^T conic d <= 2 ln(255 opacity), inflated by 1e-4 so that
- * float rounding in the compositor cannot put a drawn pixel outside it. Its bounding box
- * follows from the covariance that the float conic stands for, inverted in double. */
+ * 1/255, i.e. inside the ellipse d^T conic d <= 2 ln(255 opacity) (footprint_k2). Its bounding
+ * box follows from the covariance that the float conic stands for, inverted in double. */
 static void footprint(sc_splat *s, const sc_camera *cam) {
     s->row0 = s->col0 = 0, s->row1 = s->col1 = -1;
     s->k2 = 0.0f, s->unused = 0.0f;
     if (!(s->opacity >= SC_ALPHA_MIN)) return;
-    const double k2 = 2.0 * log(255.0 * (double)s->opacity) * (1.0 + 1e-4) + 1e-4;
+    s->k2 = footprint_k2((float)log(255.0 * (double)s->opacity));
     const double ca = s->ca, cb = s->cb, cc = s->cc, det = ca * cc - cb * cb;
-    s->k2 = (float)k2;
     /* A conic that float made singular (or zero: a covariance beyond float) is unbounded. */
     const double half_x = det > 0.0 ? sqrt((double)s->k2 * cc / det) : INFINITY;
     const double half_y = det > 0.0 ? sqrt((double)s->k2 * ca / det) : INFINITY;
@@ -63,9 +68,11 @@ static int project_one(const job *j, int64_t i, sc_splat *s) {
         opacity *= sqrt(ratio > 0.0 ? ratio : 0.0);
     }
 
-    double dir[3], rgb[3];
+    double dir[3];
     sc_view_dir(g->means + 3 * i, j->campos, dir);
-    sc_sh_colour(j->opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir, rgb);
+    const float dir_f[3] = {(float)dir[0], (float)dir[1], (float)dir[2]};
+    float rgb[3];
+    sc_sh_colour_f(j->opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir_f, rgb);
 
     s->x = (float)sc_pixel_x(cam, &e);
     s->y = (float)sc_pixel_y(cam, &e);
@@ -74,9 +81,9 @@ static int project_one(const job *j, int64_t i, sc_splat *s) {
     s->cb = (float)(-b / det);
     s->cc = (float)(a / det);
     s->opacity = (float)opacity;
-    s->r = (float)fmax(rgb[0] + 0.5, 0.0);
-    s->g = (float)fmax(rgb[1] + 0.5, 0.0);
-    s->b = (float)fmax(rgb[2] + 0.5, 0.0);
+    s->r = fmaxf(rgb[0] + 0.5f, 0.0f);
+    s->g = fmaxf(rgb[1] + 0.5f, 0.0f);
+    s->b = fmaxf(rgb[2] + 0.5f, 0.0f);
     s->depth = (float)e.p[2];
 
     footprint(s, cam);
@@ -93,9 +100,8 @@ static int project_one(const job *j, int64_t i, sc_splat *s) {
  * float. det(A A^T), the determinant before the dilation, is |row0 x row1|^2 (Lagrange's
  * identity), a sum of squares, so needle-thin splats keep their precision where a c - b^2
  * would cancel. A Gaussian whose float values overflow (scales beyond ~e^40) is projected by
- * the double path instead. Every Gaussian goes
- * through the same vector code (a short batch is padded), so results never depend on which
- * batch or thread a Gaussian falls in.
+ * the double path instead. Every Gaussian goes through the same vector code (a short batch is
+ * padded), so results never depend on which batch or thread a Gaussian falls in.
  *
  * With `cull` (the render), Gaussians that cannot reach the image are dropped before the
  * covariance and SH work, by a bound on the screen radius from the largest scale alone:
@@ -105,30 +111,15 @@ static int project_one(const job *j, int64_t i, sc_splat *s) {
 
 enum { LANES = 16, CHUNK = 1024 };
 
-/* e^x in float for any x (clamped to [-87, 88]): sc_fast_exp's polynomial without its x <= 0
- * clamp. Relative error below 4e-7. */
+/* e^x in float for any x (clamped to [-87, 88]). */
 static inline float exp_any(float x) {
-    x = x < -87.0f ? -87.0f : (x > 88.0f ? 88.0f : x);
-    const float t = x * 1.44269504088896341f;
-    const float n = (t + 12582912.0f) - 12582912.0f;
-    const float f = t - n;
-    float p = 1.535336188319500e-4f;
-    p = p * f + 1.339887440266574e-3f;
-    p = p * f + 9.618437357674640e-3f;
-    p = p * f + 5.550332471162809e-2f;
-    p = p * f + 2.402264791363012e-1f;
-    p = p * f + 6.931472028550421e-1f;
-    p = p * f + 1.0f;
-    const int32_t bits = ((int32_t)n + 127) << 23;
-    float scale;
-    memcpy(&scale, &bits, sizeof scale);
-    return p * scale;
+    return sc_exp_in_range(x < -87.0f ? -87.0f : (x > 88.0f ? 88.0f : x));
 }
 
-/* ln x in float for x >= 1 (the footprint's 255 opacity): x = m 2^e with m in [0.75, 1.5),
- * ln m from its series in s = (m - 1) / (m + 1) (ln m = 2 (s + s^3/3 + s^5/5 + ...), |s| < 0.2:
- * the terms up to s^11 leave a relative error below 1e-7). Vectorisable. */
-static inline float log_at_least_1(float x) {
+/* ln x in float for a normal x > 0 (the footprint's 255 opacity): x = m 2^e with m in
+ * [0.75, 1.5), ln m from its series in s = (m - 1) / (m + 1) (ln m = 2 (s + s^3/3 + ...),
+ * |s| < 0.2: the terms up to s^11 leave a relative error below 1e-7). Vectorisable. */
+static inline float log_normal(float x) {
     int32_t bits;
     memcpy(&bits, &x, sizeof bits);
     int32_t e = ((bits >> 23) & 0xff) - 127;
@@ -161,15 +152,6 @@ typedef struct {
     float x[LANES], y[LANES], ca[LANES], cb[LANES], cc[LANES], opacity[LANES], k2[LANES];
     int32_t row0[LANES], row1[LANES], col0[LANES], col1[LANES], ok[LANES];
 } batch;
-
-/* Pixel-centre index range [lo, hi] covered by [c - r, c + r], clipped to [0, n): as
- * pixel_range, branch-free. */
-static SC_ALWAYS_INLINE void pixel_span(double c, double r, int n, int32_t *lo, int32_t *hi) {
-    const double a = ceil(sc_clamp(c - r - 0.5, -1.0, (double)n));
-    const double b = floor(sc_clamp(c + r - 0.5, -1.0, (double)n));
-    *lo = (int32_t)(a < 0.0 ? 0.0 : a);
-    *hi = (int32_t)(b > n - 1 ? (double)(n - 1) : b);
-}
 
 static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_t *idx, batch *o) {
     const sc_gaussians *g = fj->base.g;
@@ -256,16 +238,16 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
                              cb * 0.0f + cc * 0.0f + opacity * 0.0f;
         o->ok[l] = finite == 0.0f && det > 0.0f;
 
-        /* The footprint, as footprint() (its k2 from a float log, inflated as there). */
+        /* The footprint, as footprint() (with a float log). */
         const int drawn = opacity >= SC_ALPHA_MIN;
-        const float k2 = drawn ? 2.0f * log_at_least_1(255.0f * opacity) * (1.0f + 1e-4f) + 1e-4f : 0.0f;
+        const float k2 = drawn ? footprint_k2(log_normal(255.0f * opacity)) : 0.0f;
         o->k2[l] = k2;
         const double det_c = (double)ca * cc - (double)cb * cb;
         const double half_x = det_c > 0.0 ? sqrt((double)k2 * cc / det_c) : INFINITY;
         const double half_y = det_c > 0.0 ? sqrt((double)k2 * ca / det_c) : INFINITY;
         int32_t x0, x1, y0, y1;
-        pixel_span(o->x[l], half_x, width, &x0, &x1);
-        pixel_span(o->y[l], half_y, height, &y0, &y1);
+        pixel_range(o->x[l], half_x, width, &x0, &x1);
+        pixel_range(o->y[l], half_y, height, &y0, &y1);
         const int reach = drawn && x0 <= x1 && y0 <= y1;
         o->row0[l] = reach ? y0 : 0, o->row1[l] = reach ? y1 : -1;
         o->col0[l] = reach ? x0 : 0, o->col1[l] = reach ? x1 : -1;
