@@ -3,9 +3,9 @@
  * optional mesh layer slotted in at each pixel's mesh depth; and the training variant (no mesh)
  * that also records each pixel's final transmittance and n_contrib for the backward pass.
  *
- * Speed comes from three things, none of which changes a result:
- *  - only the pixel rows and 8-pixel half rows that a Gaussian's footprint reaches are
- *    evaluated (row0..row1, col0..col1);
+ * Speed comes from these, none of which changes a result:
+ *  - only the 8-pixel half rows that a Gaussian's alpha >= 1/255 ellipse reaches are evaluated
+ *    (footprint_half_rows), and none whose pixels have all stopped (live_half_rows);
  *  - each half row is branch-free, so the compiler vectorises it (AVX2/AVX-512 builds
  *    where the CPU has them, chosen once at run time by cpu.c; SSE2 otherwise; NEON on arm64);
  *  - exp() is a polynomial (sc_fast_exp, internal.h) with relative error below 4e-7, far
@@ -88,8 +88,9 @@ static SC_ALWAYS_INLINE half_rows span_half_rows(int j0, int j1, int i0, int i1)
  * -cb dy / ca) is at most the splat's k2 (>= 2 ln(255 o)), at the very float dx, dy the
  * compositor uses. The bound is widened for the float rounding of Q here and of the power in
  * blend_block (each below 8 roundings of 2^-24 of the largest term over the tile: 2 x 2e-6 of
- * it) and of exp and alpha (2e-5). A pixel left out therefore has float alpha < 1/255 and would add exactly nothing:
- * skipping it changes no output bit (tests/test_render_masks.py holds it against the span). */
+ * it) and of exp and alpha (2e-5). A pixel left out therefore has float alpha < 1/255 and
+ * would add exactly nothing: skipping it changes no output bit (tests/test_render_masks.py
+ * holds it against the span). */
 static SC_ALWAYS_INLINE half_rows footprint_half_rows(const sc_splat *s, const sc_columns *c,
                                                       int y0, half_rows span) {
     const float ca = s->ca, cb = s->cb, cc = s->cc;
@@ -183,7 +184,8 @@ static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
         sc_columns c;
         sc_prepare_columns(&c, s, px0);
         /* A span of a few half rows has little to skip: not worth the masks' set-up. */
-        if (!exhaustive) todo = (sc_popcount(todo) > 3 ? footprint_half_rows(s, &c, ms->y0, todo) : todo) & alive;
+        if (!exhaustive && sc_popcount(todo) > 3) todo = footprint_half_rows(s, &c, ms->y0, todo);
+        if (!exhaustive) todo &= alive;
         evaluations += BLOCK * (int64_t)sc_popcount(todo);
         /* Each row's terms, for all 16 rows at once (vectorised; the same bits as one by one). */
         float power_y[SC_TILE], cb_dy[SC_TILE];
