@@ -1,19 +1,29 @@
-"""Render benchmark: speed, where the time goes, and speed against error.
+"""Render benchmark: one table of where a frame's time goes, how much work it does and how much
+memory it takes, for the real PLAYBOT capture (../shared/data), a synthetic 1M-Gaussian SH3 scene
+and the demo scene.
 
-    .venv/bin/python examples/bench_render.py            # the full tables (a few minutes)
-    .venv/bin/python examples/bench_render.py --quick    # smaller sizes, for a smoke run
+    .venv/bin/python examples/bench_render.py                  # the table (a few minutes)
+    .venv/bin/python examples/bench_render.py --quick          # 3 repeats, fewer sizes
+    .venv/bin/python examples/bench_render.py --more           # also the compositor's efficiency,
+                                                               # the quality knobs and the error
+                                                               # against the float64 reference
+    /work/main/.venv/bin/python examples/bench_render.py --code /work/main
+                                           # the same table for another checkout's code (before/after)
 
-Prints, for the real PLAYBOT capture (../shared/data) and synthetic scenes of 10k, 100k and 1M
-Gaussians at 640x360, 1280x720 and 1920x1080 with 1 and 2 threads: ms per frame (median of
-several), the stages (project, sort, bin, composite), Gaussian/pixel evaluations per second, and
-the max error against the float64 reference where the reference is affordable. Then the
-compositor's efficiency against its own inner-loop limit (a one-tile, in-cache microbenchmark),
-and the knobs that trade speed for fidelity (SH degree, antialiasing). Never a test: numbers only.
+Columns: ms per frame and per stage (project, sort, bin, composite; medians of the repeats),
+Gaussians drawn, Gaussian/tile pairs, Gaussian/pixel evaluations per frame (and, where the code
+has the footprint masks, the evaluations without them: the same image's pre-mask work), and
+peak memory: the process's resident-set high-water mark during one render above what it held
+before (Linux; `VmHWM` reset through /proc/self/clear_refs), which counts the renderer's working
+memory and the output images, and the renderer's own count of its working memory at its
+largest (stats["peak_bytes"], where the code reports it). Never a test: numbers only.
+Wall-clock numbers on a shared machine are noisy: compare runs taken back to back.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import statistics
 import sys
 import time
@@ -22,21 +32,21 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
-
-from addon.core import splat_io  # noqa: E402
-from addon.core.cameras import Camera  # noqa: E402
-from addon.core.gaussians import Gaussians  # noqa: E402
-from addon.core.render import render  # noqa: E402
-
 PLAYBOT = ROOT.parent / "shared" / "data" / "splats" / "playbot_125k_sh2.ply"
-SIZES = {"640x360": (640, 360), "1280x720": (1280, 720), "1920x1080": (1920, 1080)}
+DEMO = ROOT / "examples" / "demo_scene.ply"
 
 
-def synthetic(n: int, seed: int = 7) -> Gaussians:
+def import_code(code: Path) -> None:
+    """Import the add-on's core (and its tests' reference) from the checkout at `code`."""
+    sys.path.insert(0, str(code))
+    sys.path.insert(0, str(code / "tests"))
+
+
+def synthetic(n: int, seed: int = 7):
     """`n` Gaussians filling a 2-unit cube, sized so that coverage is similar at every count
     (like a trained scene: more Gaussians, smaller ones), degree 3 SH."""
+    from addon.core.gaussians import Gaussians
+
     rng = np.random.default_rng(seed)
     means = rng.uniform(-1, 1, (n, 3))
     typical = 0.6 * n ** (-1 / 3)
@@ -48,34 +58,62 @@ def synthetic(n: int, seed: int = 7) -> Gaussians:
     return Gaussians(means, log_scales, quats, opacity_logits, sh)
 
 
-def synthetic_camera(width: int, height: int) -> Camera:
+def synthetic_camera(width: int, height: int):
+    from addon.core.cameras import Camera
+
     return Camera.look_at((0.4, -3.2, 1.1), (0, 0, 0), (0, 0, 1), width=width, height=height,
                           fov_x_degrees=60)
 
 
-def playbot_camera(width: int, height: int) -> Camera:
+def playbot_camera(width: int, height: int):
+    from addon.core.cameras import Camera
+
     # The capture stands on y = 0 with -y up; seen from the front, a little above.
     return Camera.look_at((0.0, -0.9, -2.6), (0.0, -0.35, 0.0), (0, -1, 0), width=width,
                           height=height, fov_x_degrees=55)
 
 
-def timed(gaussians: Gaussians, camera: Camera, repeats: int, **options) -> tuple[float, dict]:
-    render(gaussians, camera, **options)  # warm-up: page in, start the pool
-    runs = [render(gaussians, camera, **options).stats for _ in range(repeats)]
-    best = min(runs, key=lambda s: s["ms_total"])
-    return statistics.median(s["ms_total"] for s in runs), best
+def demo_camera(width: int, height: int):
+    from addon.core.cameras import Camera
+
+    # examples/demo.py's view.
+    return Camera.look_at(eye=(5.5, -6.0, 3.2), target=(0.0, 0.0, 0.9), up=(0, 0, 1), width=width,
+                          height=height, fov_x_degrees=50)
 
 
-def reference_error(gaussians: Gaussians, camera: Camera, **options) -> str:
-    import reference
+# ---------------------------------------------------------------- peak memory
 
-    start = time.perf_counter()
-    ref = reference.render_scene(gaussians, camera, **options)
-    seconds = time.perf_counter() - start
-    rgb, alpha, _ = render(gaussians, camera, **options)
-    ok = ~ref["ambiguous"]
-    err = max(np.abs(rgb - ref["rgb"])[ok].max(), np.abs(alpha - ref["alpha"])[ok].max())
-    return f"{err:.1e} ({seconds:.0f} s in float64, {int((~ok).sum())} ambiguous px skipped)"
+
+def _status_kib(field: str) -> int | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def peak_mib(run) -> float | None:
+    """MiB by which the resident set's high-water mark rose above the resident set during
+    `run()`, or None where Linux's /proc interface is not there."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)  # freed heap back to the system: counted again
+    except (OSError, AttributeError):
+        pass
+    try:
+        Path("/proc/self/clear_refs").write_text("5")  # reset VmHWM to the current RSS
+    except OSError:
+        return None
+    before = _status_kib("VmRSS")
+    run()
+    peak = _status_kib("VmHWM")
+    return None if before is None or peak is None else (peak - before) / 1024
+
+
+# ---------------------------------------------------------------- the table
 
 
 def table(rows: list[list[str]], header: list[str]) -> None:
@@ -88,86 +126,152 @@ def table(rows: list[list[str]], header: list[str]) -> None:
     print()
 
 
-def speed_tables(scenes: dict[str, tuple[Gaussians, callable]], sizes: dict, repeats: int) -> None:
-    rows = []
-    for name, (gaussians, make_camera) in scenes.items():
-        for size_name, (w, h) in sizes.items():
-            for threads in (1, 2):
-                ms, s = timed(gaussians, make_camera(w, h), repeats, threads=threads)
-                rows.append([name, size_name, threads, f"{ms:.1f}", f"{s['ms_project']:.1f}",
-                             f"{s['ms_sort']:.1f}", f"{s['ms_bin']:.1f}",
-                             f"{s['ms_composite']:.1f}", f"{s['tile_pairs'] / 1e6:.2f}",
-                             f"{s['evaluations'] / s['ms_composite'] / 1e3:.0f}"])
-                print("  ".join(map(str, rows[-1])), flush=True, file=sys.stderr)
-    print("Frame time (median ms) and stages (best run, ms); evals = Gaussian/pixel evaluations")
-    table(rows, ["scene", "size", "threads", "ms", "project", "sort", "bin", "composite",
-                 "Mpairs", "Meval/s/comp"])
+def measure(gaussians, camera, repeats: int, threads: int) -> list[str]:
+    from addon.core.render import render
 
-
-def efficiency(gaussians: Gaussians, camera: Camera) -> None:
+    masks = "exhaustive" in inspect.signature(render).parameters
+    render(gaussians, camera, threads=threads)  # warm-up: page in, start the pool
+    runs = [render(gaussians, camera, threads=threads).stats for _ in range(repeats)]
+    median = lambda key: statistics.median(s[key] for s in runs)  # noqa: E731
     import splatcore
+
+    # Renders keep their working buffers for the next frame (where the code has that): measure
+    # the peak of a frame that starts without them.
+    getattr(splatcore, "release_buffers", lambda: None)()
+    peak = peak_mib(lambda: render(gaussians, camera, threads=threads))
+    unmasked = "-"
+    if masks:
+        unmasked = f"{render(gaussians, camera, threads=threads, exhaustive=True).stats['evaluations'] / 1e6:.1f}"
+    s = runs[0]
+    return [f"{median('ms_total'):.1f}", f"{median('ms_project'):.1f}", f"{median('ms_sort'):.1f}",
+            f"{median('ms_bin'):.1f}", f"{median('ms_composite'):.1f}", f"{s['visible'] / 1e3:.0f}k",
+            f"{s['tile_pairs'] / 1e6:.2f}", f"{s['evaluations'] / 1e6:.1f}", unmasked,
+            "-" if peak is None else f"{peak:.0f}",
+            f"{s['peak_bytes'] / 2**20:.0f}" if "peak_bytes" in s else "-"]
+
+
+def scenes(quick: bool) -> list[tuple[str, callable, callable, list[tuple[int, int]]]]:
+    """(name, load, camera, sizes) per scene; loads lazily so that one scene is held at a time."""
+    from addon.core import splat_io
+
+    out = []
+    if PLAYBOT.exists():
+        sizes = [(800, 600), (1920, 1080)] if quick else [(800, 600), (1280, 720), (1920, 1080)]
+        out.append(("playbot 125k SH2", lambda: splat_io.load(PLAYBOT), playbot_camera, sizes))
+    else:
+        print(f"({PLAYBOT} not found: the real-capture rows are skipped)\n")
+    sizes = [(1280, 720)] if quick else [(1280, 720), (1920, 1080)]
+    out.append(("synthetic 1M SH3", lambda: synthetic(1_000_000), synthetic_camera, sizes))
+    out.append(("demo scene", lambda: splat_io.load(DEMO), demo_camera, [(960, 540), (1920, 1080)]))
+    return out
+
+
+def main_table(args) -> None:
+    rows = []
+    for name, load, make_camera, sizes in scenes(args.quick):
+        gaussians = load()
+        for width, height in sizes:
+            row = [name if not rows or rows[-1][0] != name else "", f"{width}x{height}",
+                   *measure(gaussians, make_camera(width, height), args.repeats, args.threads)]
+            rows.append(row)
+            print("  ".join(row), file=sys.stderr, flush=True)
+        del gaussians
+    print(f"Render stages ({args.threads} threads, median of {args.repeats}; code: {args.code}); "
+          "evaluations = Gaussian/pixel evaluations per frame, 'no masks' = the same frame "
+          "evaluated over each tile's whole bounding span; peak = resident-set high-water mark "
+          "above the resident set before the render (working buffers released first; images "
+          "included); working = the renderer's own count of its largest working memory")
+    table(rows, ["scene", "size", "ms", "project", "sort", "bin", "composite", "drawn", "Mpairs",
+                 "Meval", "no masks", "peak MiB", "working MiB"])
+
+
+# ---------------------------------------------------------------- --more
+
+
+def efficiency(gaussians, camera) -> None:
+    import splatcore
+    from addon.core.render import render
 
     iterations = 400
     seconds = min(splatcore.composite_microbench(512, iterations) for _ in range(5))
     limit = 512 * 256 * iterations / seconds
-    _, s = timed(gaussians, camera, 5, threads=1)
-    achieved = s["evaluations"] / (s["ms_composite"] / 1000)
+    stats = min((render(gaussians, camera, threads=1).stats for _ in range(5)),
+                key=lambda s: s["ms_composite"])
+    achieved = stats["evaluations"] / (stats["ms_composite"] / 1000)
     print("Compositor efficiency (1 thread): inner-loop limit from the one-tile microbenchmark "
           "against the whole composite stage")
     table([[f"{limit / 1e6:.0f}", f"{achieved / 1e6:.0f}", f"{limit / achieved:.2f}"]],
           ["limit Meval/s", "achieved Meval/s", "limit / achieved"])
 
 
-def knobs(gaussians: Gaussians, camera: Camera, repeats: int) -> None:
-    full, _ = timed(gaussians, camera, repeats)
+def knobs(gaussians, camera, repeats: int) -> None:
+    from addon.core.render import render
+
+    def timed(**options) -> float:
+        render(gaussians, camera, **options)
+        return statistics.median(render(gaussians, camera, **options).stats["ms_total"]
+                                 for _ in range(repeats))
+
     exact = render(gaussians, camera)
     rows = []
-    for degree in range(gaussians.degree, -1, -1):
-        ms, _ = timed(gaussians, camera, repeats, sh_degree=degree)
-        rgb = render(gaussians, camera, sh_degree=degree).rgb
-        err = np.abs(rgb - exact.rgb)
+    for label, options in [*((f"SH degree {d}", dict(sh_degree=d))
+                             for d in range(gaussians.degree, -1, -1)),
+                           ("antialiased", dict(antialiased=True))]:
+        err = np.abs(render(gaussians, camera, **options).rgb - exact.rgb)
         psnr = 10 * np.log10(1 / max(np.mean(err ** 2), 1e-20))
-        rows.append([f"SH degree {degree}", f"{ms:.1f}", f"{err.max():.3f}", f"{psnr:.1f}"])
-    ms, _ = timed(gaussians, camera, repeats, antialiased=True)
-    rgb = render(gaussians, camera, antialiased=True).rgb
-    err = np.abs(rgb - exact.rgb)
-    rows.append(["antialiased", f"{ms:.1f}", f"{err.max():.3f}",
-                 f"{10 * np.log10(1 / max(np.mean(err ** 2), 1e-20)):.1f}"])
-    print(f"Knobs on {len(gaussians)} Gaussians at {camera.width}x{camera.height} "
-          f"(against the full render, {full:.1f} ms; the antialiased row is a different look, "
-          f"not an error: use the mode the splats were trained in)")
+        rows.append([label, f"{timed(**options):.1f}", f"{err.max():.3f}", f"{psnr:.1f}"])
+    print(f"Knobs on {len(gaussians)} Gaussians at {camera.width}x{camera.height} (against the full "
+          f"render; the antialiased row is a different look, not an error: use the mode the "
+          f"splats were trained in)")
     table(rows, ["setting", "ms", "max abs diff", "PSNR dB"])
+
+
+def reference_error(gaussians, camera, **options) -> str:
+    import reference
+    from addon.core.render import render
+
+    start = time.perf_counter()
+    ref = reference.render_scene(gaussians, camera, **options)
+    seconds = time.perf_counter() - start
+    rgb, alpha, _ = render(gaussians, camera, **options)
+    ok = ~ref["ambiguous"]
+    err = max(np.abs(rgb - ref["rgb"])[ok].max(), np.abs(alpha - ref["alpha"])[ok].max())
+    return f"{err:.1e} ({seconds:.0f} s in float64, {int((~ok).sum())} ambiguous px skipped)"
+
+
+def more_tables(args) -> None:
+    from addon.core import splat_io
+
+    if PLAYBOT.exists():
+        gaussians, make_camera = splat_io.load(PLAYBOT), playbot_camera
+    else:
+        gaussians, make_camera = synthetic(100_000), synthetic_camera
+    efficiency(gaussians, make_camera(1280, 720))
+    knobs(gaussians, make_camera(1280, 720), args.repeats)
+    print("Native against the float64 reference (max abs error, rgb and alpha)")
+    rows = [["synthetic 10k", "160x90", reference_error(synthetic(10_000), synthetic_camera(160, 90))],
+            ["synthetic 10k, antialiased", "160x90",
+             reference_error(synthetic(10_000), synthetic_camera(160, 90), antialiased=True)],
+            ["demo scene", "192x108", reference_error(splat_io.load(DEMO), demo_camera(192, 108))]]
+    table(rows, ["scene", "size", "max error"])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="small sizes only")
+    parser.add_argument("--quick", action="store_true", help="3 repeats and fewer sizes")
+    parser.add_argument("--more", action="store_true",
+                        help="also efficiency, quality knobs and the error against float64")
+    parser.add_argument("--threads", type=int, default=2, help="worker threads (default 2)")
+    parser.add_argument("--repeats", type=int, default=None, help="renders per row (default 7)")
+    parser.add_argument("--code", type=Path, default=ROOT,
+                        help="checkout whose addon/ to run (its native module is the one "
+                             "installed in the Python that runs this script)")
     args = parser.parse_args()
-    repeats = 3 if args.quick else 7
-    sizes = {"640x360": SIZES["640x360"]} if args.quick else SIZES
-    counts = (10_000, 100_000) if args.quick else (10_000, 100_000, 1_000_000)
-
-    scenes: dict[str, tuple[Gaussians, callable]] = {}
-    if PLAYBOT.exists():
-        scenes["playbot 125k"] = (splat_io.load(PLAYBOT), playbot_camera)
-    else:
-        print(f"({PLAYBOT} not found: real-capture rows skipped)\n")
-    for n in counts:
-        scenes[f"synthetic {n // 1000}k"] = (synthetic(n), synthetic_camera)
-    speed_tables(scenes, sizes, repeats)
-
-    main_scene, main_camera = scenes.get("playbot 125k", scenes["synthetic 100k"])
-    efficiency(main_scene, main_camera(1280, 720))
-    knobs(main_scene, main_camera(1280, 720), repeats)
-
-    print("Native against the float64 reference (max abs error, rgb and alpha)")
-    rows = [["synthetic 10k", "160x90", reference_error(synthetic(10_000), synthetic_camera(160, 90))]]
-    if not args.quick:
-        rows.append(["synthetic 10k, antialiased", "160x90",
-                     reference_error(synthetic(10_000), synthetic_camera(160, 90), antialiased=True)])
-        if "playbot 125k" in scenes:
-            rows.append(["playbot 125k", "128x72", reference_error(main_scene, main_camera(128, 72))])
-    table(rows, ["scene", "size", "max error"])
+    args.repeats = args.repeats or (3 if args.quick else 7)
+    import_code(args.code.resolve())
+    main_table(args)
+    if args.more:
+        more_tables(args)
 
 
 if __name__ == "__main__":

@@ -71,7 +71,7 @@ def project(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False, 
 def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | None = None,
            mesh_rgba: np.ndarray | None = None, mesh_depth: np.ndarray | None = None,
            antialiased: bool = False, near: float = 0.01, sh_degree: int | None = None,
-           threads: int = 0) -> RenderResult:
+           threads: int = 0, exhaustive: bool = False) -> RenderResult:
     """Render `gaussians` seen by `camera`, optionally composed with a mesh layer.
 
     background: RGB (3,) behind everything, or None for black.
@@ -79,6 +79,9 @@ def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | Non
         rendered; both or neither. Pixels with no mesh have alpha 0 (their depth is then unused).
     sh_degree: use at most this many SH bands (None: all the Gaussians have).
     threads: worker threads, 0 for all cores; the image is identical for any count.
+    exhaustive: evaluate every Gaussian over the whole bounding span of each of its tiles, not only
+        the half rows its alpha >= 1/255 ellipse reaches: the slow twin of that optimisation, for
+        tests and benchmarks; the image is the same bit for bit.
     """
     viewmat, intrinsics, width, height = native.camera_args(camera)
     if (mesh_rgba is None) != (mesh_depth is None):
@@ -93,5 +96,5 @@ def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | Non
     stats = native.splatcore().render(
         *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree), viewmat,
         intrinsics, width, height, float(near), bool(antialiased), native.thread_count(threads),
-        background, mesh_rgba, mesh_depth, rgb, alpha, depth)
+        background, mesh_rgba, mesh_depth, rgb, alpha, depth, bool(exhaustive))
     return RenderResult(rgb, alpha, depth, dict(stats))

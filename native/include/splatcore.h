@@ -10,7 +10,8 @@
  * here keeps a pointer after a call returns. Every result is identical for any thread count.
  *
  * Pipeline (one stage per file in src/):
- *   project.c    per Gaussian: EWA projection, SH colour, opacity, screen footprint
+ *   project.c    per Gaussian: EWA projection, SH colour, opacity, screen footprint (float,
+ *                vectorised, with frustum culling before the covariance work)
  *   sh.c         spherical harmonics degree 0..3 (the reference constants)
  *   sort.c       stable radix sort of Gaussians by view depth
  *   binning.c    Gaussian -> 16x16 tile lists, depth-ordered, exact ellipse/tile overlap
@@ -18,6 +19,7 @@
  *                training variant that records what the backward pass needs
  *   render.c     the pipeline above, with timings
  *   threadpool.c a small persistent pool (POSIX threads, or Win32 threads on Windows)
+ *   buffers.c    large working buffers, kept for the next frame
  *   cpu.c        the instruction set the compositor kernels run with, picked once at run time
  *
  * Training (backward passes, loss and optimizer):
@@ -37,7 +39,7 @@
 extern "C" {
 #endif
 
-enum { SC_TILE = 16 }; /* tiles are SC_TILE x SC_TILE pixels (sc_footprint, sc_frame) */
+enum { SC_TILE = 16 }; /* tiles are SC_TILE x SC_TILE pixels (sc_frame) */
 
 typedef enum {
     SC_OK = 0,
@@ -71,9 +73,12 @@ typedef struct {
     double near;     /* Gaussians with view z below this are culled */
     int antialiased; /* Mip-Splatting opacity compensation */
     int threads;     /* worker threads, >= 1 */
+    int exhaustive;  /* evaluate each Gaussian over its tile's whole bounding span instead of the
+                        half rows its alpha >= 1/255 ellipse reaches: the slow twin of those
+                        masks, for tests; the image is the same bit for bit */
 } sc_options;
 
-/* A projected Gaussian as the compositor reads it (one cache-friendly record). */
+/* A projected Gaussian as binning and the compositor read it: one 64-byte record (a cache line). */
 typedef struct {
     float x, y;          /* projected mean, pixels */
     float ca, cb, cc;    /* conic: inverse of the dilated 2D covariance [[ca, cb], [cb, cc]] */
@@ -81,21 +86,17 @@ typedef struct {
     float r, g, b;       /* SH colour + 0.5, clamped at 0 */
     float depth;         /* view-space z of the mean */
     int32_t row0, row1;  /* pixel rows its alpha >= 1/255 footprint can reach, inclusive */
-    int32_t col0, col1;  /* pixel columns likewise */
+    int32_t col0, col1;  /* pixel columns likewise; row1 < row0 when it reaches none */
+    float k2;            /* the footprint: alpha >= 1/255 only where d^T conic d <= k2 =
+                            2 ln(255 opacity), inflated slightly to stay conservative */
+    float unused;        /* pads the record to 64 bytes */
 } sc_splat;
-
-/* Where a projected Gaussian reaches: the ellipse alpha >= 1/255, i.e. d^T cov^-1 d <= k2. */
-typedef struct {
-    double cov_a, cov_b, cov_c; /* dilated 2D covariance [[a, b], [b, c]] */
-    double k2;                  /* 2 ln(255 opacity), slightly inflated to stay conservative */
-    int32_t tx0, ty0, tx1, ty1; /* tile rectangle [tx0, tx1) x [ty0, ty1); empty if not drawn */
-} sc_footprint;
 
 /* Per-Gaussian results of projection; `valid` is 0 for culled Gaussians (rows then zero). */
 typedef struct {
-    sc_splat *splats;         /* (N) */
-    sc_footprint *footprints; /* (N) */
-    uint8_t *valid;           /* (N) */
+    sc_splat *splats; /* (N) */
+    uint8_t *valid;   /* (N) */
+    float *keys;      /* optional (N): the depth where the splat reaches a pixel, else +inf */
 } sc_projection;
 
 /* The image outputs; mesh and background inputs are optional (NULL). */
@@ -113,11 +114,13 @@ typedef struct {
     int64_t visible;     /* Gaussians with a non-empty footprint */
     int64_t tile_pairs;  /* Gaussian/tile pairs composited */
     int64_t evaluations; /* Gaussian/pixel evaluations actually made */
+    int64_t peak_bytes;  /* the most working memory the pipeline held at once (not the images) */
     int64_t error_index; /* with SC_ERR_NONFINITE: the offending Gaussian */
 } sc_stats;
 
-/* Project every Gaussian (threads over Gaussians). Returns SC_ERR_NONFINITE with
- * stats->error_index set if any input value is NaN or Inf. */
+/* Project every Gaussian (threads over Gaussians), in float with the view transform in double
+ * (project.c says why that is exact enough, and tests/ hold it against float64). Returns
+ * SC_ERR_NONFINITE with stats->error_index set if any input value is NaN or Inf. */
 sc_status sc_project(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                      sc_projection *out, sc_stats *stats);
 
@@ -128,6 +131,10 @@ sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_option
 /* Time `iterations` passes of the composite inner loop over one in-cache tile of `count`
  * Gaussians that all cover it (no early stop): the kernel's arithmetic limit. Returns seconds. */
 double sc_composite_microbench(int count, int iterations);
+
+/* Frames keep their large working buffers (the last frame's, at most 8 blocks) for the next
+ * frame, which saves the page faults of fresh memory; this frees them. */
+void sc_release_buffers(void);
 
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);

@@ -11,47 +11,68 @@
 
 #include "internal.h"
 
-/* Tile columns [*t0, *t1) that Gaussian `s`/`f` reaches within tile row `ty`. */
-static void row_tiles(const sc_footprint *f, const sc_splat *s, int ty, const sc_camera *cam,
-                      int32_t *t0, int32_t *t1) {
-    /* One tile row or column: the rectangle is already exact (or a harmless superset). */
-    if (f->tx1 - f->tx0 == 1 || f->ty1 - f->ty0 == 1) {
-        *t0 = f->tx0, *t1 = f->tx1;
+/* A splat's tiles: its bounding box's tile rectangle [tx0, tx1) x [ty0, ty1) (empty: ty1 = ty0)
+ * and, when that spans several tile rows and columns, its ellipse d^T conic d <= k2, with the
+ * covariance the float conic stands for inverted in double, set up for row_tiles. */
+typedef struct {
+    int32_t tx0, tx1, ty0, ty1, row0, row1;
+    int exact;                        /* whether row_tiles trims the rectangle's rows */
+    double x, y, k2, ry, slope, s_cond, d_right, inv_c;
+} shape;
+
+static void shape_of(const sc_splat *s, shape *sh) {
+    const int reaches = s->row1 >= s->row0 && s->col1 >= s->col0;
+    sh->tx0 = s->col0 / SC_TILE, sh->tx1 = reaches ? s->col1 / SC_TILE + 1 : sh->tx0;
+    sh->ty0 = s->row0 / SC_TILE, sh->ty1 = reaches ? s->row1 / SC_TILE + 1 : sh->ty0;
+    sh->row0 = s->row0, sh->row1 = s->row1;
+    const double ca = s->ca, cb = s->cb, cc = s->cc, det = ca * cc - cb * cb;
+    /* One tile row or column: the rectangle is already exact (or a harmless superset). So is
+     * it for a conic that float made singular (the footprint is then unbounded). */
+    sh->exact = sh->tx1 - sh->tx0 > 1 && sh->ty1 - sh->ty0 > 1 && det > 0.0;
+    if (!sh->exact) return;
+    const double a = cc / det, b = -cb / det, c = ca / det, k2 = s->k2;
+    /* Points of the ellipse (dx - (b/c) dy)^2 / s + dy^2 / c <= k2 with s = det(cov) / c. */
+    sh->x = s->x, sh->y = s->y, sh->k2 = k2;
+    sh->ry = sqrt(k2 * c), sh->slope = b / c, sh->s_cond = 1.0 / ca, sh->inv_c = 1.0 / c;
+    /* The ellipse's rightmost point is at dy = b k / sqrt(a). */
+    sh->d_right = b * sqrt(k2 / a);
+}
+
+/* Tile columns [*t0, *t1) that the splat reaches within tile row `ty` (over that row's pixel
+ * centres): the x-extent of the ellipse is concave in dy, so its maximum over the row's dy
+ * range is at the clamped dy of the rightmost point, its minimum likewise at the leftmost. */
+static void row_tiles(const shape *sh, int ty, int width, int32_t *t0, int32_t *t1) {
+    if (!sh->exact) {
+        *t0 = sh->tx0, *t1 = sh->tx1;
         return;
     }
     *t0 = *t1 = 0;
-    int32_t j_lo = ty * SC_TILE > s->row0 ? ty * SC_TILE : s->row0;
-    int32_t j_hi = ty * SC_TILE + SC_TILE - 1 < s->row1 ? ty * SC_TILE + SC_TILE - 1 : s->row1;
+    int32_t j_lo = ty * SC_TILE > sh->row0 ? ty * SC_TILE : sh->row0;
+    int32_t j_hi = ty * SC_TILE + SC_TILE - 1 < sh->row1 ? ty * SC_TILE + SC_TILE - 1 : sh->row1;
     if (j_lo > j_hi) return;
-    const double a = f->cov_a, b = f->cov_b, c = f->cov_c, k2 = f->k2;
-    /* Points of the ellipse (dx - (b/c) dy)^2 / s + dy^2 / c <= k2 with s = det / c. */
-    const double ry = sqrt(k2 * c), slope = b / c, s_cond = (a * c - b * b) / c;
-    double lo = j_lo + 0.5 - (double)s->y, hi = j_hi + 0.5 - (double)s->y;
-    if (lo < -ry) lo = -ry;
-    if (hi > ry) hi = ry;
+    double lo = j_lo + 0.5 - sh->y, hi = j_hi + 0.5 - sh->y;
+    if (lo < -sh->ry) lo = -sh->ry;
+    if (hi > sh->ry) hi = sh->ry;
     if (lo > hi) return;
-    /* The x-extent is concave in dy: its maximum over [lo, hi] is at the clamped dy of the
-     * ellipse's rightmost point, b k / sqrt(a); its minimum likewise at the leftmost point. */
-    const double d_right = b * sqrt(k2 / a);
-    const double d1 = d_right < lo ? lo : (d_right > hi ? hi : d_right);
-    const double d2 = -d_right < lo ? lo : (-d_right > hi ? hi : -d_right);
-    const double h1 = s_cond * (k2 - d1 * d1 / c), h2 = s_cond * (k2 - d2 * d2 / c);
+    const double d1 = sh->d_right < lo ? lo : (sh->d_right > hi ? hi : sh->d_right);
+    const double d2 = -sh->d_right < lo ? lo : (-sh->d_right > hi ? hi : -sh->d_right);
+    const double h1 = sh->s_cond * (sh->k2 - d1 * d1 * sh->inv_c);
+    const double h2 = sh->s_cond * (sh->k2 - d2 * d2 * sh->inv_c);
     const double margin = 1e-3; /* pixels; the compositor works in float */
-    double x_max = (double)s->x + slope * d1 + sqrt(h1 > 0 ? h1 : 0) + margin;
-    double x_min = (double)s->x + slope * d2 - sqrt(h2 > 0 ? h2 : 0) - margin;
+    double x_max = sh->x + sh->slope * d1 + sqrt(h1 > 0 ? h1 : 0) + margin;
+    double x_min = sh->x + sh->slope * d2 - sqrt(h2 > 0 ? h2 : 0) - margin;
     double i0 = ceil(x_min - 0.5), i1 = floor(x_max - 0.5);
     if (i0 < 0) i0 = 0;
-    if (i1 > cam->width - 1) i1 = cam->width - 1;
+    if (i1 > width - 1) i1 = width - 1;
     if (i0 > i1) return;
     *t0 = (int32_t)i0 / SC_TILE;
     *t1 = (int32_t)i1 / SC_TILE + 1;
-    if (*t0 < f->tx0) *t0 = f->tx0;
-    if (*t1 > f->tx1) *t1 = f->tx1;
+    if (*t0 < sh->tx0) *t0 = sh->tx0;
+    if (*t1 > sh->tx1) *t1 = sh->tx1;
     if (*t1 < *t0) *t1 = *t0;
 }
 
 typedef struct {
-    const sc_footprint *fp;
     const sc_splat *splats;
     const sc_camera *cam;
     int64_t count, chunk_size;
@@ -60,26 +81,40 @@ typedef struct {
     uint32_t *counts;  /* (chunks, ntiles): pairs, then each chunk's write cursor */
     int64_t *cursors;  /* (chunks, ntiles) during the scatter */
     uint32_t *list;
+    uint32_t *codes;       /* (count) each splat's tiles, from the count pass to the scatter */
     int64_t *pair_offsets; /* optional (count + 1): each Gaussian's pairs, counted then summed */
     uint32_t *pairs;       /* optional: list positions of each Gaussian's pairs, tile order */
 } job;
 
 /* The passes are written once, with a constant `inverse` flag that the compiler folds, so the
  * plain render pays nothing for the optional Gaussian -> pairs index. */
+/* The count pass remembers each splat's tiles for the scatter pass, which then need not solve
+ * the ellipse again: up to 4 tile rows of up to 14 tile columns as one code, a byte per row
+ * holding [t0, t1) relative to the rectangle's first column (t0 low nibble, t1 high nibble).
+ * Larger footprints (rare) are solved again. */
+enum { CODE_ROWS = 4, CODE_COLUMNS = 14 };
+static const uint32_t RECOMPUTE = 0xffffffffu; /* no byte of a code can be 0xff */
+
 static inline void count_pass(job *j, int64_t begin, int64_t end, const int inverse) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
         uint32_t *counts = j->counts + chunk * j->ntiles;
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
-            const sc_footprint *f = &j->fp[k];
+            shape sh;
+            shape_of(&j->splats[k], &sh);
+            const int coded = sh.ty1 - sh.ty0 <= CODE_ROWS && sh.tx1 - sh.tx0 <= CODE_COLUMNS;
+            uint32_t code = 0;
             int64_t pairs = 0;
-            for (int ty = f->ty0; ty < f->ty1; ++ty) {
+            for (int ty = sh.ty0; ty < sh.ty1; ++ty) {
                 int32_t t0, t1;
-                row_tiles(f, &j->splats[k], ty, j->cam, &t0, &t1);
+                row_tiles(&sh, ty, j->cam->width, &t0, &t1);
                 for (int tx = t0; tx < t1; ++tx) counts[(int64_t)ty * j->tiles_x + tx]++;
                 pairs += t1 - t0;
+                if (coded && t1 > t0) /* an empty row stays 0 */
+                    code |= (uint32_t)((t0 - sh.tx0) | (t1 - sh.tx0) << 4) << 8 * (ty - sh.ty0);
             }
+            j->codes[k] = coded ? code : RECOMPUTE;
             if (inverse) j->pair_offsets[k] = pairs;
         }
     }
@@ -91,11 +126,25 @@ static inline void scatter_pass(job *j, int64_t begin, int64_t end, const int in
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
-            const sc_footprint *f = &j->fp[k];
+            const uint32_t code = j->codes[k];
+            shape sh;
+            if (code == RECOMPUTE) {
+                shape_of(&j->splats[k], &sh);
+            } else { /* only the rectangle's corner is needed */
+                const sc_splat *s = &j->splats[k];
+                const int reaches = s->row1 >= s->row0 && s->col1 >= s->col0;
+                sh.tx0 = s->col0 / SC_TILE, sh.ty0 = s->row0 / SC_TILE;
+                sh.ty1 = reaches ? s->row1 / SC_TILE + 1 : sh.ty0;
+            }
             uint32_t *mine = inverse ? j->pairs + j->pair_offsets[k] : NULL;
-            for (int ty = f->ty0; ty < f->ty1; ++ty) {
+            for (int ty = sh.ty0; ty < sh.ty1; ++ty) {
                 int32_t t0, t1;
-                row_tiles(f, &j->splats[k], ty, j->cam, &t0, &t1);
+                if (code == RECOMPUTE) {
+                    row_tiles(&sh, ty, j->cam->width, &t0, &t1);
+                } else {
+                    const uint32_t row = code >> 8 * (ty - sh.ty0);
+                    t0 = sh.tx0 + (int32_t)(row & 15), t1 = sh.tx0 + (int32_t)(row >> 4 & 15);
+                }
                 for (int tx = t0; tx < t1; ++tx) {
                     const int64_t at = cursor[(int64_t)ty * j->tiles_x + tx]++;
                     j->list[at] = (uint32_t)k;
@@ -129,10 +178,10 @@ static void scatter_chunk_inverse(void *ctx, int64_t begin, int64_t end, int thr
 /* At most this many Gaussian/tile pairs (4 GiB of list). */
 static const int64_t MAX_PAIRS = (int64_t)1 << 30;
 
-sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
-                 const sc_camera *cam, int threads, int64_t **offsets_out, uint32_t **list_out,
-                 int64_t **pair_offsets_out, uint32_t **pairs_out) {
-    job j = {.fp = fp, .splats = splats, .cam = cam, .count = count};
+sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, int threads,
+                 int64_t **offsets_out, uint32_t **list_out, int64_t **pair_offsets_out,
+                 uint32_t **pairs_out, int64_t *peak_bytes) {
+    job j = {.splats = splats, .cam = cam, .count = count};
     const int inverse = pair_offsets_out != NULL;
     j.tiles_x = (cam->width + SC_TILE - 1) / SC_TILE;
     const int tiles_y = (cam->height + SC_TILE - 1) / SC_TILE;
@@ -144,11 +193,14 @@ sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
     j.chunk_size = (count + chunks - 1) / chunks;
     if (j.chunk_size < 1) j.chunk_size = 1;
 
-    int64_t *offsets = malloc(sizeof(int64_t) * (size_t)(j.ntiles + 1));
-    j.counts = calloc((size_t)(chunks * j.ntiles), sizeof(uint32_t));
-    j.cursors = malloc(sizeof(int64_t) * (size_t)(chunks * j.ntiles));
-    if (inverse) j.pair_offsets = malloc(sizeof(int64_t) * (size_t)(count + 1));
-    if (!offsets || !j.counts || !j.cursors || (inverse && !j.pair_offsets)) goto out_of_memory;
+    int64_t *offsets = sc_buffer_alloc(sizeof(int64_t) * (size_t)(j.ntiles + 1));
+    j.counts = sc_buffer_alloc(sizeof(uint32_t) * (size_t)(chunks * j.ntiles));
+    if (j.counts) memset(j.counts, 0, sizeof(uint32_t) * (size_t)(chunks * j.ntiles));
+    j.cursors = sc_buffer_alloc(sizeof(int64_t) * (size_t)(chunks * j.ntiles));
+    j.codes = sc_buffer_alloc(sizeof(uint32_t) * (size_t)(count ? count : 1));
+    if (inverse) j.pair_offsets = sc_buffer_alloc(sizeof(int64_t) * (size_t)(count + 1));
+    if (!offsets || !j.counts || !j.cursors || !j.codes || (inverse && !j.pair_offsets))
+        goto out_of_memory;
 
     sc_parallel_for(threads, chunks, 1, inverse ? count_chunk_inverse : count_chunk, &j);
     int64_t total = 0;
@@ -160,12 +212,13 @@ sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
         }
     }
     offsets[j.ntiles] = total;
-    free(j.counts);
+    sc_buffer_free(j.counts);
     j.counts = NULL;
     if (total > MAX_PAIRS) {
-        free(offsets);
-        free(j.cursors);
-        free(j.pair_offsets);
+        sc_buffer_free(offsets);
+        sc_buffer_free(j.cursors);
+        sc_buffer_free(j.codes);
+        sc_buffer_free(j.pair_offsets);
         return SC_ERR_TOO_LARGE;
     }
     if (inverse) { /* per-Gaussian counts -> offsets; they add up to `total` */
@@ -176,13 +229,22 @@ sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
             sum += c;
         }
         j.pair_offsets[count] = sum;
-        j.pairs = malloc(sizeof(uint32_t) * (size_t)(total ? total : 1));
+        j.pairs = sc_buffer_alloc(sizeof(uint32_t) * (size_t)(total ? total : 1));
         if (!j.pairs) goto out_of_memory;
     }
-    j.list = malloc(sizeof(uint32_t) * (size_t)(total ? total : 1));
+    j.list = sc_buffer_alloc(sizeof(uint32_t) * (size_t)(total ? total : 1));
     if (!j.list) goto out_of_memory;
+    /* The most held at once: during the scatter (the counts are gone, the cursors not yet). */
+    *peak_bytes = (int64_t)(sizeof(int64_t) * (size_t)(j.ntiles + 1 + chunks * j.ntiles) +
+                            sizeof(uint32_t) * ((size_t)total * (inverse ? 2 : 1) + (size_t)count) +
+                            (inverse ? sizeof(int64_t) * (size_t)(count + 1) : 0));
+    const int64_t counting =
+        (int64_t)((sizeof(int64_t) + sizeof(uint32_t)) * (size_t)(chunks * j.ntiles) +
+                  sizeof(int64_t) * (size_t)(j.ntiles + 1) + sizeof(uint32_t) * (size_t)count);
+    if (counting > *peak_bytes) *peak_bytes = counting;
     sc_parallel_for(threads, chunks, 1, inverse ? scatter_chunk_inverse : scatter_chunk, &j);
-    free(j.cursors);
+    sc_buffer_free(j.cursors);
+    sc_buffer_free(j.codes);
     *offsets_out = offsets;
     *list_out = j.list;
     if (inverse) {
@@ -192,10 +254,11 @@ sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
     return SC_OK;
 
 out_of_memory:
-    free(offsets);
-    free(j.counts);
-    free(j.cursors);
-    free(j.pair_offsets);
-    free(j.pairs);
+    sc_buffer_free(offsets);
+    sc_buffer_free(j.counts);
+    sc_buffer_free(j.cursors);
+    sc_buffer_free(j.codes);
+    sc_buffer_free(j.pair_offsets);
+    sc_buffer_free(j.pairs);
     return SC_ERR_MEMORY;
 }

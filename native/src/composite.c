@@ -3,9 +3,9 @@
  * optional mesh layer slotted in at each pixel's mesh depth; and the training variant (no mesh)
  * that also records each pixel's final transmittance and n_contrib for the backward pass.
  *
- * Speed comes from three things, none of which changes a result:
- *  - only the pixel rows and 8-pixel half rows that a Gaussian's footprint reaches are
- *    evaluated (row0..row1, col0..col1);
+ * Speed comes from these, none of which changes a result:
+ *  - only the 8-pixel half rows that a Gaussian's alpha >= 1/255 ellipse reaches are evaluated
+ *    (footprint_half_rows), and none whose pixels have all stopped (live_half_rows);
  *  - each half row is branch-free, so the compiler vectorises it (AVX2/AVX-512 builds
  *    where the CPU has them, chosen once at run time by cpu.c; SSE2 otherwise; NEON on arm64);
  *  - exp() is a polynomial (sc_fast_exp, internal.h) with relative error below 4e-7, far
@@ -60,11 +60,65 @@ static SC_ALWAYS_INLINE void blend_block(tile_state *st, int first, float power_
     }
 }
 
-/* Whether every pixel of the tile has stopped taking Gaussians. */
-static int all_stopped(const tile_state *st) {
-    float sum = 0.0f;
-    for (int p = 0; p < PIXELS; ++p) sum += st->live[p];
-    return sum == 0.0f;
+/* Half-row masks: bit 2j + h stands for columns 8h..8h+7 of tile row j. */
+typedef uint32_t half_rows;
+
+/* The half rows that still have a pixel taking Gaussians. */
+static SC_ALWAYS_INLINE half_rows live_half_rows(const tile_state *st) {
+    half_rows alive = 0;
+    for (int q = 0; q < PIXELS / BLOCK; ++q) {
+        float sum = 0.0f;
+        for (int x = 0; x < BLOCK; ++x) sum += st->live[q * BLOCK + x];
+        alive |= (half_rows)(sum != 0.0f) << q;
+    }
+    return alive;
+}
+
+/* The half rows of sc_tile_span's span [j0, j1] x [i0, i1). */
+static SC_ALWAYS_INLINE half_rows span_half_rows(int j0, int j1, int i0, int i1) {
+    if (j0 > j1) return 0;
+    const half_rows rows = (j1 == SC_TILE - 1 ? 0u : 1u << 2 * (j1 + 1)) - (1u << 2 * j0);
+    const half_rows columns = (i0 < BLOCK ? 0x55555555u : 0u) | (i1 > BLOCK ? 0xAAAAAAAAu : 0u);
+    return rows & columns;
+}
+
+/* The half rows of the tile (origin x0, y0) that a splat can draw in, out of `span`. Exact for
+ * the ellipse, not its bounding box: a half row is kept when the smallest Q = ca dx^2 +
+ * 2 cb dx dy + cc dy^2 over its segment (a convex quadratic in dx: at the clamped minimiser
+ * -cb dy / ca) is at most the splat's k2 (>= 2 ln(255 o)), at the very float dx, dy the
+ * compositor uses. The bound is widened for the float rounding of Q here and of the power in
+ * blend_block (each below 8 roundings of 2^-24 of the largest term over the tile: 2 x 2e-6 of
+ * it) and of exp and alpha (2e-5). A pixel left out therefore has float alpha < 1/255 and
+ * would add exactly nothing: skipping it changes no output bit (tests/test_render_masks.py
+ * holds it against the span). */
+static SC_ALWAYS_INLINE half_rows footprint_half_rows(const sc_splat *s, const sc_columns *c,
+                                                      int y0, half_rows span) {
+    const float ca = s->ca, cb = s->cb, cc = s->cc;
+    const float dx_max = fmaxf(fabsf(c->dx[0]), fabsf(c->dx[SC_TILE - 1]));
+    const float dy_top = c->y - ((float)y0 + 0.5f);
+    const float dy_max = fmaxf(fabsf(dy_top), fabsf(c->y - ((float)(y0 + SC_TILE - 1) + 0.5f)));
+    const float largest = 0.5f * ca * dx_max * dx_max + 0.5f * cc * dy_max * dy_max +
+                          fabsf(cb) * dx_max * dy_max;
+    const float q_max = s->k2 + 4e-6f * largest + 2e-5f; /* k2 >= 2 ln(255 o) */
+    /* A degenerate (underflowed) conic or an overflowing bound: keep the whole span. */
+    if (!(ca > 1e-30f && isfinite(largest) && isfinite(q_max))) return span;
+    const float neg_cb_over_ca = -cb / ca;
+    /* Each half row's segment, as its columns' dx (which decrease along the row). */
+    const float left_hi = c->dx[0], left_lo = c->dx[BLOCK - 1];
+    const float right_hi = c->dx[BLOCK], right_lo = c->dx[SC_TILE - 1];
+    half_rows reach = 0;
+    for (int j = 0; j < SC_TILE; ++j) {
+        const float dy = c->y - ((float)(y0 + j) + 0.5f); /* as composite() */
+        const float centre = neg_cb_over_ca * dy, cc_dy2 = cc * dy * dy, cb_dy2 = 2.0f * cb * dy;
+        float d = centre < left_lo ? left_lo : centre;
+        d = d > left_hi ? left_hi : d;
+        const float q_left = ca * d * d + cb_dy2 * d + cc_dy2;
+        float e = centre < right_lo ? right_lo : centre;
+        e = e > right_hi ? right_hi : e;
+        const float q_right = ca * e * e + cb_dy2 * e + cc_dy2;
+        reach |= ((half_rows)(q_left <= q_max) | (half_rows)(q_right <= q_max) << 1) << 2 * j;
+    }
+    return reach & span;
 }
 
 /* Blend the mesh layer into pixel p with the transmittance left. */
@@ -105,30 +159,45 @@ static void flush_mesh(tile_state *st, mesh_state *ms, const sc_camera *cam, con
     ms->next_mesh_z = next;
 }
 
-/* Every Gaussian of the tile's list, front to back. `record` as in blend_block. */
+/* Every Gaussian of the tile's list, front to back. `record` as in blend_block; `exhaustive`
+ * evaluates each splat's whole sc_tile_span (the slow twin of the footprint masks). */
 static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
                                           const sc_splat *splats, const uint32_t *list,
                                           int64_t count, const sc_camera *cam,
-                                          const sc_image *im, const int record, int32_t *last) {
+                                          const sc_image *im, const int record, int32_t *last,
+                                          const int exhaustive) {
     const int has_mesh = im->mesh_rgba != NULL;
     const float px0 = (float)ms->x0 + 0.5f;
     int64_t evaluations = 0;
+    half_rows alive = live_half_rows(st);
     for (int64_t k = 0; k < count; ++k) {
-        /* Checked now and then: a tile whose pixels have all stopped is finished. */
-        if ((k & 31) == 31 && all_stopped(st)) break;
+        /* Now and then, which half rows still take Gaussians: the others are skipped (their
+         * pixels would add exactly 0), and a tile whose pixels have all stopped is finished. */
+        if ((k & 15) == 15 && !(alive = live_half_rows(st))) break;
         const sc_splat *s = &splats[list[k]];
+        if (k + 8 < count) SC_PREFETCH(&splats[list[k + 8]]); /* the list jumps about */
         if (has_mesh && s->depth >= ms->next_mesh_z) flush_mesh(st, ms, cam, im, s->depth);
         int j0, j1, i0, i1;
         sc_tile_span(s, ms->x0, ms->y0, &j0, &j1, &i0, &i1);
+        half_rows todo = span_half_rows(j0, j1, i0, i1);
+        if (!todo) continue;
         sc_columns c;
         sc_prepare_columns(&c, s, px0);
-        for (int j = j0; j <= j1; ++j) {
+        /* A span of a few half rows has little to skip: not worth the masks' set-up. */
+        if (!exhaustive && sc_popcount(todo) > 3) todo = footprint_half_rows(s, &c, ms->y0, todo);
+        if (!exhaustive) todo &= alive;
+        evaluations += BLOCK * (int64_t)sc_popcount(todo);
+        /* Each row's terms, for all 16 rows at once (vectorised; the same bits as one by one). */
+        float power_y[SC_TILE], cb_dy[SC_TILE];
+        for (int j = 0; j < SC_TILE; ++j) {
             const float dy = c.y - ((float)(ms->y0 + j) + 0.5f);
-            const float power_y = -(c.half_cc * dy * dy), cb_dy = c.cb * dy;
-            for (int i = i0; i < i1; i += BLOCK)
-                blend_block(st, j * SC_TILE + i, power_y, cb_dy, &c, record, last, (int32_t)(k + 1));
+            power_y[j] = -(c.half_cc * dy * dy), cb_dy[j] = c.cb * dy;
         }
-        evaluations += (int64_t)(j1 - j0 + 1) * (i1 - i0);
+        while (todo) {
+            const int q = sc_lowest_bit(todo), j = q >> 1;
+            todo &= todo - 1;
+            blend_block(st, q * BLOCK, power_y[j], cb_dy[j], &c, record, last, (int32_t)(k + 1));
+        }
     }
     return evaluations;
 }
@@ -137,18 +206,24 @@ SC_MULTIVERSION(int64_t, composite_render,
                 (tile_state *st, mesh_state *ms, const sc_splat *splats, const uint32_t *list,
                  int64_t count, const sc_camera *cam, const sc_image *im),
                 (st, ms, splats, list, count, cam, im),
-                composite(st, ms, splats, list, count, cam, im, 0, NULL))
+                composite(st, ms, splats, list, count, cam, im, 0, NULL, 0))
+
+SC_MULTIVERSION(int64_t, composite_exhaustive,
+                (tile_state *st, mesh_state *ms, const sc_splat *splats, const uint32_t *list,
+                 int64_t count, const sc_camera *cam, const sc_image *im),
+                (st, ms, splats, list, count, cam, im),
+                composite(st, ms, splats, list, count, cam, im, 0, NULL, 1))
 
 SC_MULTIVERSION(int64_t, composite_record,
                 (tile_state *st, mesh_state *ms, const sc_splat *splats, const uint32_t *list,
                  int64_t count, const sc_camera *cam, const sc_image *im, int32_t *last),
                 (st, ms, splats, list, count, cam, im, last),
-                composite(st, ms, splats, list, count, cam, im, 1, last))
+                composite(st, ms, splats, list, count, cam, im, 1, last, 0))
 
 /* One tile: set up, composite, write out; with `final_t` and `n_contrib` the training record. */
 static int64_t composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
                               int tile_x, int tile_y, const sc_camera *cam, const sc_image *im,
-                              float *final_t, int32_t *n_contrib) {
+                              float *final_t, int32_t *n_contrib, int exhaustive) {
     tile_state st;
     mesh_state ms;
     int32_t last[PIXELS];
@@ -175,8 +250,9 @@ static int64_t composite_tile(const sc_splat *splats, const uint32_t *list, int6
     }
 
     const int64_t evaluations =
-        final_t ? composite_record(&st, &ms, splats, list, count, cam, im, last)
-                : composite_render(&st, &ms, splats, list, count, cam, im);
+        final_t      ? composite_record(&st, &ms, splats, list, count, cam, im, last)
+        : exhaustive ? composite_exhaustive(&st, &ms, splats, list, count, cam, im)
+                     : composite_render(&st, &ms, splats, list, count, cam, im);
     if (im->mesh_rgba) flush_mesh(&st, &ms, cam, im, INFINITY);
 
     const float *bg = im->background;
@@ -199,8 +275,9 @@ static int64_t composite_tile(const sc_splat *splats, const uint32_t *list, int6
 }
 
 int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
-                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *im) {
-    return composite_tile(splats, list, count, tile_x, tile_y, cam, im, NULL, NULL);
+                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *im,
+                          int exhaustive) {
+    return composite_tile(splats, list, count, tile_x, tile_y, cam, im, NULL, NULL, exhaustive);
 }
 
 /* The training variant records, per pixel, the final transmittance and the number of tile-list
@@ -211,7 +288,7 @@ int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, in
                                 float *final_t, int32_t *n_contrib) {
     sc_image plain = *im;
     plain.mesh_rgba = NULL, plain.mesh_depth = NULL;
-    return composite_tile(splats, list, count, tile_x, tile_y, cam, &plain, final_t, n_contrib);
+    return composite_tile(splats, list, count, tile_x, tile_y, cam, &plain, final_t, n_contrib, 0);
 }
 
 double sc_composite_microbench(int count, int iterations) {
@@ -227,12 +304,13 @@ double sc_composite_microbench(int count, int iterations) {
         splats[i] = (sc_splat){.x = 4.0f + 8.0f * u, .y = 4.0f + 8.0f * v, .ca = 0.01f,
                                .cb = 0.002f, .cc = 0.012f, .opacity = 2.0f / (float)(count + 1),
                                .r = u, .g = v, .b = 0.5f, .depth = 1.0f + (float)i,
-                               .row0 = 0, .row1 = SC_TILE - 1, .col0 = 0, .col1 = SC_TILE - 1};
+                               .row0 = 0, .row1 = SC_TILE - 1, .col0 = 0, .col1 = SC_TILE - 1,
+                               .k2 = 100.0f};
         list[i] = (uint32_t)i;
     }
     const sc_camera cam = {.width = SC_TILE, .height = SC_TILE, .fx = 1, .fy = 1};
     const sc_image im = {.rgb = rgb, .alpha = alpha, .depth = depth};
     const double start = sc_now_ms();
-    for (int it = 0; it < iterations; ++it) sc_composite_tile(splats, list, count, 0, 0, &cam, &im);
+    for (int it = 0; it < iterations; ++it) sc_composite_tile(splats, list, count, 0, 0, &cam, &im, 1);
     return (sc_now_ms() - start) / 1000.0;
 }

@@ -22,28 +22,46 @@
 #define SC_DILATION 0.3              /* low-pass filter added to the 2D covariance */
 #define SC_GUARD 0.3                 /* guard band: fraction of the half field of view */
 
-/* Evaluate SH of `degree` (0..3) for one Gaussian: coeffs (K,3), dir a unit vector. */
-void sc_sh_colour(int degree, const float *coeffs, const double dir[3], double rgb[3]);
+/* Evaluate SH of `degree` (0..3) for one Gaussian: coeffs (K,3), dir a unit vector (float). */
+void sc_sh_colour_f(int degree, const float *coeffs, const float dir[3], float rgb[3]);
+
+/* ---------------------------------------------------------------- working memory */
+
+/* Large working buffers, kept for reuse between frames (buffers.c); NULL when out of memory.
+ * Every array of an sc_frame comes from here. */
+void *sc_buffer_alloc(size_t bytes);
+void sc_buffer_free(void *p);
 
 /* ---------------------------------------------------------------- stages */
 
+/* Projection (project.c), in float, vectorised: sc_project with `cull`, which leaves out
+ * (valid 0) the Gaussians that cannot reach the image before their covariance and colour are
+ * computed. */
+sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                          int cull, sc_projection *out, sc_stats *stats);
+
 /* Stable ascending sort of `count` float keys, carrying a payload: on entry order[i] is the
- * payload of keys[i], on return the payloads are in key order. `scratch` holds 3*count values. */
-void sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
+ * payload of keys[i], on return the payloads are in key order. Keys of +inf (Gaussians not
+ * drawn) go last; returns how many keys are finite. `scratch` holds 3 * count + SC_SORT_EXTRA
+ * values. */
+enum { SC_SORT_BITS = 13, SC_SORT_EXTRA = 3 << SC_SORT_BITS /* the histograms */ };
+int64_t sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
 
 /* Tile lists for `count` splats already in front-to-back order: for each tile t,
  * list[offsets[t] .. offsets[t+1]) are indices into `splats`, ascending (so front to back).
- * Allocates *offsets and *list (free with free()). With pair_offsets and pairs non-NULL, also
+ * Allocates *offsets and *list (free with sc_buffer_free()). With pair_offsets and pairs non-NULL, also
  * the inverse, Gaussian-major index (for the backward pass's deterministic reduction): splat k's
  * entries in `list` are at positions pairs[pair_offsets[k] .. pair_offsets[k+1]), in tile order;
- * *pair_offsets has count + 1 entries. */
-sc_status sc_bin(const sc_footprint *fp, const sc_splat *splats, int64_t count,
-                 const sc_camera *cam, int threads, int64_t **offsets, uint32_t **list,
-                 int64_t **pair_offsets, uint32_t **pairs);
+ * *pair_offsets has count + 1 entries. *peak_bytes: the most it held allocated at once. */
+sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, int threads,
+                 int64_t **offsets, uint32_t **list, int64_t **pair_offsets, uint32_t **pairs,
+                 int64_t *peak_bytes);
 
-/* Composite one tile front to back. Returns the number of Gaussian/pixel evaluations made. */
+/* Composite one tile front to back (`exhaustive` as in sc_options). Returns the number of
+ * Gaussian/pixel evaluations made. */
 int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
-                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *image);
+                          int tile_x, int tile_y, const sc_camera *cam, const sc_image *image,
+                          int exhaustive);
 
 /* The training variant of sc_composite_tile: no mesh layer (image->mesh_rgba is ignored), the
  * same rgb, alpha and depth bit for bit, and per pixel of the tile, into (H,W) arrays:
@@ -63,7 +81,8 @@ void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ct
 double sc_now_ms(void);
 
 /* Project, sort and bin (the first three stages of sc_render); with_pairs also builds the
- * Gaussian-major pair index. Fills stats' project/sort/bin times, visible and tile_pairs.
+ * Gaussian-major pair index. Fills stats' project/sort/bin times, visible, tile_pairs and
+ * peak_bytes.
  * On success free with sc_frame_free; on failure nothing is left allocated. */
 sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                            int with_pairs, sc_frame *frame, sc_stats *stats);
@@ -111,7 +130,7 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
                                  const sc_splat *s, const double *d, sc_gaussian_grads *out,
                                  int64_t *flushed);
 
-/* Backward of sc_sh_colour: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
+/* Backward of sc_sh_colour_f: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
  * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
  * free vector; the caller applies the normalisation). */
 void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const double d_rgb[3],
@@ -151,8 +170,22 @@ sc_isa sc_cpu_isa(void);
 /* Inner blocks must be inlined into the SC_MULTIVERSION kernels to be vectorised for their level. */
 #if defined(__GNUC__)
 #define SC_ALWAYS_INLINE __attribute__((always_inline)) inline
+#define SC_PREFETCH(address) __builtin_prefetch(address)
+static inline int sc_popcount(uint32_t v) { return __builtin_popcount(v); }
+static inline int sc_lowest_bit(uint32_t v) { return __builtin_ctz(v); } /* v != 0 */
 #else
+static inline int sc_popcount(uint32_t v) {
+    int n = 0;
+    for (; v; v &= v - 1) ++n;
+    return n;
+}
+static inline int sc_lowest_bit(uint32_t v) { /* v != 0 */
+    int n = 0;
+    for (; !(v & 1u); v >>= 1) ++n;
+    return n;
+}
 #define SC_ALWAYS_INLINE inline
+#define SC_PREFETCH(address) ((void)(address))
 #endif
 
 /* A hint to fetch memory a loop will read soon (scattered reads the hardware cannot guess). */
@@ -298,11 +331,10 @@ static inline double sc_pixel_y(const sc_camera *cam, const sc_ewa *e) {
 
 enum { SC_PIXELS = SC_TILE * SC_TILE, SC_BLOCK = 8 /* pixels evaluated together: half a row */ };
 
-/* e^x for x <= 0 (larger x is never drawn): 2^(x log2 e) split into an integer power of two and a
- * degree-6 polynomial on [-0.5, 0.5] (Cephes exp2f coefficients). Branch-free, vectorisable. */
-static inline float sc_fast_exp(float x) {
-    x = x < -87.0f ? -87.0f : x;
-    x = x > 0.0f ? 0.0f : x;
+/* e^x for x in [-87, 88]: 2^(x log2 e) split into an integer power of two and a degree-6
+ * polynomial on [-0.5, 0.5] (Cephes exp2f coefficients). Branch-free, vectorisable; relative
+ * error below 4e-7. */
+static inline float sc_exp_in_range(float x) {
     const float t = x * 1.44269504088896341f;
     const float n = (t + 12582912.0f) - 12582912.0f; /* round to nearest (1.5 * 2^23 trick) */
     const float f = t - n;
@@ -317,6 +349,13 @@ static inline float sc_fast_exp(float x) {
     float scale;
     memcpy(&scale, &bits, sizeof scale);
     return p * scale;
+}
+
+/* e^x for x <= 0 (larger x is never drawn), the compositor's. */
+static inline float sc_fast_exp(float x) {
+    x = x < -87.0f ? -87.0f : x;
+    x = x > 0.0f ? 0.0f : x;
+    return sc_exp_in_range(x);
 }
 
 /* What one Gaussian contributes along a tile's 16 columns, computed once for all its rows. */

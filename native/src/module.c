@@ -208,6 +208,7 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
     opt->near = near;
     opt->antialiased = antialiased;
     opt->threads = threads ? threads : sc_cpu_count();
+    opt->exhaustive = 0;
     return 0;
 }
 
@@ -272,11 +273,10 @@ static PyObject *py_project(PyObject *self, PyObject *args) {
         release_all(&b);
         return NULL;
     }
-    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)),
-                          malloc(sizeof(sc_footprint) * (size_t)(n ? n : 1)), valid};
+    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL};
     sc_stats stats = {0};
     sc_status status = SC_ERR_MEMORY;
-    if (proj.splats && proj.footprints) {
+    if (proj.splats) {
         Py_BEGIN_ALLOW_THREADS
         status = sc_project(&g, &cam, &opt, &proj, &stats);
         for (Py_ssize_t i = 0; status == SC_OK && i < n; ++i) {
@@ -290,7 +290,6 @@ static PyObject *py_project(PyObject *self, PyObject *args) {
         Py_END_ALLOW_THREADS
     }
     free(proj.splats);
-    free(proj.footprints);
     PyObject *result = status == SC_OK ? Py_NewRef(Py_None) : raise_status(status, &g, &stats);
     release_all(&b);
     return result;
@@ -313,7 +312,8 @@ static PyObject *stats_dict(const sc_stats *s) {
         set_number(d, "ms_total", PyFloat_FromDouble(s->ms_total)) ||
         set_number(d, "visible", PyLong_FromLongLong(s->visible)) ||
         set_number(d, "tile_pairs", PyLong_FromLongLong(s->tile_pairs)) ||
-        set_number(d, "evaluations", PyLong_FromLongLong(s->evaluations))) {
+        set_number(d, "evaluations", PyLong_FromLongLong(s->evaluations)) ||
+        set_number(d, "peak_bytes", PyLong_FromLongLong(s->peak_bytes))) {
         Py_DECREF(d);
         return NULL;
     }
@@ -374,12 +374,12 @@ static int parse_image(buffers *b, PyObject *background, PyObject *const *outs, 
 static PyObject *py_render(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[7], *background, *mesh_rgba, *mesh_depth, *outs[3];
-    int sh_degree, width, height, antialiased, threads;
+    int sh_degree, width, height, antialiased, threads, exhaustive = 0;
     double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOO:render", &objs[0], &objs[1], &objs[2],
+    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOO|p:render", &objs[0], &objs[1], &objs[2],
                           &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
                           &near, &antialiased, parse_threads, &threads, &background, &mesh_rgba, &mesh_depth,
-                          &outs[0], &outs[1], &outs[2]))
+                          &outs[0], &outs[1], &outs[2], &exhaustive))
         return NULL;
     buffers b = {.count = 0};
     sc_gaussians g;
@@ -390,6 +390,7 @@ static PyObject *py_render(PyObject *self, PyObject *args) {
                      &opt) != 0)
         goto fail;
     if (parse_image(&b, background, outs, width, height, &image) != 0) goto fail;
+    opt.exhaustive = exhaustive;
     const Py_ssize_t img4[] = {height, width, 4}, img1[] = {height, width};
     if ((mesh_rgba == Py_None) != (mesh_depth == Py_None)) {
         PyErr_SetString(PyExc_ValueError, "mesh_rgba and mesh_depth must be given together");
@@ -753,6 +754,12 @@ static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(seconds);
 }
 
+static PyObject *py_release_buffers(PyObject *self, PyObject *args) {
+    (void)self, (void)args;
+    sc_release_buffers();
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_cpu_count(PyObject *self, PyObject *args) {
     (void)self, (void)args;
     return PyLong_FromLong(sc_cpu_count());
@@ -766,8 +773,11 @@ static PyMethodDef methods[] = {
     {"render", py_render, METH_VARARGS,
      "render(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
      "intrinsics, width, height, near, antialiased, threads, background, mesh_rgba, mesh_depth, "
-     "out_rgb, out_alpha, out_depth) -> stats\n\nRender into the out_* arrays; returns timings "
-     "(ms) and counts."},
+     "out_rgb, out_alpha, out_depth[, exhaustive]) -> stats\n\nRender into the out_* arrays; "
+     "returns timings (ms) and counts. exhaustive: evaluate each Gaussian over its tiles' whole "
+     "bounding spans (the same image, for tests)."},
+    {"release_buffers", py_release_buffers, METH_NOARGS,
+     "release_buffers()\n\nFree the working buffers renders keep for the next frame."},
     {"render_train", py_render_train, METH_VARARGS,
      "render_train(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
      "intrinsics, width, height, near, antialiased, threads, background, out_rgb, out_alpha, "

@@ -1,7 +1,8 @@
 /* Projection: each Gaussian to a 2D splat (EWA with the guard band, 0.3 px dilation, optional
  * antialiasing compensation), its SH colour, and the exact extent of its alpha >= 1/255 footprint.
- * Per-Gaussian math runs in double: it costs O(N), keeps scenes far from the origin exact, and
- * leaves float32 only for the compositor's per-pixel work. */
+ * In float, vectorised (sc_project_fast, below); project_one is the same in double, for the
+ * Gaussians whose float values overflow, and the backward pass (project_backward.c) recomputes
+ * it in double through the shared sc_ewa_project. */
 #include <float.h>
 #include <math.h>
 #include <stdatomic.h>
@@ -18,16 +19,42 @@ typedef struct {
     atomic_llong first_bad; /* smallest index holding a non-finite value, or count */
 } job;
 
-/* Pixel-centre index range [lo, hi] covered by the interval [c - r, c + r], clipped to [0, n). */
-static void pixel_range(double c, double r, int n, int32_t *lo, int32_t *hi) {
-    double a = ceil(sc_clamp(c - r - 0.5, -1.0, (double)n));
-    double b = floor(sc_clamp(c + r - 0.5, -1.0, (double)n));
-    *lo = (int32_t)(a < 0 ? 0 : a);
-    *hi = (int32_t)(b > n - 1 ? n - 1 : b);
+/* Pixel-centre index range [lo, hi] covered by the interval [c - r, c + r], clipped to [0, n).
+ * Branch-free, so that it vectorises in project_lanes. */
+static SC_ALWAYS_INLINE void pixel_range(double c, double r, int n, int32_t *lo, int32_t *hi) {
+    const double a = ceil(sc_clamp(c - r - 0.5, -1.0, (double)n));
+    const double b = floor(sc_clamp(c + r - 0.5, -1.0, (double)n));
+    *lo = (int32_t)(a < 0.0 ? 0.0 : a);
+    *hi = (int32_t)(b > n - 1 ? (double)(n - 1) : b);
+}
+
+/* The footprint's k2 from ln(255 opacity): 2 ln(255 opacity), inflated by 1e-4 so that float
+ * rounding in the compositor cannot put a drawn pixel outside it. */
+static SC_ALWAYS_INLINE float footprint_k2(float log_255_opacity) {
+    return 2.0f * log_255_opacity * (1.0f + 1e-4f) + 1e-4f;
+}
+
+/* The footprint of splat `s` (all else set): the compositor draws where opacity exp(power) >=
+ * 1/255, i.e. inside the ellipse d^T conic d <= 2 ln(255 opacity) (footprint_k2). Its bounding
+ * box follows from the covariance that the float conic stands for, inverted in double. */
+static void footprint(sc_splat *s, const sc_camera *cam) {
+    s->row0 = s->col0 = 0, s->row1 = s->col1 = -1;
+    s->k2 = 0.0f, s->unused = 0.0f;
+    if (!(s->opacity >= SC_ALPHA_MIN)) return;
+    s->k2 = footprint_k2((float)log(255.0 * (double)s->opacity));
+    const double ca = s->ca, cb = s->cb, cc = s->cc, det = ca * cc - cb * cb;
+    /* A conic that float made singular (or zero: a covariance beyond float) is unbounded. */
+    const double half_x = det > 0.0 ? sqrt((double)s->k2 * cc / det) : INFINITY;
+    const double half_y = det > 0.0 ? sqrt((double)s->k2 * ca / det) : INFINITY;
+    int32_t x0, x1, y0, y1;
+    pixel_range(s->x, half_x, cam->width, &x0, &x1);
+    pixel_range(s->y, half_y, cam->height, &y0, &y1);
+    if (x0 > x1 || y0 > y1) return;
+    s->row0 = y0, s->row1 = y1, s->col0 = x0, s->col1 = x1;
 }
 
 /* Returns 1 when projected, 0 when culled, -1 on non-finite input. */
-static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
+static int project_one(const job *j, int64_t i, sc_splat *s) {
     const sc_gaussians *g = j->g;
     const sc_camera *cam = j->cam;
     if (!sc_gaussian_finite(g, i)) return -1;
@@ -41,9 +68,11 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
         opacity *= sqrt(ratio > 0.0 ? ratio : 0.0);
     }
 
-    double dir[3], rgb[3];
+    double dir[3];
     sc_view_dir(g->means + 3 * i, j->campos, dir);
-    sc_sh_colour(j->opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir, rgb);
+    const float dir_f[3] = {(float)dir[0], (float)dir[1], (float)dir[2]};
+    float rgb[3];
+    sc_sh_colour_f(j->opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir_f, rgb);
 
     s->x = (float)sc_pixel_x(cam, &e);
     s->y = (float)sc_pixel_y(cam, &e);
@@ -52,61 +81,338 @@ static int project_one(const job *j, int64_t i, sc_splat *s, sc_footprint *f) {
     s->cb = (float)(-b / det);
     s->cc = (float)(a / det);
     s->opacity = (float)opacity;
-    s->r = (float)fmax(rgb[0] + 0.5, 0.0);
-    s->g = (float)fmax(rgb[1] + 0.5, 0.0);
-    s->b = (float)fmax(rgb[2] + 0.5, 0.0);
+    s->r = fmaxf(rgb[0] + 0.5f, 0.0f);
+    s->g = fmaxf(rgb[1] + 0.5f, 0.0f);
+    s->b = fmaxf(rgb[2] + 0.5f, 0.0f);
     s->depth = (float)e.p[2];
 
-    /* The compositor draws where opacity * exp(power) >= 1/255, i.e. inside the ellipse
-     * d^T cov^-1 d <= 2 ln(255 opacity). Inflated by 1e-4 so float rounding in the compositor
-     * can never put a drawn pixel outside the tiles found here. */
-    f->cov_a = a, f->cov_b = b, f->cov_c = c;
-    f->tx0 = f->ty0 = f->tx1 = f->ty1 = 0;
-    s->row0 = s->col0 = 0, s->row1 = s->col1 = -1;
-    if (!(s->opacity >= SC_ALPHA_MIN)) return 1;
-    f->k2 = 2.0 * log(255.0 * (double)s->opacity) * (1.0 + 1e-4) + 1e-4;
-    int32_t x0, x1, y0, y1;
-    pixel_range(s->x, sqrt(f->k2 * a), cam->width, &x0, &x1);
-    pixel_range(s->y, sqrt(f->k2 * c), cam->height, &y0, &y1);
-    if (x0 > x1 || y0 > y1) return 1;
-    s->row0 = y0, s->row1 = y1, s->col0 = x0, s->col1 = x1;
-    f->tx0 = x0 / SC_TILE, f->tx1 = x1 / SC_TILE + 1;
-    f->ty0 = y0 / SC_TILE, f->ty1 = y1 / SC_TILE + 1;
+    footprint(s, cam);
     return 1;
 }
 
-static void project_range(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    job *j = ctx;
-    for (int64_t i = begin; i < end; ++i) {
-        sc_splat *s = &j->out->splats[i];
-        sc_footprint *f = &j->out->footprints[i];
-        int result = project_one(j, i, s, f);
-        if (result != 1) {
-            memset(s, 0, sizeof *s);
-            memset(f, 0, sizeof *f);
-            s->row1 = s->col1 = -1;
+/* ---------------------------------------------------------------- the renderer's fast path
+ *
+ * The same projection in float, LANES Gaussians at a time in loops the compiler vectorises
+ * (AVX-512 or AVX2 where the CPU has them, cpu.c). Only the view transform runs in double: the
+ * mean in the camera frame, p = R mean + t, and the view direction, mean - camera centre, are
+ * small differences of large numbers in a scene far from the origin, so they are formed in
+ * double and rounded once; everything after them is relative to the camera and well scaled for
+ * float. det(A A^T), the determinant before the dilation, is |row0 x row1|^2 (Lagrange's
+ * identity), a sum of squares, so needle-thin splats keep their precision where a c - b^2
+ * would cancel. A Gaussian whose float values overflow (scales beyond ~e^40) is projected by
+ * the double path instead. Every Gaussian goes through the same vector code (a short batch is
+ * padded), so results never depend on which batch or thread a Gaussian falls in.
+ *
+ * With `cull` (the render), Gaussians that cannot reach the image are dropped before the
+ * covariance and SH work, by a bound on the screen radius from the largest scale alone:
+ * |A|_2 <= |J|_F max(scale), so the ellipse lies within sqrt(k2 (|J|_F^2 max(scale)^2 + 0.3))
+ * pixels of the projected mean, k2 <= 2 ln 255 (inflated as the footprint is). Those with
+ * opacity below 1/255 (logit < -5.6) are dropped too: they draw nothing. */
+
+enum { LANES = 16, CHUNK = 1024 };
+
+/* e^x in float for any x (clamped to [-87, 88]). */
+static inline float exp_any(float x) {
+    return sc_exp_in_range(x < -87.0f ? -87.0f : (x > 88.0f ? 88.0f : x));
+}
+
+/* ln x in float for a normal x > 0 (the footprint's 255 opacity): x = m 2^e with m in
+ * [0.75, 1.5), ln m from its series in s = (m - 1) / (m + 1) (ln m = 2 (s + s^3/3 + ...),
+ * |s| < 0.2: the terms up to s^11 leave a relative error below 1e-7). Vectorisable. */
+static inline float log_normal(float x) {
+    int32_t bits;
+    memcpy(&bits, &x, sizeof bits);
+    int32_t e = ((bits >> 23) & 0xff) - 127;
+    int32_t mbits = (bits & 0x007fffff) | 0x3f800000; /* m in [1, 2) */
+    float m;
+    memcpy(&m, &mbits, sizeof m);
+    const int big = m >= 1.5f;
+    m = big ? 0.5f * m : m;
+    e += big;
+    const float t = (m - 1.0f) / (m + 1.0f), t2 = t * t;
+    float series = 1.0f / 11.0f;
+    series = series * t2 + 1.0f / 9.0f;
+    series = series * t2 + 1.0f / 7.0f;
+    series = series * t2 + 1.0f / 5.0f;
+    series = series * t2 + 1.0f / 3.0f;
+    series = series * t2 + 1.0f;
+    return (float)e * 0.693147180559945309f + 2.0f * t * series;
+}
+
+typedef struct {
+    job base;                     /* what project_one takes: inputs, output, first_bad */
+    float view[9];                /* the camera rotation, in float */
+    float lo_x, hi_x, lo_y, hi_y; /* the guard band of x/z and y/z */
+    int cull;
+} fast_job;
+
+/* One batch: lane l holds Gaussian idx[l]. */
+typedef struct {
+    float dir[3][LANES], depth[LANES];
+    float x[LANES], y[LANES], ca[LANES], cb[LANES], cc[LANES], opacity[LANES], k2[LANES];
+    int32_t row0[LANES], row1[LANES], col0[LANES], col1[LANES], ok[LANES];
+} batch;
+
+static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_t *idx, batch *o) {
+    const sc_gaussians *g = fj->base.g;
+    const sc_camera *cam = fj->base.cam;
+    /* The inputs, copied into contiguous lanes so that the loops below vectorise. */
+    float in[14][LANES]; /* mean 3, log scale 3, quaternion 4, opacity logit 1 */
+    for (int l = 0; l < LANES; ++l) {
+        const int64_t i = idx[l];
+        for (int k = 0; k < 3; ++k) in[k][l] = g->means[3 * i + k];
+        for (int k = 0; k < 3; ++k) in[3 + k][l] = g->log_scales[3 * i + k];
+        for (int k = 0; k < 4; ++k) in[6 + k][l] = g->quats[4 * i + k];
+        in[10][l] = g->opacity_logits[i];
+    }
+    double v[12], campos[3];
+    for (int k = 0; k < 12; ++k) v[k] = cam->world_to_camera[k];
+    for (int k = 0; k < 3; ++k) campos[k] = fj->base.campos[k];
+    const double fxd = cam->fx, fyd = cam->fy, cxd = cam->cx, cyd = cam->cy;
+    float pf[3][LANES];
+    for (int l = 0; l < LANES; ++l) {
+        const double m0 = in[0][l], m1 = in[1][l], m2 = in[2][l];
+        double p[3];
+        for (int k = 0; k < 3; ++k) p[k] = v[4 * k] * m0 + v[4 * k + 1] * m1 + v[4 * k + 2] * m2 + v[4 * k + 3];
+        for (int k = 0; k < 3; ++k) pf[k][l] = (float)p[k];
+        o->dir[0][l] = (float)(m0 - campos[0]);
+        o->dir[1][l] = (float)(m1 - campos[1]);
+        o->dir[2][l] = (float)(m2 - campos[2]);
+        /* The projected mean too: fx x/z + cx cancels near the image's left edge. */
+        o->x[l] = (float)(fxd * p[0] / p[2] + cxd);
+        o->y[l] = (float)(fyd * p[1] / p[2] + cyd);
+        o->depth[l] = pf[2][l];
+    }
+    const float fx = (float)cam->fx, fy = (float)cam->fy;
+    float w[9];
+    for (int k = 0; k < 9; ++k) w[k] = fj->view[k];
+    const float dilation = (float)SC_DILATION;
+    const float lo_x = fj->lo_x, hi_x = fj->hi_x, lo_y = fj->lo_y, hi_y = fj->hi_y;
+    const float aa = fj->base.opt->antialiased ? 1.0f : 0.0f;
+    const int width = cam->width, height = cam->height;
+    for (int l = 0; l < LANES; ++l) {
+        const float inv_z = 1.0f / pf[2][l];
+        const float rx = pf[0][l] * inv_z, ry = pf[1][l] * inv_z;
+        const float tx = rx < lo_x ? lo_x : (rx > hi_x ? hi_x : rx);
+        const float ty = ry < lo_y ? lo_y : (ry > hi_y ? hi_y : ry);
+        const float j00 = fx * inv_z, j02 = -fx * tx * inv_z;
+        const float j11 = fy * inv_z, j12 = -fy * ty * inv_z;
+        float jw[2][3];
+        for (int k = 0; k < 3; ++k) {
+            jw[0][k] = j00 * w[k] + j02 * w[6 + k];
+            jw[1][k] = j11 * w[3 + k] + j12 * w[6 + k];
         }
-        j->out->valid[i] = (uint8_t)(result == 1);
-        if (result < 0) {
-            long long seen = atomic_load(&j->first_bad);
-            while (i < seen && !atomic_compare_exchange_weak(&j->first_bad, &seen, i)) {
+        /* Rotation of the normalised quaternion (all-zero: the identity). */
+        const float q0 = in[6][l], q1 = in[7][l], q2 = in[8][l], q3 = in[9][l];
+        const float n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3;
+        const float inv = n2 > 0.0f ? 1.0f / sqrtf(n2 > 0.0f ? n2 : 1.0f) : 0.0f;
+        const float qw = n2 > 0.0f ? q0 * inv : 1.0f;
+        const float qx = q1 * inv, qy = q2 * inv, qz = q3 * inv;
+        const float r[9] = {1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz),
+                            2 * (qx * qz + qw * qy),     2 * (qx * qy + qw * qz),
+                            1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
+                            2 * (qx * qz - qw * qy),     2 * (qy * qz + qw * qx),
+                            1 - 2 * (qx * qx + qy * qy)};
+        /* A = J W R S; Sigma2 = A A^T + 0.3 I. */
+        float u[3], t[3];
+        for (int k = 0; k < 3; ++k) {
+            const float s = exp_any(in[3 + k][l]);
+            u[k] = (jw[0][0] * r[k] + jw[0][1] * r[3 + k] + jw[0][2] * r[6 + k]) * s;
+            t[k] = (jw[1][0] * r[k] + jw[1][1] * r[3 + k] + jw[1][2] * r[6 + k]) * s;
+        }
+        const float a0 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+        const float b0 = u[0] * t[0] + u[1] * t[1] + u[2] * t[2];
+        const float c0 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2];
+        const float e0 = u[1] * t[2] - u[2] * t[1], e1 = u[2] * t[0] - u[0] * t[2];
+        const float e2 = u[0] * t[1] - u[1] * t[0];
+        const float det0 = e0 * e0 + e1 * e1 + e2 * e2;
+        const float det = det0 + dilation * (a0 + c0) + dilation * dilation;
+        const float inv_det = 1.0f / det;
+        const float ca = (c0 + dilation) * inv_det, cb = -b0 * inv_det, cc = (a0 + dilation) * inv_det;
+        o->ca[l] = ca, o->cb[l] = cb, o->cc[l] = cc;
+        const float sigmoid = 1.0f / (1.0f + exp_any(-in[10][l]));
+        const float opacity = sigmoid * (aa * sqrtf(det0 * inv_det) + (1.0f - aa));
+        o->opacity[l] = opacity;
+        /* x * 0 == 0 exactly when x is finite. */
+        const float finite = o->x[l] * 0.0f + o->y[l] * 0.0f + det * 0.0f + ca * 0.0f +
+                             cb * 0.0f + cc * 0.0f + opacity * 0.0f;
+        o->ok[l] = finite == 0.0f && det > 0.0f;
+
+        /* The footprint, as footprint() (with a float log). */
+        const int drawn = opacity >= SC_ALPHA_MIN;
+        const float k2 = drawn ? footprint_k2(log_normal(255.0f * opacity)) : 0.0f;
+        o->k2[l] = k2;
+        const double det_c = (double)ca * cc - (double)cb * cb;
+        const double half_x = det_c > 0.0 ? sqrt((double)k2 * cc / det_c) : INFINITY;
+        const double half_y = det_c > 0.0 ? sqrt((double)k2 * ca / det_c) : INFINITY;
+        int32_t x0, x1, y0, y1;
+        pixel_range(o->x[l], half_x, width, &x0, &x1);
+        pixel_range(o->y[l], half_y, height, &y0, &y1);
+        const int reach = drawn && x0 <= x1 && y0 <= y1;
+        o->row0[l] = reach ? y0 : 0, o->row1[l] = reach ? y1 : -1;
+        o->col0[l] = reach ? x0 : 0, o->col1[l] = reach ? x1 : -1;
+    }
+}
+
+SC_MULTIVERSION(void, project_lanes, (const fast_job *fj, const int64_t *idx, batch *o),
+                (fj, idx, o), project_lanes_body(fj, idx, o))
+
+/* keep[i - begin] for Gaussians [begin, end): in front of the near plane (and a depth float32
+ * can hold, as sc_ewa_project), and with `cull` possibly reaching the image (see above). */
+static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int64_t end,
+                                         uint8_t *restrict keep) {
+    const sc_gaussians *g = fj->base.g;
+    const sc_camera *cam = fj->base.cam;
+    const float *restrict means = g->means + 3 * begin, *restrict scales = g->log_scales + 3 * begin;
+    const float *restrict logits = g->opacity_logits + begin;
+    double v[12];
+    for (int k = 0; k < 12; ++k) v[k] = cam->world_to_camera[k];
+    const double near = fj->base.opt->near, fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
+    const double lo_x = fj->lo_x, hi_x = fj->hi_x, lo_y = fj->lo_y, hi_y = fj->hi_y;
+    const double width = cam->width, height = cam->height;
+    const int cull = fj->cull;
+    const int64_t n = end - begin;
+    for (int64_t i = 0; i < n; ++i) {
+        const double m0 = means[3 * i], m1 = means[3 * i + 1], m2 = means[3 * i + 2];
+        const double x_cam = v[0] * m0 + v[1] * m1 + v[2] * m2 + v[3];
+        const double y_cam = v[4] * m0 + v[5] * m1 + v[6] * m2 + v[7];
+        const double z = v[8] * m0 + v[9] * m1 + v[10] * m2 + v[11];
+        const int in_front = z >= near && z <= FLT_MAX;
+        const double rx = x_cam / z, ry = y_cam / z;
+        const double tx = sc_clamp(rx, lo_x, hi_x), ty = sc_clamp(ry, lo_y, hi_y);
+        const double j2 = (fx * fx * (1.0 + tx * tx) + fy * fy * (1.0 + ty * ty)) / (z * z);
+        const float largest = fmaxf(scales[3 * i], fmaxf(scales[3 * i + 1], scales[3 * i + 2]));
+        const double radius =
+            sqrt(11.1 * (j2 * (double)exp_any(2.0f * largest) + SC_DILATION)) * 1.001 + 1.0;
+        const double x = fx * rx + cx, y = fy * ry + cy;
+        /* NaN or inf in the bound keeps the Gaussian (the full path decides). */
+        const int outside = x + radius < 0.0 || x - radius > width || y + radius < 0.0 ||
+                            y - radius > height;
+        const int faint = logits[i] < -5.6f; /* sigmoid < 1/271 */
+        const int reach = !faint && (largest > 40.0f /* beyond exp_any */ || !outside);
+        keep[i] = (uint8_t)(in_front && (!cull || reach));
+    }
+}
+
+SC_MULTIVERSION(void, select_chunk, (const fast_job *fj, int64_t begin, int64_t end, uint8_t *keep),
+                (fj, begin, end, keep), select_body(fj, begin, end, keep))
+
+/* The sort key of splat i, if the caller asked for keys. */
+static void set_key(const sc_projection *out, int64_t i) {
+    const sc_splat *s = &out->splats[i];
+    if (out->keys) out->keys[i] = s->row1 >= s->row0 && s->col1 >= s->col0 ? s->depth : INFINITY;
+}
+
+/* The float values of lane l into the splat of Gaussian i. */
+static void finish_lane(const fast_job *fj, const batch *o, int l, int64_t i) {
+    const sc_gaussians *g = fj->base.g;
+    sc_splat *s = &fj->base.out->splats[i];
+    float dir[3] = {o->dir[0][l], o->dir[1][l], o->dir[2][l]}, rgb[3];
+    const float len = sqrtf(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int k = 0; k < 3; ++k) dir[k] = len > 0.0f ? dir[k] / len : 0.0f;
+    sc_sh_colour_f(fj->base.opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir, rgb);
+    *s = (sc_splat){.x = o->x[l], .y = o->y[l], .ca = o->ca[l], .cb = o->cb[l], .cc = o->cc[l],
+                    .opacity = o->opacity[l], .r = fmaxf(rgb[0] + 0.5f, 0.0f),
+                    .g = fmaxf(rgb[1] + 0.5f, 0.0f), .b = fmaxf(rgb[2] + 0.5f, 0.0f),
+                    .depth = o->depth[l], .row0 = o->row0[l], .row1 = o->row1[l],
+                    .col0 = o->col0[l], .col1 = o->col1[l], .k2 = o->k2[l]};
+    fj->base.out->valid[i] = 1;
+    set_key(fj->base.out, i);
+}
+
+static void clear(const fast_job *fj, int64_t i) {
+    sc_splat *s = &fj->base.out->splats[i];
+    *s = (sc_splat){.row1 = -1, .col1 = -1};
+    fj->base.out->valid[i] = 0;
+    set_key(fj->base.out, i);
+}
+
+/* Whether every input value of Gaussians [begin, end) is finite: one pass over each array,
+ * testing the exponent bits (an integer OR, which vectorises; a float sum would not). */
+static int all_finite(const sc_gaussians *g, int64_t begin, int64_t end) {
+    const float *rows[5] = {g->means, g->log_scales, g->quats, g->opacity_logits, g->sh};
+    const int64_t widths[5] = {3, 3, 4, 1, (int64_t)3 * g->sh_coeffs};
+    uint32_t worst = 0;
+    for (int r = 0; r < 5; ++r)
+        for (int64_t k = begin * widths[r]; k < end * widths[r]; ++k) {
+            uint32_t bits;
+            memcpy(&bits, &rows[r][k], sizeof bits);
+            bits &= 0x7f800000u;
+            worst = bits > worst ? bits : worst;
+        }
+    return worst != 0x7f800000u; /* an all-ones exponent: inf or NaN */
+}
+
+/* Gaussians [begin, end), at most CHUNK of them. */
+static void project_fast_chunk(fast_job *fj, int64_t begin, int64_t end) {
+    job *j = &fj->base;
+    const sc_gaussians *g = j->g;
+    if (!all_finite(g, begin, end)) {
+        for (int64_t i = begin; i < end; ++i)
+            if (!sc_gaussian_finite(g, i)) {
+                long long seen = atomic_load(&j->first_bad);
+                while (i < seen && !atomic_compare_exchange_weak(&j->first_bad, &seen, i)) {
+                }
+                return;
             }
-            return;
+    }
+    uint8_t keep[CHUNK];
+    select_chunk(fj, begin, end, keep);
+    int64_t idx[CHUNK + LANES];
+    int count = 0;
+    for (int64_t i = begin; i < end; ++i) {
+        if (keep[i - begin])
+            idx[count++] = i;
+        else
+            clear(fj, i);
+    }
+    for (int at = 0; at < count; at += LANES) {
+        const int n = count - at < LANES ? count - at : LANES;
+        for (int l = n; l < LANES; ++l) idx[at + l] = idx[at + n - 1]; /* pad: same code path */
+        batch o;
+        project_lanes(fj, idx + at, &o);
+        for (int l = 0; l < n; ++l) {
+            const int64_t i = idx[at + l];
+            if (o.ok[l])
+                finish_lane(fj, &o, l, i);
+            else if (project_one(j, i, &j->out->splats[i]) == 1) { /* overflow: in double */
+                j->out->valid[i] = 1;
+                set_key(j->out, i);
+            } else {
+                clear(fj, i);
+            }
         }
     }
 }
 
-sc_status sc_project(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
-                     sc_projection *out, sc_stats *stats) {
-    job j = {.g = g, .cam = cam, .opt = opt, .out = out};
-    atomic_init(&j.first_bad, g->count);
-    sc_camera_centre(cam->world_to_camera, j.campos);
-    sc_parallel_for(opt->threads, g->count, 4096, project_range, &j);
-    long long bad = atomic_load(&j.first_bad);
+static void project_fast_range(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    for (int64_t at = begin; at < end; at += CHUNK) /* one thread runs the whole range */
+        project_fast_chunk(ctx, at, end - at < CHUNK ? end : at + CHUNK);
+}
+
+sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                          int cull, sc_projection *out, sc_stats *stats) {
+    fast_job fj = {.base = {.g = g, .cam = cam, .opt = opt, .out = out}, .cull = cull};
+    atomic_init(&fj.base.first_bad, g->count);
+    sc_camera_centre(cam->world_to_camera, fj.base.campos);
+    for (int r = 0; r < 3; ++r)
+        for (int k = 0; k < 3; ++k) fj.view[3 * r + k] = (float)cam->world_to_camera[4 * r + k];
+    const double tan_x = 0.5 * cam->width / cam->fx, tan_y = 0.5 * cam->height / cam->fy;
+    fj.lo_x = (float)(-(cam->cx / cam->fx) - SC_GUARD * tan_x);
+    fj.hi_x = (float)((cam->width - cam->cx) / cam->fx + SC_GUARD * tan_x);
+    fj.lo_y = (float)(-(cam->cy / cam->fy) - SC_GUARD * tan_y);
+    fj.hi_y = (float)((cam->height - cam->cy) / cam->fy + SC_GUARD * tan_y);
+    sc_parallel_for(opt->threads, g->count, CHUNK, project_fast_range, &fj);
+    long long bad = atomic_load(&fj.base.first_bad);
     if (bad < g->count) {
         stats->error_index = bad;
         return SC_ERR_NONFINITE;
     }
     return SC_OK;
+}
+
+sc_status sc_project(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                     sc_projection *out, sc_stats *stats) {
+    return sc_project_fast(g, cam, opt, 0, out, stats);
 }

@@ -10,47 +10,6 @@ static const double C3[7] = {-0.5900435899266435, 2.890611442640554, -0.45704579
                              0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
                              -0.5900435899266435};
 
-void sc_sh_colour(int degree, const float *coeffs, const double dir[3], double rgb[3]) {
-    double basis[16];
-    const double x = dir[0], y = dir[1], z = dir[2];
-    int k = 1;
-    basis[0] = C0;
-    if (degree >= 1) {
-        basis[1] = -C1 * y;
-        basis[2] = C1 * z;
-        basis[3] = -C1 * x;
-        k = 4;
-    }
-    if (degree >= 2) {
-        const double xx = x * x, yy = y * y, zz = z * z;
-        basis[4] = C2[0] * x * y;
-        basis[5] = C2[1] * y * z;
-        basis[6] = C2[2] * (2.0 * zz - xx - yy);
-        basis[7] = C2[3] * x * z;
-        basis[8] = C2[4] * (xx - yy);
-        k = 9;
-        if (degree >= 3) {
-            basis[9] = C3[0] * y * (3.0 * xx - yy);
-            basis[10] = C3[1] * x * y * z;
-            basis[11] = C3[2] * y * (4.0 * zz - xx - yy);
-            basis[12] = C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
-            basis[13] = C3[4] * x * (4.0 * zz - xx - yy);
-            basis[14] = C3[5] * z * (xx - yy);
-            basis[15] = C3[6] * x * (xx - 3.0 * yy);
-            k = 16;
-        }
-    }
-    double r = 0.0, g = 0.0, b = 0.0;
-    for (int i = 0; i < k; ++i) {
-        r += basis[i] * coeffs[3 * i + 0];
-        g += basis[i] * coeffs[3 * i + 1];
-        b += basis[i] * coeffs[3 * i + 2];
-    }
-    rgb[0] = r;
-    rgb[1] = g;
-    rgb[2] = b;
-}
-
 /* Backward: the colour is sum_i basis_i(dir) coeffs_i, so dL/dcoeffs_i = basis_i dL/drgb and
  * dL/ddir = sum_i grad(basis_i) (coeffs_i . dL/drgb), with grad(basis_i) the derivatives of
  * the polynomials above in x, y, z (as the reference backward.cu computes them). */
@@ -107,4 +66,47 @@ void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const 
         d_dir[1] += gy[i] * along;
         d_dir[2] += gz[i] * along;
     }
+}
+
+/* The colour of SH `degree` (0..3) for one Gaussian: coeffs (K,3), dir a unit vector. In float
+ * (the constants above, rounded), as the projection computes it. */
+void sc_sh_colour_f(int degree, const float *coeffs, const float dir[3], float rgb[3]) {
+    float basis[16];
+    const float x = dir[0], y = dir[1], z = dir[2];
+    int k = 1;
+    basis[0] = (float)C0;
+    if (degree >= 1) {
+        basis[1] = (float)-C1 * y;
+        basis[2] = (float)C1 * z;
+        basis[3] = (float)-C1 * x;
+        k = 4;
+    }
+    if (degree >= 2) {
+        const float xx = x * x, yy = y * y, zz = z * z;
+        basis[4] = (float)C2[0] * x * y;
+        basis[5] = (float)C2[1] * y * z;
+        basis[6] = (float)C2[2] * (2.0f * zz - xx - yy);
+        basis[7] = (float)C2[3] * x * z;
+        basis[8] = (float)C2[4] * (xx - yy);
+        k = 9;
+        if (degree >= 3) {
+            basis[9] = (float)C3[0] * y * (3.0f * xx - yy);
+            basis[10] = (float)C3[1] * x * y * z;
+            basis[11] = (float)C3[2] * y * (4.0f * zz - xx - yy);
+            basis[12] = (float)C3[3] * z * (2.0f * zz - 3.0f * xx - 3.0f * yy);
+            basis[13] = (float)C3[4] * x * (4.0f * zz - xx - yy);
+            basis[14] = (float)C3[5] * z * (xx - yy);
+            basis[15] = (float)C3[6] * x * (xx - 3.0f * yy);
+            k = 16;
+        }
+    }
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    for (int i = 0; i < k; ++i) {
+        r += basis[i] * coeffs[3 * i + 0];
+        g += basis[i] * coeffs[3 * i + 1];
+        b += basis[i] * coeffs[3 * i + 2];
+    }
+    rgb[0] = r;
+    rgb[1] = g;
+    rgb[2] = b;
 }
