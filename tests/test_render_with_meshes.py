@@ -192,6 +192,42 @@ def test_animation_with_a_moving_cube_and_camera(rng, tmp_path, engine):
         previous = written
 
 
+def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monkeypatch):
+    """A second F12, and the frames of an animation, reuse the transformed Gaussians of an
+    unchanged splat object (each final render evaluates a new depsgraph); an object moved, or
+    its data edited in place with no update at all (a script between two renders), is
+    gathered again."""
+    scene, splats, _, _, _ = build_scene(rng, "BLENDER_WORKBENCH")
+    frames = []
+    capture = render_hooks.capture_frame
+    monkeypatch.setattr(render_hooks, "capture_frame",
+                        lambda *args: frames.append(capture(*args)) or frames[-1])
+
+    def rendered(name):
+        render_still(scene, tmp_path / name)
+        assert render_hooks.last_stats["gaussians"] == len(splats.data.vertices)
+        return frames[-1]
+
+    g = splat_object.gaussians_from_data(splats.data)
+    assert rendered("first").reused == 0
+    again = rendered("again")
+    assert again.reused == 1 and bs.gaussians_equal(again.gaussians, frames[0].gaussians)
+    splats.location = (0.25, 0.0, 0.0)  # moved: transformed again
+    moved = rendered("moved")
+    assert moved.reused == 0 and np.allclose(moved.gaussians.means, g.means + (0.25, 0, 0))
+    logits = np.linspace(-3, 3, len(g), dtype=np.float32)  # edited in place, no update()
+    splats.data.attributes["opacity_logit"].data.foreach_set("value", logits)
+    edited = rendered("edited")
+    assert edited.reused == 0 and np.array_equal(edited.gaussians.opacity_logits, logits)
+    assert rendered("unchanged").reused == 1
+    frames.clear()
+    scene.frame_start, scene.frame_end = 1, 3
+    scene.render.filepath = str(tmp_path / "anim_")
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    assert [f.reused for f in frames] == [1, 1, 1]
+    assert all(np.array_equal(f.gaussians.opacity_logits, logits) for f in frames)
+
+
 @pytest.mark.parametrize("transparent", [True, False])
 def test_splat_only_pixels_are_the_reference_render(rng, tmp_path, transparent):
     """No meshes: the written PNG under "Standard" is the reference 3DGS render (straight

@@ -127,7 +127,8 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             composed = compose(frame.gaussians, frame.camera, mesh_rgba, mesh_depth,
                                **frame.render_options())
             rgba, depth = composed.rgba[origin.slices()], composed.depth[origin.slices()]
-            stats.update(gaussians=len(frame.gaussians), gather_ms=frame.gather_ms,
+            stats.update(gaussians=len(frame.gaussians), reused=frame.reused,
+                         gather_ms=frame.gather_ms,
                          native_ms=composed.stats.get("ms_total", 0.0),
                          colour_ms=composed.stats.get("colour_ms", 0.0))
             if wants_splat_passes(main):
