@@ -21,7 +21,9 @@ band that depends on the image's extent.
 
 from __future__ import annotations
 
+import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +31,7 @@ import numpy as np
 from . import colour
 from .cameras import Camera
 from .gaussians import Gaussians
+from .native import cpu_count
 from .render import render
 
 # Blender's "nothing here" depth (Cycles, Workbench and EEVEE write 1e10 where no surface is).
@@ -62,13 +65,40 @@ def _finite_depth(depth: np.ndarray) -> np.ndarray:
     return np.nan_to_num(depth, nan=FAR, posinf=FAR, neginf=0.0)
 
 
+# Pixels per block of the colour conversions: a block's data and temporaries stay in the CPU's
+# cache, and blocks run on several threads (NumPy releases the GIL in its loops).
+_BLOCK_PIXELS = 1 << 14
+
+
+def _row_blocks(height: int, width: int) -> list[slice]:
+    rows = max(1, _BLOCK_PIXELS // max(width, 1))
+    return [slice(y, min(y + rows, height)) for y in range(0, height, rows)]
+
+
+def _in_parallel(work, blocks: list, threads: int) -> None:
+    """`work(block)` for every block, on `threads` threads (0: every core)."""
+    threads = min(len(blocks), threads or cpu_count())
+    if threads <= 1:
+        for block in blocks:
+            work(block)
+        return
+    with ThreadPoolExecutor(threads) as pool:
+        for _ in pool.map(work, blocks):  # re-raises the first error
+            pass
+
+
+# The blue channel's bits within the second half (B, A) of a pixel seen as two uint64.
+_BLUE_BITS = np.uint64(0xFFFFFFFF if sys.byteorder == "little" else 0xFFFFFFFF << 32)
+
+
 def _changed_pixels(new: np.ndarray, old: np.ndarray) -> np.ndarray:
-    """(H, W) mask: colour bits differ, or alpha by more than rounding."""
-    bits = new.view(np.uint32) ^ old.view(np.uint32)
-    changed = (bits[..., 0] | bits[..., 1] | bits[..., 2]) != 0
-    alpha_only = (bits[..., 3] != 0) & ~changed
-    if alpha_only.any():
-        changed[alpha_only] = np.abs(new[..., 3][alpha_only] - old[..., 3][alpha_only]) > 1e-6
+    """(N,) mask over (N, 4) float32 pixels: colour bits differ, or alpha by more than rounding
+    (the native compositor's alpha, 1 - (1 - a), may differ from a in the last bit where no
+    splat is)."""
+    new64, old64 = new.view(np.uint64), old.view(np.uint64)
+    changed = new64[:, 0] != old64[:, 0]                           # red, green
+    changed |= ((new64[:, 1] ^ old64[:, 1]) & _BLUE_BITS) != 0     # blue
+    changed |= np.abs(new[:, 3] - old[:, 3]) > 1e-6
     return changed
 
 
@@ -85,29 +115,51 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     _check_space(color_space)
     start = time.perf_counter()
     mesh_rgba = np.asarray(mesh_rgba, np.float32)
-    if mesh_rgba.shape != (camera.height, camera.width, 4):
-        raise ValueError(f"mesh_rgba must have shape {(camera.height, camera.width, 4)}, "
+    height, width = camera.height, camera.width
+    if mesh_rgba.shape != (height, width, 4):
+        raise ValueError(f"mesh_rgba must have shape {(height, width, 4)}, "
                          f"got {mesh_rgba.shape}")
-    layer = colour.display_from_linear(mesh_rgba) if color_space == "SRGB" else mesh_rgba
-    if not np.isfinite(layer).all():
-        layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
+    blocks = _row_blocks(height, width)
+    if color_space == "SRGB":
+        layer = np.empty((height, width, 4), np.float32)
+
+        def encode(rows: slice) -> None:
+            block = colour.display_from_linear(mesh_rgba[rows], out=layer[rows])
+            if not np.isfinite(block).all():
+                np.nan_to_num(block, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+
+        _in_parallel(encode, blocks, threads)
+    else:
+        layer = mesh_rgba
+        if not np.isfinite(layer).all():
+            layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
     convert_in = time.perf_counter() - start
     result = render(gaussians, camera, mesh_rgba=layer, mesh_depth=_finite_depth(mesh_depth),
                     antialiased=antialiased, near=near, sh_degree=sh_degree, threads=threads)
     start = time.perf_counter()
-    out = np.empty((camera.height, camera.width, 4), np.float32)
-    out[..., :3] = result.rgb
-    out[..., 3] = result.alpha
     if color_space == "SRGB":
         # Only pixels the splats changed go back through the conversion; the others keep the
-        # mesh layer's own values, bit for bit.
-        # (Bit-exact colour and alpha within rounding: the native compositor's alpha,
-        # 1 - (1 - a), may differ from a in the last bit where no splat is.)
-        changed = _changed_pixels(out, np.ascontiguousarray(layer, np.float32))
-        decoded = colour.linear_from_display(out[changed])
-        out = np.array(mesh_rgba, np.float32)
-        out[changed] = decoded
-    depth = np.where(np.isfinite(result.depth), result.depth, np.float32(FAR)).astype(np.float32)
+        # mesh layer's own values, bit for bit. The result replaces the display layer, block
+        # by block (one frame-sized buffer fewer).
+        out = layer
+
+        def decode(rows: slice) -> None:
+            composite = np.empty(out[rows].shape, np.float32)
+            composite[..., :3] = result.rgb[rows]
+            composite[..., 3] = result.alpha[rows]
+            pixels, target = composite.reshape(-1, 4), out[rows].reshape(-1, 4)
+            changed = _changed_pixels(pixels, target)
+            target[...] = mesh_rgba[rows].reshape(-1, 4)
+            if changed.any():
+                target[changed] = colour.linear_from_display(pixels[changed])
+
+        _in_parallel(decode, blocks, threads)
+    else:
+        out = np.empty((height, width, 4), np.float32)
+        out[..., :3] = result.rgb
+        out[..., 3] = result.alpha
+    depth = result.depth
+    depth[~np.isfinite(depth)] = FAR
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (convert_in + time.perf_counter() - start)
     return CompositeResult(out, depth, stats)
@@ -198,7 +250,10 @@ def apply_shadow_catcher(rgba: np.ndarray, shadow: np.ndarray) -> np.ndarray:
     rgba: (H, W, 4) premultiplied; shadow: (H, W, 3) or (H, W, 4) (its alpha is ignored).
     """
     rgba = np.asarray(rgba, np.float32)
-    factor = np.clip(np.nan_to_num(np.asarray(shadow, np.float32)[..., :3], nan=1.0), 0.0, 1.0)
+    shadow = np.asarray(shadow, np.float32)[..., :3]
+    if shadow.size and shadow.min() >= 1.0:  # no shadow caught anywhere (NaN: min is NaN)
+        return rgba.copy()
+    factor = np.clip(np.nan_to_num(shadow, nan=1.0), 0.0, 1.0)
     shaded = factor.min(axis=-1) < 1.0
     out = rgba.copy()
     if shaded.any():
