@@ -80,6 +80,21 @@ def test_conversions_of_large_images_block_by_block_and_in_place(rng, encode):
         convert(rgba, out=np.empty((300, 700, 4), np.float64))
 
 
+@pytest.mark.parametrize("convert", [colour.display_from_linear, colour.linear_from_display])
+def test_runs_of_one_colour_convert_as_each_pixel_does(rng, convert):
+    """A background of one colour (converted once per run of identical pixels) with scattered
+    other pixels, opaque and not: every pixel is what converting it alone gives, bit for bit."""
+    image = np.empty((300, 500, 4), np.float32)
+    image[...] = (0.05, 0.06, 0.08, 1.0)
+    image[150:, :, :] = (0.02, 0.0, 0.3, 0.5)                     # a transparent stretch
+    spots = rng.integers(0, 300 * 500, 400)
+    image.reshape(-1, 4)[spots] = rng.random((400, 4)).astype(np.float32)
+    result = convert(image).reshape(-1, 4)
+    for index in np.concatenate([spots[:50], [0, 1, 74_999, 75_000, 149_999]]):
+        alone = convert(image.reshape(-1, 4)[index:index + 1])
+        assert np.array_equal(result[index].view(np.uint32), alone[0].view(np.uint32))
+
+
 def test_compose_of_a_large_image_is_the_same_on_any_thread_count(rng):
     """Many conversion blocks, on one thread or several: the same bits, and the composite."""
     gaussians, camera = random_scene(rng, 300, 320, 240, 1)

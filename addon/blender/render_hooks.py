@@ -126,6 +126,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
                 mesh_rgba, mesh_depth = embed(mesh_rgba, mesh_depth, origin, *full)
             composed = compose(frame.gaussians, frame.camera, mesh_rgba, mesh_depth,
                                **frame.render_options())
+            mesh_rgba = mesh_depth = None  # not needed any more: a lower peak while writing
             rgba, depth = composed.rgba[origin.slices()], composed.depth[origin.slices()]
             stats.update(gaussians=len(frame.gaussians), reused=frame.reused,
                          gather_ms=frame.gather_ms,

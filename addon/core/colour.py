@@ -34,10 +34,9 @@ import numpy as np
 
 _LINEAR_CUT = 0.0031308
 _ENCODED_CUT = 0.04045
-# Values per block: the transfer makes about ten passes over its data (NumPy ufuncs, one
-# operation each), so it runs block by block, with the block and its temporaries in the CPU's
-# cache instead of main memory (three times faster on a 1280x720 frame).
-_BLOCK = 1 << 15
+# Values per block: the transfer makes several passes over its data (NumPy ufuncs, one
+# operation each), so it runs block by block, the block and its temporaries in the CPU's cache.
+_BLOCK = 1 << 17
 
 
 def _float(x: np.ndarray) -> np.ndarray:
@@ -126,6 +125,42 @@ def srgb_decode(y: np.ndarray) -> np.ndarray:
     return _elementwise(y, _decode_block)
 
 
+def _convert_pixels(src: np.ndarray, dst: np.ndarray, block, scratch: _Scratch) -> None:
+    """Premultiplied (n, 4) pixels through `block` (see `_premultiplied`), into `dst` (which may
+    be `src` itself)."""
+    one = src.dtype.type(1)
+    alpha = src[:, 3].copy()
+    # The transfer runs over all four channels (numpy's fast loops want contiguous data);
+    # alpha is put back after.
+    if (alpha == one).all():  # opaque (the usual film): no division (x / 1 is x anyway)
+        block(src.reshape(-1), dst.reshape(-1), scratch)
+    else:
+        scale = np.where(alpha > 0, alpha, one)[:, None]
+        np.divide(src, scale, out=dst)
+        block(dst.reshape(-1), dst.reshape(-1), scratch)
+        dst *= scale
+    dst[:, 3] = alpha
+
+
+def _runs(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(first pixel, length) of each run of bit-identical neighbouring pixels, or None when
+    there are too many runs to be worth it. A world background or a transparent film is one
+    colour over most of a frame: converting one pixel per run is the same, bit for bit."""
+    if len(pixels) < 2:
+        return None
+    words = pixels.view(np.uint64)
+    same = words[1:, 0] == words[:-1, 0]
+    for column in range(1, words.shape[1]):
+        same &= words[1:, column] == words[:-1, column]
+    breaks = np.flatnonzero(~same)
+    if 4 * (len(breaks) + 1) > len(pixels):
+        return None
+    first = np.empty(len(breaks) + 1, np.intp)
+    first[0] = 0
+    np.add(breaks, 1, out=first[1:])
+    return first, np.diff(first, append=len(pixels))
+
+
 def _premultiplied(rgba: np.ndarray, block, out: np.ndarray | None) -> np.ndarray:
     rgba = np.asarray(rgba)
     dtype = np.dtype(np.float64 if rgba.dtype == np.float64 else np.float32)
@@ -137,20 +172,16 @@ def _premultiplied(rgba: np.ndarray, block, out: np.ndarray | None) -> np.ndarra
     result, out = out, out.reshape(-1, 4)
     pixels = _BLOCK // 4
     scratch = _Scratch(dtype, _BLOCK)
-    one = dtype.type(1)
     for start in range(0, len(source), pixels):
         src, dst = source[start:start + pixels], out[start:start + pixels]
-        alpha = src[:, 3].copy()  # `out` may be the source itself
-        # The transfer runs over all four channels (numpy's fast loops want contiguous data);
-        # alpha is put back after.
-        if (alpha == one).all():  # opaque (the usual film): no division (x / 1 is x anyway)
-            block(src.reshape(-1), dst.reshape(-1), scratch)
+        runs = _runs(src)
+        if runs is None:
+            _convert_pixels(src, dst, block, scratch)
         else:
-            scale = np.where(alpha > 0, alpha, one)[:, None]
-            np.divide(src, scale, out=dst)
-            block(dst.reshape(-1), dst.reshape(-1), scratch)
-            dst *= scale
-        dst[:, 3] = alpha
+            first, lengths = runs
+            distinct = src[first]
+            _convert_pixels(distinct, distinct, block, scratch)
+            dst[...] = np.repeat(distinct, lengths, axis=0)
     return result
 
 
