@@ -235,6 +235,7 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
 
         cached = None
         contents = None
+        entry = None
         if use_cache and fingerprint is not None:
             entry = _world_cache.get(identity)
             if entry is not None and entry[0] == (fingerprint, world_key):
@@ -260,8 +261,9 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
                     local_this_call[local_key] = local
             world = transform_gaussians(local, matrix)
             if use_cache and fingerprint is not None:
-                if contents is None:
-                    contents = _contents(data, degree)
+                if contents is None:  # only moved (same data): its contents are known
+                    contents = entry[2] if entry is not None and entry[0][0] == fingerprint \
+                        else _contents(data, degree)
                 _world_cache[identity] = ((fingerprint, world_key), world, contents)
         seen.add(identity)
         batches.append(SplatBatch(owner.name, world, matrix, antialiased, sh_degree, color_space,

@@ -144,12 +144,24 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
             rgb, alpha = result.rgb[rows].reshape(-1, 3), result.alpha[rows].reshape(-1)
             target = out[rows].reshape(-1, 4)
             changed = _changed_pixels(rgb, alpha, target)
+            count = int(np.count_nonzero(changed))
             target[...] = mesh_rgba[rows].reshape(-1, 4)
-            if changed.any():
-                pixels = np.empty((int(np.count_nonzero(changed)), 4), np.float32)
-                pixels[:, :3] = rgb[changed]
-                pixels[:, 3] = alpha[changed]
-                target[changed] = colour.linear_from_display(pixels, out=pixels)
+            if 4 * count <= len(changed):  # few changed: gather, convert and scatter them
+                if count:
+                    pixels = np.empty((count, 4), np.float32)
+                    pixels[:, :3] = rgb[changed]
+                    pixels[:, 3] = alpha[changed]
+                    target[changed] = colour.linear_from_display(pixels, out=pixels)
+                return
+            # Many: convert the whole block (masked gathers and scatters cost more than that).
+            pixels = np.empty(target.shape, np.float32)
+            for channel in range(3):  # one channel at a time: long strided loops, not short
+                pixels[:, channel] = rgb[:, channel]
+            pixels[:, 3] = alpha
+            colour.linear_from_display(pixels, out=pixels)
+            where = np.empty(target.shape, bool)
+            where[...] = changed[:, None]
+            np.copyto(target, pixels, where=where)
 
         _in_parallel(decode, blocks, threads)
     else:
