@@ -226,6 +226,14 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
     assert [f.reused for f in frames] == [1, 1, 1]
     assert all(np.array_equal(f.gaussians.opacity_logits, logits) for f in frames)
+    frames.clear()  # animated: each frame where it moved is transformed again
+    for frame, x in ((1, 0.25), (3, 0.75)):
+        splats.location.x = x
+        splats.keyframe_insert("location", frame=frame)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    assert [f.reused for f in frames] == [1, 0, 0]
+    for f, x in zip(frames, (0.25, 0.5, 0.75)):
+        assert np.allclose(f.gaussians.means, g.means + (x, 0, 0), atol=1e-6)
 
 
 @pytest.mark.parametrize("transparent", [True, False])

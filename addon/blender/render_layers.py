@@ -7,6 +7,13 @@ and put back). A command-line render (`blender -b file.blend -a`) has no "Render
 unless the file brought one; then the scene's render cache (`render.use_render_cache`, switched
 on for the render and back off after it) writes that EXR and it is read from Blender's cache
 path. Writing: the engine's render result, and the splat layer for multilayer EXR files.
+
+Why a file: Python has no other way to the render's pixels while it runs. The Render Result
+image has no pixels in Python (`Image.pixels` is empty, `foreach_get` gives nothing: measured in
+bpy 5.0.1), and a RenderEngine reaches only its own result's passes, not the scene's engine's.
+The EXR goes to /dev/shm where there is one (memory, no disk), uncompressed float (the fastest
+for Blender to write and for `exr_scanlines` to read: the file's rows are viewed, not decoded).
+Writing back needs no file: `RenderPass.rect.foreach_set` copies the composite in one go.
 """
 
 from __future__ import annotations
