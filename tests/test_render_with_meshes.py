@@ -12,6 +12,7 @@ transform writes 8-bit PNG. The written file must match it to 1/255.
 from __future__ import annotations
 
 import math
+import os
 
 import bpy_support as bs
 from bpy_support import bpy  # the shared bpy import
@@ -20,7 +21,7 @@ import pytest
 
 from addon.blender import (camera_adapter, compositor_bridge, render_hooks, render_state,
                            splat_object)
-from addon.core import exr_layers
+from addon.core import exr_layers, exr_scanlines
 from addon.core.render import render
 from real_blender import scene_kit
 from scenes import random_gaussians
@@ -198,14 +199,19 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
     its data edited in place with no update at all (a script between two renders), is
     gathered again."""
     scene, splats, _, _, _ = build_scene(rng, "BLENDER_WORKBENCH")
-    frames = []
+    frames, read = [], []
     capture = render_hooks.capture_frame
     monkeypatch.setattr(render_hooks, "capture_frame",
                         lambda *args: frames.append(capture(*args)) or frames[-1])
+    read_channels = exr_scanlines.read_channels
+    monkeypatch.setattr(exr_scanlines, "read_channels",
+                        lambda path: read.append(path) or read_channels(path))
 
     def rendered(name):
         render_still(scene, tmp_path / name)
         assert render_hooks.last_stats["gaussians"] == len(splats.data.vertices)
+        # the render's EXR copy (in /dev/shm: memory) is gone as soon as it is read
+        assert read and not os.path.exists(read[-1])
         return frames[-1]
 
     g = splat_object.gaussians_from_data(splats.data)

@@ -110,7 +110,8 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     timings = {}
     start = time.perf_counter()
     image = render_result_image()
-    if image is None or render_state.current.force_cache_file:
+    own_file = not (image is None or render_state.current.force_cache_file)
+    if not own_file:
         path = cache_file_path(scene)
         since = render_state.current.frame_start_ns - 50_000_000
         if not os.path.exists(path) or os.stat(path).st_mtime_ns < since:
@@ -123,7 +124,14 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
             image.save_render(path, scene=scene)
     timings["save_ms"] = 1000 * (time.perf_counter() - start)
     start = time.perf_counter()
-    channels = exr_scanlines.read_channels(path)  # no OpenImageIO: Blender's Python may lack it
+    try:
+        channels = exr_scanlines.read_channels(path)  # no OpenImageIO: Blender's Python may lack it
+    finally:
+        if own_file:
+            # Our own copy, read into memory: /dev/shm is RAM, so it goes now, not at exit
+            # (a process that is killed never gets there).
+            with contextlib.suppress(OSError):
+                os.remove(path)
     timings["read_ms"] = 1000 * (time.perf_counter() - start)
     rgba = exr_layers.find_pass(channels, layer, "Combined", "RGBA")
     if rgba is None:  # e.g. "Render Single Layer" with another layer active: use what rendered
