@@ -1,23 +1,33 @@
-"""Time one composite frame (meshes in Cycles at low samples, plus splats) split into its parts.
+"""What the splats add to an F12 frame (meshes in Cycles at low samples, plus splats), split into
+its parts, and the frame's peak memory.
 
     .venv/bin/python examples/bench_render_with_meshes.py [--size 1280x720] [--samples 4]
-        [--splats FILE ...] [--random N ...] [--repeat 3]
+        [--splats FILE ...] [--random N ...] [--repeat 5]
 
 The scene is examples/render_headless.py's (a monkey and a pedestal with the splats, a sun);
-`--splats` swaps the splats (e.g. ../shared/data/splats/playbot_125k_sh2.ply), `--random N`
-uses N random Gaussians about the origin. For each splat set it renders the same frame with
-`bpy.ops.render.render(write_still=True)` to PNG, with the splats switched off (Blender alone:
-Cycles and the file; "PNG write" is the file's share, timed by saving the Render Result again)
-and on, best of `--repeat`, and prints where the difference goes:
+`--splats` swaps the splats (default: ../shared/data/splats/playbot_125k_sh2.ply when it is
+there, and the demo scene), `--random N` uses N random Gaussians about the origin. For each
+splat set it renders the same frame as F12 does (`bpy.ops.render.render()`, into the Render
+Result, no file written) with the splats switched off (Blender alone) and on, interleaved
+(off, on, off, on, ...), and prints medians (ms) of where the difference goes:
 
-    gather    splats from the render's depsgraph (world space; cached per object)
-    save      Render Result -> float EXR (Blender's Image.save_render, in a RAM folder)
-    read      that EXR -> numpy (addon.core.exr_scanlines: views of the file's bytes)
-    colour    scene-linear <-> display sRGB conversions of the mesh layer and the composite
+    gather    splats from the render's depsgraph (world space; cached per object, so this is
+              the cost of a frame whose splats did not change: "first" is the first render's)
+    read      the meshes' colour and depth: Render Result -> float EXR in a RAM folder
+              (Blender's Image.save_render) -> numpy (addon.core.exr_scanlines)
+    colour    scene-linear <-> display sRGB of the mesh layer and of the pixels the splats
+              changed (addon.core.colour, blocks on every core)
     native    the native compositor (projection, sort, binning, per-pixel composite)
-    result    composite -> the helper scene's render result (RenderPass.rect.foreach_set)
-    other     the rest of the difference: the helper scene's render set-up and Blender's
-              compositor pass (the new Render Layers node feeding the output)
+    write     the composite -> the helper scene's render result (RenderPass.rect.foreach_set)
+    other     the rest of the difference: the helper scene's render and Blender's compositor
+              pass (the Render Layers node of the helper scene feeding the output)
+
+and the frame's peak memory: the process's peak resident size during one frame above what it
+held before it (Linux: /proc/self/clear_refs resets the peak), without and with splats, and the
+peak of the NumPy arrays the add-on holds during the frame (tracemalloc). Memory is measured on
+renders of its own, outside the timed ones.
+
+`f12_overhead()` returns one scene's figures as a dict (examples/bench_render.py reports them).
 """
 
 from __future__ import annotations
@@ -27,6 +37,7 @@ import statistics
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,80 +46,170 @@ sys.path.insert(0, str(ROOT / "examples"))
 
 import bpy  # noqa: E402
 
-import addon  # noqa: E402
 import render_headless  # noqa: E402
 
+PLAYBOT = ROOT.parent / "shared" / "data" / "splats" / "playbot_125k_sh2.ply"
+DEMO = ROOT / "examples" / "demo_scene.ply"
+PARTS = ("gather", "read", "colour", "native", "write")
 
-def timed_render(scene, path: str) -> float:
-    scene.render.filepath = path
+
+def _register() -> None:
+    if not hasattr(bpy.types, "SPLAT_OT_import_splats"):
+        import addon
+
+        addon.register()
+
+
+def _kilobytes(field: str) -> int | None:
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def _reset_peak_rss() -> int | None:
+    """Reset the process's peak resident size (Linux); returns the resident size now (kB)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as clear:
+            clear.write("5")
+    except OSError:
+        return None
+    return _kilobytes("VmRSS")
+
+
+def _render() -> float:
     start = time.perf_counter()
-    bpy.ops.render.render(write_still=True)
-    return time.perf_counter() - start
+    assert bpy.ops.render.render() == {"FINISHED"}
+    return 1000 * (time.perf_counter() - start)
+
+
+def _frame_memory(scene, with_splats: bool) -> dict:
+    """Peak resident size above the resting one (MB) and NumPy's peak (MB) for one frame."""
+    scene.splat_render.enabled = with_splats
+    before = _reset_peak_rss()
+    tracemalloc.start()
+    try:
+        _render()
+        numpy_peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    peak = _kilobytes("VmHWM")
+    rss = None if before is None or peak is None else (peak - before) / 1024
+    return {"rss_mb": rss, "numpy_mb": numpy_peak / 2**20}
+
+
+def build(splats: str | None = None, *, random: int = 0, size: str = "1280x720",
+          samples: int = 4):
+    """The headless example's scene with `splats` (a file) or `random` random Gaussians."""
+    _register()
+    from addon.blender import splat_object
+
+    scene_args = argparse.Namespace(splats=str(splats or DEMO), engine="CYCLES", size=size,
+                                    samples=samples, frames=1, out=tempfile.mkdtemp(), save="")
+    render_headless.build_scene(bpy, scene_args)
+    scene = bpy.context.scene
+    if random:
+        import numpy as np
+
+        sys.path.insert(0, str(ROOT / "tests"))
+        from scenes import fast_random_gaussians
+
+        for obj in [o for o in scene.objects if splat_object.is_splat_object(o)]:
+            bpy.data.objects.remove(obj)
+        splat_object.create_splat_object(
+            fast_random_gaussians(np.random.default_rng(0), random, degree=1), "Random")
+    return scene
+
+
+def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "1280x720",
+                 samples: int = 4, repeat: int = 5) -> dict:
+    """One scene's F12 figures: medians (ms) of Blender alone ("blender"), with splats
+    ("with_splats"), their difference ("extra", the median of the interleaved pairs' own
+    differences), its parts (PARTS and "other"), the first render's gather ("gather_first"),
+    the splat count, and the frame's peak memory (MB): "rss_plain_mb", "rss_splats_mb",
+    "numpy_splats_mb" (see the module docstring)."""
+    from addon.blender import compositor_bridge, render_hooks, splat_object
+
+    scene = build(splats, random=random, size=size, samples=samples)
+    count = sum(len(o.data.vertices) for o in scene.objects if splat_object.is_splat_object(o))
+    compositor_bridge.ensure_bridge(scene)
+    scene.splat_render.enabled = True
+    _render()  # gathers the splats: later frames find them in the cache
+    first = dict(render_hooks.last_stats)
+    plain, with_splats, stats = [], [], []
+    for _ in range(repeat):
+        scene.splat_render.enabled = False
+        plain.append(_render())
+        scene.splat_render.enabled = True
+        with_splats.append(_render())
+        stats.append(dict(render_hooks.last_stats))
+    median = statistics.median
+    result = {
+        "splats": count, "size": size, "blender": median(plain), "with_splats": median(with_splats),
+        "extra": median([s - p for s, p in zip(with_splats, plain)]),
+        "gather": median([s.get("gather_ms", 0.0) for s in stats]),
+        "read": median([s.get("save_ms", 0.0) + s.get("read_ms", 0.0) for s in stats]),
+        "colour": median([s.get("colour_ms", 0.0) for s in stats]),
+        "native": median([s.get("native_ms", 0.0) for s in stats]),
+        "write": median([s.get("result_ms", 0.0) for s in stats]),
+        "gather_first": first.get("gather_ms", 0.0),
+    }
+    result["other"] = result["extra"] - sum(result[p] for p in PARTS)
+    plain_memory = _frame_memory(scene, with_splats=False)
+    splat_memory = _frame_memory(scene, with_splats=True)
+    result.update(rss_plain_mb=plain_memory["rss_mb"], rss_splats_mb=splat_memory["rss_mb"],
+                  numpy_splats_mb=splat_memory["numpy_mb"])
+    return result
+
+
+HEADER = ("splats", "Blender", "with splats", "extra", *PARTS, "other", "gather (first)",
+          "peak RSS +MB (off / on)", "NumPy peak MB")
+
+
+def table_row(name: str, r: dict) -> str:
+    def mb(value):
+        return "n/a" if value is None else f"{value:.0f}"
+
+    cells = [f"{name} ({r['splats']:,})", *(f"{r[k]:.0f}" for k in
+             ("blender", "with_splats", "extra", *PARTS, "other", "gather_first")),
+             f"{mb(r['rss_plain_mb'])} / {mb(r['rss_splats_mb'])}", mb(r["numpy_splats_mb"])]
+    return "| " + " | ".join(cells) + " |"
+
+
+def print_table(rows: list[tuple[str, dict]]) -> None:
+    print("| " + " | ".join(HEADER) + " |")
+    print("|" + " --- |" * len(HEADER))
+    for name, r in rows:
+        print(table_row(name, r), flush=True)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--samples", type=int, default=4)
-    parser.add_argument("--splats", nargs="*", default=[str(ROOT / "examples" / "demo_scene.ply")])
+    parser.add_argument("--splats", nargs="*",
+                        default=[str(p) for p in (PLAYBOT, DEMO) if p.exists()])
     parser.add_argument("--random", nargs="*", type=int, default=[])
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    addon.register()
-    from addon.blender import compositor_bridge, render_hooks, splat_object
+    _register()
     from addon.core.native import cpu_count
 
-    out = tempfile.mkdtemp(prefix="bench-render-")
-    sets = [("file", p) for p in args.splats] + [("random", n) for n in args.random]
-    print(f"{args.size}, Cycles CPU {args.samples} samples, PNG output, {cpu_count()} cores; "
-          f"best of {args.repeat} (ms)")
-    header = ("splats", "Blender", "(PNG write)", "with splats", "extra", "gather", "save",
-              "read", "colour", "native", "result", "other")
-    print(" | ".join(header))
-    print(" | ".join("---" for _ in header))
-    for kind, value in sets:
-        scene_args = argparse.Namespace(splats=value if kind == "file" else args.splats[0],
-                                        engine="CYCLES", size=args.size, samples=args.samples,
-                                        frames=1, out=out, save="")
-        render_headless.build_scene(bpy, scene_args)
-        scene = bpy.context.scene
-        if kind == "random":
-            from scenes import fast_random_gaussians
-            import numpy as np
-
-            for obj in [o for o in scene.objects if splat_object.is_splat_object(o)]:
-                bpy.data.objects.remove(obj)
-            g = fast_random_gaussians(np.random.default_rng(0), value, degree=1)
-            splat_object.create_splat_object(g, "Random")
-        scene.render.image_settings.file_format = "PNG"
-        count = sum(len(o.data.vertices) for o in scene.objects if splat_object.is_splat_object(o))
-        scene.splat_render.enabled = False
-        compositor_bridge.remove_bridge(scene)
-        plain = [timed_render(scene, f"{out}/plain") for _ in range(args.repeat)]
-        writes = []
-        for _ in range(args.repeat):  # what writing the PNG costs (part of "Blender")
-            start = time.perf_counter()
-            bpy.data.images["Render Result"].save_render(f"{out}/again.png", scene=scene)
-            writes.append(time.perf_counter() - start)
-        scene.splat_render.enabled = True
-        runs = []
-        for _ in range(args.repeat):
-            seconds = timed_render(scene, f"{out}/splats")
-            runs.append((seconds, dict(render_hooks.last_stats)))
-        seconds, stats = min(runs, key=lambda r: r[0])
-        base = min(plain)
-        extra = 1000 * (seconds - base)
-        parts = [stats.get(k, 0.0) for k in ("gather_ms", "save_ms", "read_ms", "colour_ms",
-                                               "native_ms", "result_ms")]
-        row = [f"{count:,}", f"{1000 * base:.0f}", f"{1000 * min(writes):.0f}",
-               f"{1000 * seconds:.0f}", f"{extra:.0f}",
-               *(f"{p:.0f}" for p in parts), f"{extra - sum(parts):.0f}"]
-        print(" | ".join(row), flush=True)
-        spread = statistics.pstdev([1000 * r[0] for r in runs])
-        print(f"    (spread of the runs with splats: {spread:.0f} ms; Blender alone: "
-              f"{', '.join(f'{1000 * p:.0f}' for p in plain)} ms)")
+    print(f"F12 at {args.size}, Cycles CPU {args.samples} samples, {cpu_count()} cores; "
+          f"medians of {args.repeat} interleaved pairs (ms)", flush=True)
+    rows = []
+    for path in args.splats:
+        rows.append((Path(path).stem, f12_overhead(path, size=args.size, samples=args.samples,
+                                                   repeat=args.repeat)))
+    for n in args.random:
+        rows.append(("random", f12_overhead(random=n, size=args.size, samples=args.samples,
+                                            repeat=args.repeat)))
+    print_table(rows)
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(ROOT / "tests"))
     main()

@@ -37,6 +37,84 @@ def test_premultiplied_conversion_goes_through_the_straight_colour(rng):
     assert np.allclose(colour.linear_from_display(colour.display_from_linear(glow)), glow)
 
 
+def _srgb64(x: np.ndarray, encode: bool) -> np.ndarray:
+    """The sRGB transfer in float64, written out here (independent of addon.core.colour)."""
+    a = np.abs(x.astype(np.float64))
+    if encode:
+        y = np.where(a <= 0.0031308, 12.92 * a, 1.055 * np.maximum(a, 0.0031308) ** (1 / 2.4) - 0.055)
+    else:
+        y = np.where(a <= 0.04045, a / 12.92, ((np.maximum(a, 0.04045) + 0.055) / 1.055) ** 2.4)
+    return np.where(x < 0, -y, y)
+
+
+@pytest.mark.parametrize("encode", [True, False])
+def test_conversions_of_large_images_block_by_block_and_in_place(rng, encode):
+    """Images much larger than a conversion block, mixing opaque and transparent stretches,
+    negative, tiny and non-finite values, match the float64 transfer; converting into the
+    input array itself (`out=`) gives the same bits."""
+    rgba = (rng.random((300, 700, 4)) * 1.5).astype(np.float32)
+    rgba[:100, :, 3] = 1.0                                   # opaque blocks
+    rgba[100:, :, 3] = rng.random((200, 700)).astype(np.float32)
+    rgba[150:160, :, 3] = 0.0                                # colour with zero alpha
+    rgba[200:205] *= 1e-4                                    # the linear segment
+    rgba[210, :, :3] *= -1                                   # negative colour
+    rgba[220, 5, 1], rgba[221, 6, 0], rgba[222, 7, 2] = np.nan, np.inf, -0.0
+    rgba[:, :, :3] *= np.where(rgba[:, :, 3:] > 0, rgba[:, :, 3:], 1)  # premultiplied
+    convert = colour.display_from_linear if encode else colour.linear_from_display
+    result = convert(rgba)
+    alpha = rgba[..., 3:].astype(np.float64)
+    scale = np.where(alpha > 0, alpha, 1.0)
+    expected = _srgb64(rgba[..., :3] / scale, encode) * scale
+    finite = np.isfinite(expected)
+    assert np.array_equal(np.isfinite(result[..., :3]), finite)
+    assert np.allclose(result[..., :3][finite], expected[finite], rtol=2e-6, atol=1e-7)
+    assert np.array_equal(result[..., 3], rgba[..., 3])
+    again = rgba.copy()
+    assert convert(again, out=again) is again
+    assert np.array_equal(again.view(np.uint32), result.view(np.uint32))
+    flat = rgba.reshape(-1)[:100_003]
+    plain = (colour.srgb_encode if encode else colour.srgb_decode)(flat)
+    assert np.allclose(plain[np.isfinite(plain)], _srgb64(flat, encode)[np.isfinite(plain)],
+                       rtol=2e-6, atol=1e-7)
+    with pytest.raises(ValueError, match="out must be"):
+        convert(rgba, out=np.empty((300, 700, 4), np.float64))
+
+
+@pytest.mark.parametrize("convert", [colour.display_from_linear, colour.linear_from_display])
+def test_runs_of_one_colour_convert_as_each_pixel_does(rng, convert):
+    """A background of one colour (converted once per run of identical pixels) with scattered
+    other pixels, opaque and not: every pixel is what converting it alone gives, bit for bit."""
+    image = np.empty((300, 500, 4), np.float32)
+    image[...] = (0.05, 0.06, 0.08, 1.0)
+    image[150:, :, :] = (0.02, 0.0, 0.3, 0.5)                     # a transparent stretch
+    spots = rng.integers(0, 300 * 500, 400)
+    image.reshape(-1, 4)[spots] = rng.random((400, 4)).astype(np.float32)
+    result = convert(image).reshape(-1, 4)
+    for index in np.concatenate([spots[:50], [0, 1, 74_999, 75_000, 149_999]]):
+        alone = convert(image.reshape(-1, 4)[index:index + 1])
+        assert np.array_equal(result[index].view(np.uint32), alone[0].view(np.uint32))
+
+
+def test_compose_of_a_large_image_is_the_same_on_any_thread_count(rng):
+    """Many conversion blocks, on one thread or several: the same bits, and the composite."""
+    gaussians, camera = random_scene(rng, 300, 320, 240, 1)
+    mesh_rgba, mesh_depth = random_mesh_layer(rng, 320, 240)
+    one = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=1)
+    many = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=3)
+    assert np.array_equal(one.rgba.view(np.uint32), many.rgba.view(np.uint32))
+    assert np.array_equal(one.depth, many.depth)
+    native = render(gaussians, camera, mesh_rgba=colour.display_from_linear(mesh_rgba),
+                    mesh_depth=np.where(np.isfinite(mesh_depth), mesh_depth, FAR), threads=1)
+    composite = np.concatenate([native.rgb, native.alpha[..., None]], -1).astype(np.float64)
+    alpha = composite[..., 3:]
+    scale = np.where(alpha > 0, alpha, 1.0)
+    expected = _srgb64(composite[..., :3] / scale, False) * scale
+    assert np.allclose(one.rgba[..., :3], expected, atol=2e-6)
+    untouched = render(gaussians, camera, threads=1).alpha == 0
+    assert untouched.any() and (~untouched).any()
+    assert np.array_equal(one.rgba[untouched], mesh_rgba[untouched])
+
+
 def test_compose_is_the_native_composite_in_display_space(rng):
     gaussians, camera = random_scene(rng, 60, 40, 30, 2)
     mesh_rgba, mesh_depth = random_mesh_layer(rng, 40, 30)

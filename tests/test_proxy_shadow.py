@@ -154,3 +154,24 @@ def test_apply_shadow_catcher():
     assert np.array_equal(out[0, 2], rgba[0, 2])             # no shadow: unchanged
     # A catcher only darkens: factors above 1 (light the catcher picked up) are ignored.
     assert np.array_equal(apply_shadow_catcher(rgba, shadow * 4), rgba)
+
+
+def test_only_geometry_catches_shadows(rng):
+    """Blender reports lights as shadow catchers; the bridge turns the Shadow Catcher pass on
+    for a real catcher only (the pass costs Cycles work and a larger render to read)."""
+    bs.reset_scene()
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    splat_object.create_splat_object(Gaussians.empty(), "Splats")
+    light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    scene.collection.objects.link(light)
+    layer = scene.view_layers[0]
+    layer.cycles.use_pass_shadow_catcher = False
+    compositor_bridge.ensure_bridge(scene)
+    assert not compositor_bridge.has_shadow_catchers(scene)
+    assert not layer.cycles.use_pass_shadow_catcher
+    bpy.ops.mesh.primitive_plane_add()
+    bpy.context.active_object.is_shadow_catcher = True
+    assert compositor_bridge.needs_shadow_pass(scene, layer)
+    compositor_bridge.ensure_bridge(scene)
+    assert layer.cycles.use_pass_shadow_catcher

@@ -12,6 +12,7 @@ transform writes 8-bit PNG. The written file must match it to 1/255.
 from __future__ import annotations
 
 import math
+import os
 
 import bpy_support as bs
 from bpy_support import bpy  # the shared bpy import
@@ -20,7 +21,7 @@ import pytest
 
 from addon.blender import (camera_adapter, compositor_bridge, render_hooks, render_state,
                            splat_object)
-from addon.core import exr_layers
+from addon.core import exr_layers, exr_scanlines
 from addon.core.render import render
 from real_blender import scene_kit
 from scenes import random_gaussians
@@ -190,6 +191,55 @@ def test_animation_with_a_moving_cube_and_camera(rng, tmp_path, engine):
         assert_close_8bit(written, standard_8bit(expected), f"{engine} frame {frame}")
         assert previous is None or np.abs(written - previous).max() > 20  # things moved
         previous = written
+
+
+def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monkeypatch):
+    """A second F12, and the frames of an animation, reuse the transformed Gaussians of an
+    unchanged splat object (each final render evaluates a new depsgraph); an object moved, or
+    its data edited in place with no update at all (a script between two renders), is
+    gathered again."""
+    scene, splats, _, _, _ = build_scene(rng, "BLENDER_WORKBENCH")
+    frames, read = [], []
+    capture = render_hooks.capture_frame
+    monkeypatch.setattr(render_hooks, "capture_frame",
+                        lambda *args: frames.append(capture(*args)) or frames[-1])
+    read_channels = exr_scanlines.read_channels
+    monkeypatch.setattr(exr_scanlines, "read_channels",
+                        lambda path: read.append(path) or read_channels(path))
+
+    def rendered(name):
+        render_still(scene, tmp_path / name)
+        assert render_hooks.last_stats["gaussians"] == len(splats.data.vertices)
+        # the render's EXR copy (in /dev/shm: memory) is gone as soon as it is read
+        assert read and not os.path.exists(read[-1])
+        return frames[-1]
+
+    g = splat_object.gaussians_from_data(splats.data)
+    assert rendered("first").reused == 0
+    again = rendered("again")
+    assert again.reused == 1 and bs.gaussians_equal(again.gaussians, frames[0].gaussians)
+    splats.location = (0.25, 0.0, 0.0)  # moved: transformed again
+    moved = rendered("moved")
+    assert moved.reused == 0 and np.allclose(moved.gaussians.means, g.means + (0.25, 0, 0))
+    logits = np.linspace(-3, 3, len(g), dtype=np.float32)  # edited in place, no update()
+    splats.data.attributes["opacity_logit"].data.foreach_set("value", logits)
+    edited = rendered("edited")
+    assert edited.reused == 0 and np.array_equal(edited.gaussians.opacity_logits, logits)
+    assert rendered("unchanged").reused == 1
+    frames.clear()
+    scene.frame_start, scene.frame_end = 1, 3
+    scene.render.filepath = str(tmp_path / "anim_")
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    assert [f.reused for f in frames] == [1, 1, 1]
+    assert all(np.array_equal(f.gaussians.opacity_logits, logits) for f in frames)
+    frames.clear()  # animated: each frame where it moved is transformed again
+    for frame, x in ((1, 0.25), (3, 0.75)):
+        splats.location.x = x
+        splats.keyframe_insert("location", frame=frame)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    assert [f.reused for f in frames] == [1, 0, 0]
+    for f, x in zip(frames, (0.25, 0.5, 0.75)):
+        assert np.allclose(f.gaussians.means, g.means + (x, 0, 0), atol=1e-6)
 
 
 @pytest.mark.parametrize("transparent", [True, False])

@@ -142,10 +142,17 @@ def _compose_on_cpu(scene, tree) -> None:
         scene.render.compositor_device = "CPU"
 
 
+# Object types Cycles renders as geometry: only these catch shadows. (Blender 5.0 reports
+# `is_shadow_catcher` True for every light, which would turn the pass on in any lit scene:
+# more Cycles work, a larger render to read, a pass to apply to every frame.)
+_GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "CURVES", "POINTCLOUD", "VOLUME"}
+
+
 def has_shadow_catchers(scene) -> bool:
     """Whether the scene holds Cycles shadow catchers (splat proxies, `mesh_convert.make_proxy`,
     or the user's own)."""
-    return any(getattr(obj, "is_shadow_catcher", False) for obj in scene.objects)
+    return any(obj.type in _GEOMETRY_TYPES and getattr(obj, "is_shadow_catcher", False)
+               for obj in scene.objects)
 
 
 def needs_shadow_pass(scene, layer) -> bool:

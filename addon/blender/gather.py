@@ -22,7 +22,12 @@ Cache: each instance's world-space Gaussians are kept, keyed by
     through a depsgraph whose updates run no handler, such as a render's own depsgraph);
   - the world matrix (exact bytes) and the SH degree used.
 A moved object re-transforms; a changed geometry is read again; anything unchanged costs a
-dictionary lookup. The concatenation of all batches is cached the same way (a single batch is
+dictionary lookup. When that fingerprint misses (every final render evaluates a new depsgraph,
+so its addresses are new, and a script may edit data in place with no handler running), a
+checksum of the attribute contents (a CRC-32 of every attribute the Gaussians are read from,
+about 5 ms for 125k SH-2 splats) decides: the same contents, the same world matrix
+and SH degree reuse the transformed Gaussians (F12 again, the frames of an animation), anything
+else reads and transforms again. The concatenation of all batches is cached the same way (a single batch is
 returned as is). Objects in Edit Mode are never cached (their evaluated data is a BMesh
 wrapper). `clear_cache()` empties everything; loading a file does it too. Returned arrays are
 shared with the cache: treat them as read-only.
@@ -31,6 +36,7 @@ shared with the cache: treat them as read-only.
 from __future__ import annotations
 
 import time
+import zlib
 from dataclasses import dataclass, field
 
 import bpy
@@ -43,7 +49,7 @@ from ..core.transform import transform_gaussians
 from . import splat_object
 
 _generations: dict[int, int] = {}
-_world_cache: dict[tuple, tuple[tuple, Gaussians]] = {}
+_world_cache: dict[tuple, tuple[tuple, Gaussians, tuple]] = {}  # key, world, contents
 _combined_cache: dict[str, tuple[tuple, Gaussians]] = {}
 
 
@@ -116,6 +122,36 @@ def _attribute_addresses(data, degree: int) -> tuple:
         addresses.append(attribute.data[0].as_pointer()
                          if attribute is not None and len(attribute.data) else 0)
     return tuple(addresses)
+
+
+# Attribute data type -> (foreach_get property, values per point, dtype).
+_RAW = {"FLOAT_VECTOR": ("vector", 3, np.float32), "QUATERNION": ("value", 4, np.float32),
+        "FLOAT": ("value", 1, np.float32), "BOOLEAN": ("value", 1, np.bool_)}
+
+
+def _contents(data, degree: int) -> tuple:
+    """A checksum of what `splat_object.gaussians_from_data` reads from `data` (the splat
+    attributes and the hidden flags): per attribute its type, domain and size, and a CRC-32 of
+    its values. A change within any 32 consecutive bits (one value, or one bit in each of a few
+    neighbouring values) always changes the CRC; any other change goes unnoticed with odds of
+    1 in 2^32."""
+    attributes = data.attributes
+    names = (splat_object.POSITION, splat_object.ROTATION, splat_object.LOG_SCALE,
+             splat_object.OPACITY_LOGIT, splat_object.HIDE) + splat_object.SH_NAMES[:(degree + 1) ** 2]
+    crc, shapes = 0, []
+    for name in names:
+        attribute = attributes.get(name)
+        raw = None if attribute is None else _RAW.get(attribute.data_type)
+        if raw is None:
+            shapes.append(None if attribute is None else (attribute.data_type, attribute.domain))
+            continue
+        key, width, dtype = raw
+        values = np.empty(len(attribute.data) * width, dtype)
+        if len(values):
+            attribute.data.foreach_get(key, values)
+        crc = zlib.crc32(values, crc)
+        shapes.append((attribute.data_type, attribute.domain, len(values)))
+    return tuple(shapes), crc
 
 
 def _edit_mode_hidden(mesh) -> np.ndarray | None:
@@ -198,10 +234,17 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
         world_key = (matrix.tobytes(), sh_degree)
 
         cached = None
+        contents = None
+        entry = None
         if use_cache and fingerprint is not None:
             entry = _world_cache.get(identity)
             if entry is not None and entry[0] == (fingerprint, world_key):
                 cached = entry[1]
+            elif entry is not None and entry[0][1] == world_key:
+                contents = _contents(data, degree)
+                if contents == entry[2]:  # a new depsgraph or an edit undone: same Gaussians
+                    cached = entry[1]
+                    _world_cache[identity] = ((fingerprint, world_key), cached, contents)
         if cached is not None:
             world = cached
         else:
@@ -218,7 +261,10 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
                     local_this_call[local_key] = local
             world = transform_gaussians(local, matrix)
             if use_cache and fingerprint is not None:
-                _world_cache[identity] = ((fingerprint, world_key), world)
+                if contents is None:  # only moved (same data): its contents are known
+                    contents = entry[2] if entry is not None and entry[0][0] == fingerprint \
+                        else _contents(data, degree)
+                _world_cache[identity] = ((fingerprint, world_key), world, contents)
         seen.add(identity)
         batches.append(SplatBatch(owner.name, world, matrix, antialiased, sh_degree, color_space,
                                   instance.is_instance, cached is not None))

@@ -126,8 +126,10 @@ class SplatRenderEngine(bpy.types.RenderEngine):
                 mesh_rgba, mesh_depth = embed(mesh_rgba, mesh_depth, origin, *full)
             composed = compose(frame.gaussians, frame.camera, mesh_rgba, mesh_depth,
                                **frame.render_options())
+            mesh_rgba = mesh_depth = None  # not needed any more: a lower peak while writing
             rgba, depth = composed.rgba[origin.slices()], composed.depth[origin.slices()]
-            stats.update(gaussians=len(frame.gaussians), gather_ms=frame.gather_ms,
+            stats.update(gaussians=len(frame.gaussians), reused=frame.reused,
+                         gather_ms=frame.gather_ms,
                          native_ms=composed.stats.get("ms_total", 0.0),
                          colour_ms=composed.stats.get("colour_ms", 0.0))
             if wants_splat_passes(main):

@@ -7,6 +7,13 @@ and put back). A command-line render (`blender -b file.blend -a`) has no "Render
 unless the file brought one; then the scene's render cache (`render.use_render_cache`, switched
 on for the render and back off after it) writes that EXR and it is read from Blender's cache
 path. Writing: the engine's render result, and the splat layer for multilayer EXR files.
+
+Why a file: Python has no other way to the render's pixels while it runs. The Render Result
+image has no pixels in Python (`Image.pixels` is empty, `foreach_get` gives nothing: measured in
+bpy 5.0.1), and a RenderEngine reaches only its own result's passes, not the scene's engine's.
+The EXR goes to /dev/shm where there is one (memory, no disk), uncompressed float (the fastest
+for Blender to write and for `exr_scanlines` to read: the file's rows are viewed, not decoded).
+Writing back needs no file: `RenderPass.rect.foreach_set` copies the composite in one go.
 """
 
 from __future__ import annotations
@@ -103,7 +110,8 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     timings = {}
     start = time.perf_counter()
     image = render_result_image()
-    if image is None or render_state.current.force_cache_file:
+    own_file = not (image is None or render_state.current.force_cache_file)
+    if not own_file:
         path = cache_file_path(scene)
         since = render_state.current.frame_start_ns - 50_000_000
         if not os.path.exists(path) or os.stat(path).st_mtime_ns < since:
@@ -116,7 +124,14 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
             image.save_render(path, scene=scene)
     timings["save_ms"] = 1000 * (time.perf_counter() - start)
     start = time.perf_counter()
-    channels = exr_scanlines.read_channels(path)  # no OpenImageIO: Blender's Python may lack it
+    try:
+        channels = exr_scanlines.read_channels(path)  # no OpenImageIO: Blender's Python may lack it
+    finally:
+        if own_file:
+            # Our own copy, read into memory: /dev/shm is RAM, so it goes now, not at exit
+            # (a process that is killed never gets there).
+            with contextlib.suppress(OSError):
+                os.remove(path)
     timings["read_ms"] = 1000 * (time.perf_counter() - start)
     rgba = exr_layers.find_pass(channels, layer, "Combined", "RGBA")
     if rgba is None:  # e.g. "Render Single Layer" with another layer active: use what rendered

@@ -32,6 +32,7 @@ class FrameSplats:
     threads: int
     gather_ms: float
     warnings: list[str] = field(default_factory=list)
+    reused: int = 0              # splat objects whose Gaussians came from the gather cache
 
     def render_options(self) -> dict:
         return dict(color_space=self.color_space, antialiased=self.antialiased, near=self.near,
@@ -93,4 +94,4 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
     return FrameSplats(scene.name, depsgraph.view_layer.name, scene.frame_current, gaussians,
                        camera, antialiased, color_space,
                        min(settings.sh_degree, gaussians.degree), settings.near, settings.threads,
-                       1000 * (time.perf_counter() - start), warnings)
+                       1000 * (time.perf_counter() - start), warnings, result.cache_hits)

@@ -22,6 +22,7 @@ band that depends on the image's extent.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +30,7 @@ import numpy as np
 from . import colour
 from .cameras import Camera
 from .gaussians import Gaussians
+from .native import cpu_count
 from .render import render
 
 # Blender's "nothing here" depth (Cycles, Workbench and EEVEE write 1e10 where no surface is).
@@ -62,13 +64,38 @@ def _finite_depth(depth: np.ndarray) -> np.ndarray:
     return np.nan_to_num(depth, nan=FAR, posinf=FAR, neginf=0.0)
 
 
-def _changed_pixels(new: np.ndarray, old: np.ndarray) -> np.ndarray:
-    """(H, W) mask: colour bits differ, or alpha by more than rounding."""
-    bits = new.view(np.uint32) ^ old.view(np.uint32)
-    changed = (bits[..., 0] | bits[..., 1] | bits[..., 2]) != 0
-    alpha_only = (bits[..., 3] != 0) & ~changed
-    if alpha_only.any():
-        changed[alpha_only] = np.abs(new[..., 3][alpha_only] - old[..., 3][alpha_only]) > 1e-6
+# Pixels per block of the colour conversions: a block's data and temporaries stay in the CPU's
+# cache, and blocks run on several threads (NumPy releases the GIL in its loops).
+_BLOCK_PIXELS = 1 << 15
+
+
+def _row_blocks(height: int, width: int) -> list[slice]:
+    rows = max(1, _BLOCK_PIXELS // max(width, 1))
+    return [slice(y, min(y + rows, height)) for y in range(0, height, rows)]
+
+
+def _in_parallel(work, blocks: list, threads: int) -> None:
+    """`work(block)` for every block, on `threads` threads (0: every core)."""
+    threads = min(len(blocks), threads or cpu_count())
+    if threads <= 1:
+        for block in blocks:
+            work(block)
+        return
+    with ThreadPoolExecutor(threads) as pool:
+        for _ in pool.map(work, blocks):  # re-raises the first error
+            pass
+
+
+def _changed_pixels(rgb: np.ndarray, alpha: np.ndarray, layer: np.ndarray) -> np.ndarray:
+    """(N,) mask over N pixels ((N, 3) colour and (N,) alpha against the (N, 4) layer): colour
+    bits differ, or alpha by more than rounding (the native compositor's alpha, 1 - (1 - a),
+    may differ from a in the last bit where no splat is). One channel at a time: cheaper than
+    interleaving the composite first."""
+    new, old = rgb.view(np.uint32), layer.view(np.uint32)
+    changed = new[:, 0] != old[:, 0]
+    changed |= new[:, 1] != old[:, 1]
+    changed |= new[:, 2] != old[:, 2]
+    changed |= np.abs(alpha - layer[:, 3]) > 1e-6
     return changed
 
 
@@ -85,29 +112,64 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     _check_space(color_space)
     start = time.perf_counter()
     mesh_rgba = np.asarray(mesh_rgba, np.float32)
-    if mesh_rgba.shape != (camera.height, camera.width, 4):
-        raise ValueError(f"mesh_rgba must have shape {(camera.height, camera.width, 4)}, "
+    height, width = camera.height, camera.width
+    if mesh_rgba.shape != (height, width, 4):
+        raise ValueError(f"mesh_rgba must have shape {(height, width, 4)}, "
                          f"got {mesh_rgba.shape}")
-    layer = colour.display_from_linear(mesh_rgba) if color_space == "SRGB" else mesh_rgba
-    if not np.isfinite(layer).all():
-        layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
+    blocks = _row_blocks(height, width)
+    if color_space == "SRGB":
+        layer = np.empty((height, width, 4), np.float32)
+
+        def encode(rows: slice) -> None:
+            block = colour.display_from_linear(mesh_rgba[rows], out=layer[rows])
+            if not np.isfinite(block).all():
+                np.nan_to_num(block, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+
+        _in_parallel(encode, blocks, threads)
+    else:
+        layer = mesh_rgba
+        if not np.isfinite(layer).all():
+            layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
     convert_in = time.perf_counter() - start
     result = render(gaussians, camera, mesh_rgba=layer, mesh_depth=_finite_depth(mesh_depth),
                     antialiased=antialiased, near=near, sh_degree=sh_degree, threads=threads)
     start = time.perf_counter()
-    out = np.empty((camera.height, camera.width, 4), np.float32)
-    out[..., :3] = result.rgb
-    out[..., 3] = result.alpha
     if color_space == "SRGB":
         # Only pixels the splats changed go back through the conversion; the others keep the
-        # mesh layer's own values, bit for bit.
-        # (Bit-exact colour and alpha within rounding: the native compositor's alpha,
-        # 1 - (1 - a), may differ from a in the last bit where no splat is.)
-        changed = _changed_pixels(out, np.ascontiguousarray(layer, np.float32))
-        decoded = colour.linear_from_display(out[changed])
-        out = np.array(mesh_rgba, np.float32)
-        out[changed] = decoded
-    depth = np.where(np.isfinite(result.depth), result.depth, np.float32(FAR)).astype(np.float32)
+        # mesh layer's own values, bit for bit. The result replaces the display layer, block
+        # by block (one frame-sized buffer fewer).
+        out = layer
+
+        def decode(rows: slice) -> None:
+            rgb, alpha = result.rgb[rows].reshape(-1, 3), result.alpha[rows].reshape(-1)
+            target = out[rows].reshape(-1, 4)
+            changed = _changed_pixels(rgb, alpha, target)
+            count = int(np.count_nonzero(changed))
+            target[...] = mesh_rgba[rows].reshape(-1, 4)
+            if 4 * count <= len(changed):  # few changed: gather, convert and scatter them
+                if count:
+                    pixels = np.empty((count, 4), np.float32)
+                    pixels[:, :3] = rgb[changed]
+                    pixels[:, 3] = alpha[changed]
+                    target[changed] = colour.linear_from_display(pixels, out=pixels)
+                return
+            # Many: convert the whole block (masked gathers and scatters cost more than that).
+            pixels = np.empty(target.shape, np.float32)
+            for channel in range(3):  # one channel at a time: long strided loops, not short
+                pixels[:, channel] = rgb[:, channel]
+            pixels[:, 3] = alpha
+            colour.linear_from_display(pixels, out=pixels)
+            where = np.empty(target.shape, bool)
+            where[...] = changed[:, None]
+            np.copyto(target, pixels, where=where)
+
+        _in_parallel(decode, blocks, threads)
+    else:
+        out = np.empty((height, width, 4), np.float32)
+        out[..., :3] = result.rgb
+        out[..., 3] = result.alpha
+    depth = result.depth
+    depth[~np.isfinite(depth)] = FAR
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (convert_in + time.perf_counter() - start)
     return CompositeResult(out, depth, stats)
@@ -198,7 +260,10 @@ def apply_shadow_catcher(rgba: np.ndarray, shadow: np.ndarray) -> np.ndarray:
     rgba: (H, W, 4) premultiplied; shadow: (H, W, 3) or (H, W, 4) (its alpha is ignored).
     """
     rgba = np.asarray(rgba, np.float32)
-    factor = np.clip(np.nan_to_num(np.asarray(shadow, np.float32)[..., :3], nan=1.0), 0.0, 1.0)
+    shadow = np.asarray(shadow, np.float32)[..., :3]
+    if shadow.size and shadow.min() >= 1.0:  # no shadow caught anywhere (NaN: min is NaN)
+        return rgba.copy()
+    factor = np.clip(np.nan_to_num(shadow, nan=1.0), 0.0, 1.0)
     shaded = factor.min(axis=-1) < 1.0
     out = rgba.copy()
     if shaded.any():
