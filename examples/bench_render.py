@@ -7,6 +7,7 @@ and the demo scene.
     .venv/bin/python examples/bench_render.py --more           # also the compositor's efficiency,
                                                                # the quality knobs and the error
                                                                # against the float64 reference
+    .venv/bin/python examples/bench_render.py --no-f12         # without the F12 table (no bpy)
     /work/main/.venv/bin/python examples/bench_render.py --code /work/main
                                            # the same table for another checkout's code (before/after)
 
@@ -16,7 +17,10 @@ has the footprint masks, the evaluations without them: the same image's pre-mask
 peak memory: the process's resident-set high-water mark during one render above what it held
 before (Linux; `VmHWM` reset through /proc/self/clear_refs), which counts the renderer's working
 memory and the output images, and the renderer's own count of its working memory at its
-largest (stats["peak_bytes"], where the code reports it). Never a test: numbers only.
+largest (stats["peak_bytes"], where the code reports it). Then the F12 table
+(examples/bench_render_with_meshes.py): a 1280x720 Cycles frame with and without PLAYBOT's and
+the demo scene's splats, the extra split into gather, read, colour, native composite and write,
+and the frame's peak memory. Never a test: numbers only.
 Wall-clock numbers on a shared machine are noisy: compare runs taken back to back.
 """
 
@@ -266,12 +270,28 @@ def main() -> None:
     parser.add_argument("--code", type=Path, default=ROOT,
                         help="checkout whose addon/ to run (its native module is the one "
                              "installed in the Python that runs this script)")
+    parser.add_argument("--no-f12", dest="f12", action="store_false",
+                        help="skip the F12 table (Blender's Cycles with and without splats)")
     args = parser.parse_args()
+    args.f12 = args.f12 and args.code.resolve() == ROOT
     args.repeats = args.repeats or (3 if args.quick else 7)
     import_code(args.code.resolve())
     main_table(args)
     if args.more:
         more_tables(args)
+    if args.f12:
+        f12_table(args)
+
+
+def f12_table(args) -> None:
+    """The F12 overhead split, from this checkout's bench_render_with_meshes (it needs bpy)."""
+    sys.path.insert(0, str(ROOT / "examples"))
+    import bench_render_with_meshes as f12
+
+    print(f"\nF12 at 1280x720, Cycles CPU 4 samples; medians of {args.repeats} interleaved "
+          "pairs without and with splats (ms)", flush=True)
+    f12.print_table([(path.stem, f12.f12_overhead(str(path), repeat=args.repeats))
+                     for path in (PLAYBOT, DEMO) if path.exists()])
 
 
 if __name__ == "__main__":

@@ -8,8 +8,9 @@ The scene is examples/render_headless.py's (a monkey and a pedestal with the spl
 `--splats` swaps the splats (default: ../shared/data/splats/playbot_125k_sh2.ply when it is
 there, and the demo scene), `--random N` uses N random Gaussians about the origin. For each
 splat set it renders the same frame as F12 does (`bpy.ops.render.render()`, into the Render
-Result, no file written) with the splats switched off (Blender alone) and on, interleaved
-(off, on, off, on, ...), and prints medians (ms) of where the difference goes:
+Result, no file written) with the splats switched off and the compositor bridge removed (Blender
+alone, as a scene without splats renders) and with them on, interleaved (off, on, off, on, ...),
+and prints medians (ms) of where the difference goes:
 
     gather    splats from the render's depsgraph (world space; cached per object, so this is
               the cost of a frame whose splats did not change: "first" is the first render's)
@@ -87,9 +88,20 @@ def _render() -> float:
     return 1000 * (time.perf_counter() - start)
 
 
+def _use_splats(scene, on: bool) -> None:
+    """Splats on (with the compositor bridge), or off with no bridge: Blender alone."""
+    from addon.blender import compositor_bridge
+
+    scene.splat_render.enabled = on
+    if on:
+        compositor_bridge.ensure_bridge(scene)
+    else:
+        compositor_bridge.remove_bridge(scene)
+
+
 def _frame_memory(scene, with_splats: bool) -> dict:
     """Peak resident size above the resting one (MB) and NumPy's peak (MB) for one frame."""
-    scene.splat_render.enabled = with_splats
+    _use_splats(scene, with_splats)
     before = _reset_peak_rss()
     tracemalloc.start()
     try:
@@ -136,15 +148,14 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
 
     scene = build(splats, random=random, size=size, samples=samples)
     count = sum(len(o.data.vertices) for o in scene.objects if splat_object.is_splat_object(o))
-    compositor_bridge.ensure_bridge(scene)
-    scene.splat_render.enabled = True
+    _use_splats(scene, True)
     _render()  # gathers the splats: later frames find them in the cache
     first = dict(render_hooks.last_stats)
     plain, with_splats, stats = [], [], []
     for _ in range(repeat):
-        scene.splat_render.enabled = False
+        _use_splats(scene, False)
         plain.append(_render())
-        scene.splat_render.enabled = True
+        _use_splats(scene, True)
         with_splats.append(_render())
         stats.append(dict(render_hooks.last_stats))
     median = statistics.median
