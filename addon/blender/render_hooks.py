@@ -36,6 +36,7 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from ..core import exr_layers
+from ..core.render import release_buffers
 from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed,
                               render_region, splat_layer)
 from . import compositor_bridge as bridge
@@ -278,6 +279,7 @@ def _on_render_done(scene, _depsgraph=None) -> None:
     if camera is not None:
         scene.camera = camera
     settle_outputs()
+    release_buffers()  # a 1M-Gaussian frame keeps ~130 MB of working memory for the next one
     render_state.current.scene = None
     render_state.current.frames.clear()
     render_state.current.pending_passes.clear()

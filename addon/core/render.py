@@ -98,3 +98,9 @@ def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | Non
         intrinsics, width, height, float(near), bool(antialiased), native.thread_count(threads),
         background, mesh_rgba, mesh_depth, rgb, alpha, depth, bool(exhaustive))
     return RenderResult(rgb, alpha, depth, dict(stats))
+
+
+def release_buffers() -> None:
+    """Give the working buffers renders keep for the next frame back to the system (after a
+    render job: a viewport draw or the next F12 allocates them again)."""
+    native.splatcore().release_buffers()
