@@ -3,6 +3,7 @@ deterministic, it resumes exactly, it keeps to its budget, and compaction shrink
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from addon.core.colmap import read_colmap
 from addon.core.dataset import ColmapDataset
+from addon.core.jobs import TrainingJob, status_line
 from addon.core.render import project
 from addon.core.train import (Trainer, TrainConfig, compact, downscaled_view, initial_gaussians,
                               nearest_mean_sq_distance, position_lr)
@@ -118,8 +120,10 @@ def test_compaction_shrinks_and_reports(dataset) -> None:
 
 
 def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
-    # Any real gain is below 1e9 dB a minute: the third check (step 30) stops the run.
-    config = short_config(steps=120, stop_below_db_per_minute=1e9, stop_check_every=10)
+    # With no step count (0: until done), any real gain is below 1e9 dB a minute: the third
+    # check (step 30) stops the run.
+    config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
+                          stop_check_every=10)
     trainer = Trainer(dataset, config)
     history = list(trainer.run())
     assert trainer.converged and trainer.step == 30 and len(history) == 30
@@ -128,8 +132,8 @@ def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
     resumed = Trainer.load_checkpoint(tmp_path / "state.npz", dataset)
     assert resumed.converged and resumed.checks == trainer.checks
     assert list(resumed.run()) == []
-    # Off by default: the step count alone ends the run.
-    plain = Trainer(dataset, short_config(steps=40))
+    # A fixed step count: the count alone ends the run.
+    plain = Trainer(dataset, short_config(steps=40, stop_below_db_per_minute=1e9))
     list(plain.run())
     assert plain.step == 40 and not plain.converged and plain.checks == []
 
@@ -162,3 +166,23 @@ def test_coarse_to_fine_training_learns(dataset) -> None:
     history = list(trainer.run())
     assert trainer.evaluate(dataset.train_indices[:6]).psnr > start + 3.0
     assert any(s["densified"] for s in history) and trainer.gaussians.non_finite() is None
+
+
+def test_a_job_until_done_ends_done_compacts_and_says_so(dataset) -> None:
+    config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
+                          stop_check_every=10, strategy="auto")
+    seen = []
+    job = TrainingJob(Trainer(dataset, config), compact_after=True, on_progress=seen.append).run()
+    p = job.progress()
+    assert p.phase == "done" and p.step == 30 and p.until_done and p.total == 120
+    assert job.compaction is not None and job.final[0] == 30
+    training = [x for x in seen if x.phase == "training" and x.step > 20]
+    assert training and all(x.sizing in ("growing", "settled") for x in training)
+    line = status_line(training[-1])
+    assert line.startswith("Training step ") and "(until done)" in line
+    assert "Gaussians (growing)" in line or "Gaussians (settled)" in line
+    assert "dB/min" in line and "ETA" not in line
+    # A fixed count ends at its step and shows its ETA.
+    fixed = TrainingJob(Trainer(dataset, short_config(steps=12)), evaluate=False).run()
+    assert fixed.progress().phase == "done" and not fixed.progress().until_done
+    assert "ETA" in status_line(replace(fixed.progress(), phase="training"))

@@ -1,6 +1,6 @@
 """Training Gaussians on the CPU: the 3DGS optimisation loop over the native kernels.
 
-    trainer = Trainer(dataset, TrainConfig(steps=7000, max_gaussians=200_000))
+    trainer = Trainer(dataset, TrainConfig())      # until done; TrainConfig(steps=7000): fixed
     for stats in trainer.run():          # one dict per step; stop iterating to cancel
         ...
     trainer.gaussians                    # the current Gaussians (valid after every step)
@@ -14,10 +14,12 @@ What it does, as the reference implementation (Kerbl et al. 2023) does unless no
 - loss (1 - 0.2) L1 + 0.2 (1 - SSIM);
 - densification (clone, split, prune, opacity reset, the Gaussian budget `max_gaussians`) is a
   strategy, one file each in `strategies/`; `TrainConfig.strategy` picks one ("default": the
-  reference's, with a budget);
-- deterministic for a given seed (the native kernels are identical for any thread count);
-- with `TrainConfig.stop_below_db_per_minute`, training stops when done: when the held-out
-  PSNR gains less than that per minute of training (`steps` stays the ceiling).
+  reference's, with a budget; "auto", not in the reference: MCMC that sizes the model itself);
+- deterministic for a given seed (the native kernels are identical for any thread count), for
+  a fixed step count;
+- with no step count (`TrainConfig.steps` 0) training stops when done: when the held-out PSNR
+  gains less than `stop_below_db_per_minute` per minute of training (or at `max_steps`). Where
+  that happens depends on the machine's speed, so such a run is not repeatable to the step.
 
 `compact()` (after training, not in the reference) prunes Gaussians whose total contribution to
 the training views is negligible and drops SH bands that do not improve them, and reports size
@@ -140,7 +142,8 @@ class Trainer:
         self.background = np.asarray(config.background, np.float32)
         # A short run spends at most its first half coarse (fixed now: a resume that asks for
         # more steps must not go back to coarse images).
-        self.coarse_until = min(config.coarse_until, config.steps // 2)
+        self.coarse_until = (min(config.coarse_until, config.steps // 2) if config.steps
+                             else config.coarse_until)
         self.strategy = strategy or make_strategy(config, self.extent, self.rng)
         if gaussians is None:
             points = dataset.points
@@ -190,15 +193,21 @@ class Trainer:
 
     def training_view(self, view: int, level: int) -> tuple[Camera, np.ndarray]:
         """The camera and photo of dataset view `view` halved `level` times (fewer where the
-        photo would fall below `coarse_min_side`)."""
+        photo would fall below `coarse_min_side`: `image_level`)."""
         camera, image = self.dataset.cameras[view], self.dataset.image(view)
-        while level > 0 and min(image.shape[:2]) >> level < self.config.coarse_min_side:
-            level -= 1  # small photos are not shrunk below the minimum side
+        level = self.image_level(camera, level)
         if level == 0:
             return camera, image
         # Made again each step, not cached (0.24 ms at 200x150 halved twice): a cache would sit
         # beside the dataset's own memory bound.
         return downscaled_view(camera, image, 2 ** level)
+
+    def image_level(self, camera: Camera, level: int) -> int:
+        """`level`, or fewer halvings where `camera`'s image would fall below
+        `coarse_min_side` pixels a side."""
+        while level > 0 and min(camera.width, camera.height) >> level < self.config.coarse_min_side:
+            level -= 1
+        return level
 
     def _next_view(self) -> int:
         if not self._order:
@@ -211,7 +220,8 @@ class Trainer:
         start = time.perf_counter()
         self.step += 1
         view = self._next_view()
-        camera, target = self.training_view(view, self.resolution_level())
+        level = self.image_level(self.dataset.cameras[view], self.resolution_level(self.step))
+        camera, target = self.training_view(view, level)
         degree = min(c.sh_degree, (self.step - 1) // c.sh_degree_interval)
         gaussians = self.gaussians
         result, state = tk.render_train(gaussians, camera, background=self.background,
@@ -224,23 +234,44 @@ class Trainer:
             self._grads = tk.Gradients.zeros_like(gaussians)
         grads = tk.backward(state, gaussians, loss.grad, threads=c.threads, out=self._grads)
 
-        info = StepInfo(self.step, camera, state, grads, self.learning_rates())
+        info = StepInfo(self.step, camera, state, grads, self.learning_rates(), loss.loss, level,
+                        view)
         self.strategy.after_backward(self.parameters, info)
         self.parameters.adam_step(grads, info.learning_rates, self.step, threads=c.threads)
         densified = self.strategy.after_step(self.parameters, info)
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
                 "psnr": psnr(result.rgb, target), "gaussians": len(self), "sh_degree": degree,
-                "densified": densified, "seconds": time.perf_counter() - start}
+                "densified": densified, "sizing": self.strategy.sizing,
+                "seconds": time.perf_counter() - start}
+
+    @property
+    def gain_per_minute(self) -> float:
+        """The held-out (else training-view) PSNR gain per minute between the last two stop
+        checks; NaN before two."""
+        if len(self.checks) < 2:
+            return float("nan")
+        (t0, p0), (t1, p1) = self.checks[-2:]
+        return (p1 - p0) / max((t1 - t0) / 60.0, 1e-9)
 
     # -- running, evaluating --------------------------------------------------------------
+    @property
+    def until_done(self) -> bool:
+        """Whether this run ends when done (no fixed step count, a stop threshold)."""
+        return self.config.steps <= 0 and self.config.stop_below_db_per_minute > 0
+
+    @property
+    def step_limit(self) -> int:
+        """The step a run ends at, at the latest: the fixed count, else `max_steps`."""
+        return self.config.steps if self.config.steps > 0 else self.config.max_steps
+
     def run(self, steps: int | None = None) -> Iterator[dict[str, float]]:
-        """Train up to `steps` (default: the config's) total steps, yielding each step's stats."""
-        target = self.config.steps if steps is None else steps
-        while self.step < target and not self.converged:
+        """Train up to `steps` (default: `step_limit`) total steps, or until done, yielding
+        each step's stats."""
+        target = self.step_limit if steps is None else steps
+        while self.step < target and not (self.until_done and self.converged):
             stats = self.train_step()
             self.seconds += stats["seconds"]
-            if self.config.stop_below_db_per_minute > 0 and \
-                    self.step % self.config.stop_check_every == 0:
+            if self.until_done and self.step % self.config.stop_check_every == 0:
                 self.converged = self._gain_has_stalled()
             yield stats
 
