@@ -190,6 +190,26 @@ def plot(results: dict, path: Path, note: str) -> None:
     print(f"chart: {path}")
 
 
+def replot(sources: list[Path], path: Path) -> None:
+    """Chart (and save together) the curves of earlier runs' JSON files."""
+    results, notes = {}, []
+    for source in sources:
+        saved = json.loads(source.read_text())
+        notes.append(saved.get("note", source.name))
+        for key, points in saved.items():
+            if "/" in key:
+                scene, label = key.split("/", 1)
+                results.pop((scene, label), None)
+                results[scene, label] = points
+    scenes = list(dict.fromkeys(scene for scene, _ in results))  # scene by scene, as measured
+    results = {key: results[key] for scene in scenes for key in results if key[0] == scene}
+    note = "; ".join(dict.fromkeys(notes))
+    plot(results, path, note)
+    path.with_suffix(".json").write_text(json.dumps(
+        {"note": note, "literature": {"source": LITERATURE_SOURCE, "rows": LITERATURE_3DGS}}
+        | {f"{scene}/{label}": points for (scene, label), points in results.items()}, indent=1))
+
+
 def literature_table() -> None:
     print(f"\nFor scale: {LITERATURE_SOURCE} (held-out every 8th view)")
     print(f"{'benchmark':<14} {'iterations':>10} {'PSNR':>6} {'SSIM':>6} {'train':>8} {'MB':>5}")
@@ -261,9 +281,15 @@ def main() -> None:
     parser.add_argument("--max-gaussians", type=int, default=TrainConfig.max_gaussians)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "train_curves.png")
+    parser.add_argument("--replot", nargs="+", type=Path, metavar="JSON",
+                        help="no training: chart the curves saved in these JSON files (a later "
+                             "file's curve replaces an earlier one's of the same name)")
     parser.add_argument("--skip-curve", action="store_true")
     parser.add_argument("--skip-step-times", action="store_true")
     args = parser.parse_args()
+    if args.replot:
+        replot(args.replot, args.plot)
+        return
     if not args.skip_curve:
         results = {}
         steps = 0 if args.until_done else args.steps

@@ -13,8 +13,8 @@ from addon.core.colmap import read_colmap
 from addon.core.dataset import ColmapDataset
 from addon.core.jobs import TrainingJob, status_line
 from addon.core.render import project
-from addon.core.train import (Trainer, TrainConfig, compact, downscaled_view, initial_gaussians,
-                              nearest_mean_sq_distance, position_lr)
+from addon.core.train import (Trainer, TrainConfig, compact, contribution, downscaled_view,
+                              initial_gaussians, nearest_mean_sq_distance, position_lr)
 
 DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
 
@@ -186,3 +186,15 @@ def test_a_job_until_done_ends_done_compacts_and_says_so(dataset) -> None:
     fixed = TrainingJob(Trainer(dataset, short_config(steps=12)), evaluate=False).run()
     assert fixed.progress().phase == "done" and not fixed.progress().until_done
     assert "ETA" in status_line(replace(fixed.progress(), phase="training"))
+
+
+def test_contribution_counts_dark_gaussians(dataset) -> None:
+    # Blending weights do not depend on colour: a black Gaussian (red clamped at 0) covers as
+    # much as a grey one and must not read as weightless (compaction would prune it).
+    g = Trainer(dataset, short_config()).gaussians.subset(slice(0, 400)).copy()
+    cameras = [dataset.cameras[i] for i in dataset.train_indices[:3]]
+    grey = contribution(g, cameras, threads=2)
+    g.sh[::2] = -5.0  # every other Gaussian black
+    dark = contribution(g, cameras, threads=2)
+    assert np.array_equal(grey, dark)
+    assert (dark[::2] > 0).sum() > 50

@@ -359,7 +359,13 @@ def contribution(gaussians: Gaussians, cameras: list[Camera], *, background=None
     """Per Gaussian, the sum over `cameras` and pixels of its blending weight alpha T.
 
     Exact, through the backward pass: with dL/d(red) = 1 everywhere, dL/d(sh DC red) is
-    C0 times the summed weights (where the red colour is not clamped at 0)."""
+    C0 times the summed weights where the red colour is not clamped at 0. The weights do not
+    depend on the colours, so they are taken with every colour a neutral 0.5 (SH zero): a dark
+    Gaussian, whose red is clamped at 0, still counts with what it covers (with its own
+    colours such Gaussians read as weightless, and compaction pruned 12,000 of 22,000 on cup,
+    2.1 dB held-out)."""
+    gaussians = Gaussians(gaussians.means, gaussians.log_scales, gaussians.quats,
+                          gaussians.opacity_logits, np.zeros((len(gaussians), 1, 3), np.float32))
     total = np.zeros(len(gaussians))
     for camera in cameras:
         result, state = tk.render_train(gaussians, camera, background=background,
