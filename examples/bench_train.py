@@ -9,13 +9,14 @@ beside what the 3DGS paper reports at 7K iterations on its benchmark scenes.
 
 Every 8th image (by name) is held out. At every --eval-every steps: training seconds so far
 (process CPU time, evaluation excluded), Gaussian count, .ply bytes, held-out PSNR/SSIM (and on
-cup the PSNR of 1.jpg, the view OpenSplat's CPU trainer is compared on). --until-done trains
-as a user's run with no step count does (until the held-out PSNR gains less than 0.1 dB a
-minute), then compacts (the last point; compaction's CPU time included). The curves go to a
-PNG (matplotlib, if installed): per scene PSNR against CPU seconds and against Gaussians (MB
-on the top axis), and a last panel with the end of each run beside the 3DGS paper's 7K and
-30K numbers (Kerbl et al. 2023, Table 1: other scenes, at their full resolution, on a GPU; for
-scale only). Their numbers go to a JSON beside the PNG. Then (unless --skip-step-times) a
+cup the PSNR of 1.jpg, the view OpenSplat's CPU trainer is compared on), and the wall seconds
+beside (what a user waits; with several threads CPU seconds add the threads' up).
+--until-done trains as a user's run with no step count does (until the held-out PSNR gains
+less than 0.1 dB a minute), then compacts (the last point; compaction's CPU time included).
+The curves go to a PNG (matplotlib, if installed): per scene PSNR against CPU seconds and
+against Gaussians (MB on the top axis), and a last panel with the end of each run beside the
+3DGS paper's 7K and 30K numbers (Kerbl et al. 2023, Table 1: other scenes, at their full
+resolution, on a GPU; for scale only). Their numbers go to a JSON beside the PNG. Then (unless --skip-step-times) a
 step-time table at fixed Gaussian counts with 1 and 2 threads, split into forward, loss,
 backward and Adam. Numbers only, never a test; the machine's load changes the seconds.
 """
@@ -67,7 +68,8 @@ def load(scene: str) -> ColmapDataset:
     return dataset
 
 
-def _point(trainer: Trainer, probe: int | None, seconds: float, step: int, **extra) -> dict:
+def _point(trainer: Trainer, probe: int | None, seconds: float, step: int, wall: float,
+           **extra) -> dict:
     ev = trainer.evaluate()
     one = float("nan")
     if probe is not None:
@@ -75,8 +77,9 @@ def _point(trainer: Trainer, probe: int | None, seconds: float, step: int, **ext
                      background=trainer.background, threads=trainer.config.threads).rgb
         one = psnr(rgb, trainer.dataset.image(probe))
     degree = trainer.gaussians.degree
-    return {"step": step, "cpu_seconds": seconds, "gaussians": len(trainer),
-            "bytes": ply_bytes(len(trainer), degree), "sh_degree": degree, "psnr": ev.psnr,
+    return {"step": step, "cpu_seconds": seconds, "wall_seconds": wall,
+            "gaussians": len(trainer), "bytes": ply_bytes(len(trainer), degree),
+            "sh_degree": degree, "psnr": ev.psnr,
             "ssim": ev.ssim, "probe_psnr": one} | extra
 
 
@@ -90,40 +93,43 @@ def curve(dataset: ColmapDataset, scene: str, config: TrainConfig, eval_every: i
           f"{len(dataset.train_indices)} train / {len(dataset.test_indices)} held-out views, "
           f"{len(trainer)} initial Gaussians, {config.threads or 'all'} threads, "
           + ("until done" if trainer.until_done else f"{config.steps} steps"))
-    print(f"{'step':>6} {'CPU s':>8} {'ms/step':>8} {'gaussians':>9} {'MB':>6} "
+    print(f"{'step':>6} {'CPU s':>8} {'wall s':>7} {'ms/step':>8} {'gaussians':>9} {'MB':>6} "
           f"{'test PSNR':>9} {'test SSIM':>9} {'1.jpg':>6}")
 
     def show(point: dict, ms: float, note: str = "") -> None:
-        print(f"{point['step']:>6} {point['cpu_seconds']:>8.1f} {ms:>8.1f} "
+        print(f"{point['step']:>6} {point['cpu_seconds']:>8.1f} {point['wall_seconds']:>7.1f} "
+              f"{ms:>8.1f} "
               f"{point['gaussians']:>9} {point['bytes'] / 1e6:>6.2f} {point['psnr']:>9.2f} "
               f"{point['ssim']:>9.4f} {point['probe_psnr']:>6.2f}{note}", flush=True)
 
     # CPU seconds of this process, not wall time: on a shared machine the wall clock mostly
     # measures the other users (with one thread the two agree on an idle machine). The stop
     # test's own evaluations (a run until done) count: they are part of such a run.
-    points, seconds, window = [], 0.0, []
+    points, seconds, wall, window = [], 0.0, 0.0, []
     steps = trainer.run()
     while True:
-        before = time.process_time()
+        before, wall_before = time.process_time(), time.perf_counter()
         stats = next(steps, None)
         spent = time.process_time() - before
         seconds += spent
+        wall += time.perf_counter() - wall_before
         if stats is None:
             break
         window.append(spent)
         if stats["step"] % eval_every == 0 or stats["step"] == trainer.step_limit:
-            points.append(_point(trainer, probe, seconds, stats["step"],
+            points.append(_point(trainer, probe, seconds, stats["step"], wall,
                                  sizing=stats["sizing"]))
             show(points[-1], 1000 * np.mean(window), f" {stats['sizing']}")
             window = []
     if not points or points[-1]["step"] != trainer.step:
-        points.append(_point(trainer, probe, seconds, trainer.step))
+        points.append(_point(trainer, probe, seconds, trainer.step, wall))
         show(points[-1], 1000 * np.mean(window or [0.0]))
     if trainer.until_done:
-        before = time.process_time()
+        before, wall_before = time.process_time(), time.perf_counter()
         compact(trainer)
         seconds += time.process_time() - before
-        points.append(_point(trainer, probe, seconds, trainer.step, compacted=True))
+        wall += time.perf_counter() - wall_before
+        points.append(_point(trainer, probe, seconds, trainer.step, wall, compacted=True))
         why = "converged" if trainer.converged else "at the most steps"
         show(points[-1], 0.0, f" compacted ({why})")
     return points
@@ -190,6 +196,14 @@ def plot(results: dict, path: Path, note: str) -> None:
     print(f"chart: {path}")
 
 
+def save(results: dict, path: Path, note: str) -> None:
+    """The curves' numbers, with the literature's, as JSON (what `--replot` reads)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(
+        {"note": note, "literature": {"source": LITERATURE_SOURCE, "rows": LITERATURE_3DGS}}
+        | {f"{scene}/{label}": points for (scene, label), points in results.items()}, indent=1))
+
+
 def replot(sources: list[Path], path: Path) -> None:
     """Chart (and save together) the curves of earlier runs' JSON files."""
     results, notes = {}, []
@@ -205,9 +219,7 @@ def replot(sources: list[Path], path: Path) -> None:
     results = {key: results[key] for scene in scenes for key in results if key[0] == scene}
     note = "; ".join(dict.fromkeys(notes))
     plot(results, path, note)
-    path.with_suffix(".json").write_text(json.dumps(
-        {"note": note, "literature": {"source": LITERATURE_SOURCE, "rows": LITERATURE_3DGS}}
-        | {f"{scene}/{label}": points for (scene, label), points in results.items()}, indent=1))
+    save(results, path.with_suffix(".json"), note)
 
 
 def literature_table() -> None:
@@ -293,6 +305,9 @@ def main() -> None:
     if not args.skip_curve:
         results = {}
         steps = 0 if args.until_done else args.steps
+        length = "until done" if args.until_done else f"{args.steps} steps"
+        note = (f"{length}, {args.threads or 'all'} thread(s), every 8th view held out; CPU "
+                f"seconds on a shared 2-core machine ({time.strftime('%Y-%m-%d')})")
         for scene in args.scenes:
             dataset = load(scene)
             runs = [(name, {"strategy": name}) for name in args.strategies]
@@ -302,15 +317,9 @@ def main() -> None:
                                          "threads": args.threads} | overrides))
                 results[scene, label] = curve(dataset, f"{scene} ({label})", config,
                                               args.eval_every)
+                save(results, args.plot.with_suffix(".json"), note)  # each run as it ends
         literature_table()
-        length = "until done" if args.until_done else f"{args.steps} steps"
-        note = (f"{length}, {args.threads or 'all'} thread(s), every 8th view held out; CPU "
-                f"seconds on a shared 2-core machine ({time.strftime('%Y-%m-%d')})")
         plot(results, args.plot, note)
-        args.plot.with_suffix(".json").write_text(json.dumps(
-            {"note": note, "literature": {"source": LITERATURE_SOURCE, "rows": LITERATURE_3DGS}}
-            | {f"{scene}/{strategy}": points for (scene, strategy), points in results.items()},
-            indent=1))
     if not args.skip_step_times:
         step_times(load("cup"), (10_000, 50_000, 100_000))
 

@@ -121,9 +121,9 @@ def test_compaction_shrinks_and_reports(dataset) -> None:
 
 def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
     # With no step count (0: until done), any real gain is below 1e9 dB a minute: the third
-    # check (step 30) stops the run.
+    # check (step 30) stops the run (with no annealing steps after it).
     config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
-                          stop_check_every=10)
+                          stop_check_every=10, anneal_steps=0)
     trainer = Trainer(dataset, config)
     history = list(trainer.run())
     assert trainer.converged and trainer.step == 30 and len(history) == 30
@@ -170,12 +170,12 @@ def test_coarse_to_fine_training_learns(dataset) -> None:
 
 def test_a_job_until_done_ends_done_compacts_and_says_so(dataset) -> None:
     config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
-                          stop_check_every=10, strategy="auto")
+                          stop_check_every=10, strategy="auto", anneal_steps=15)
     seen = []
     job = TrainingJob(Trainer(dataset, config), compact_after=True, on_progress=seen.append).run()
-    p = job.progress()
-    assert p.phase == "done" and p.step == 30 and p.until_done and p.total == 120
-    assert job.compaction is not None and job.final[0] == 30
+    p = job.progress()  # stalled at step 30, annealed 15 steps
+    assert p.phase == "done" and p.step == 45 and p.until_done and p.total == 120
+    assert job.compaction is not None and job.final[0] == 45
     training = [x for x in seen if x.phase == "training" and x.step > 20]
     assert training and all(x.sizing in ("growing", "settled") for x in training)
     line = status_line(training[-1])
@@ -198,3 +198,24 @@ def test_contribution_counts_dark_gaussians(dataset) -> None:
     dark = contribution(g, cameras, threads=2)
     assert np.array_equal(grey, dark)
     assert (dark[::2] > 0).sum() > 50
+
+
+def test_a_run_until_done_anneals_its_learning_rates_then_stops(dataset, tmp_path) -> None:
+    config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
+                          stop_check_every=10, anneal_steps=20, anneal_to=0.01)
+    trainer = Trainer(dataset, config)
+    plain = Trainer(dataset, short_config(steps=120))
+    rates = {}
+    for stats in trainer.run():
+        if stats["step"] in (30, 40):
+            rates[stats["step"]] = trainer.learning_rates()
+            trainer.save_checkpoint(tmp_path / f"at{stats['step']}.npz")
+    assert trainer.anneal_from == 30 and trainer.converged and trainer.step == 50
+    plain.step = 40
+    for name, rate in plain.learning_rates().items():  # half way: 0.01 ** (10 / 20) = 0.1
+        assert rates[40][name] == pytest.approx(0.1 * rate, rel=1e-12), name
+    resumed = Trainer.load_checkpoint(tmp_path / "at40.npz", dataset)
+    assert resumed.anneal_from == 30 and not resumed.converged
+    assert len(list(resumed.run())) == 10 and resumed.converged  # it finishes the annealing
+    for name in trainer.params:
+        assert np.array_equal(trainer.params[name], resumed.params[name]), name

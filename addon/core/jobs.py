@@ -147,9 +147,10 @@ class TrainingJob:
     `JobCancelled` once the job is cancelled (the job then ends "cancelled", with no trainer).
 
     steps: the step to stop at (None: the trainer's config.steps; 0: until done, as
-        `Trainer.run`); it is written into the trainer's config. checkpoint: a path; saved every `checkpoint_every` steps (0: never
-        in between) and at the end, also when cancelled after some steps (not when failed, nor
-        when cancelled before the first step: an earlier checkpoint stays as it was).
+        `Trainer.run`); it is written into the trainer's config.
+    checkpoint: a path; saved every `checkpoint_every` steps (0: never in between) and at the
+        end, also when cancelled after some steps (not when failed, nor when cancelled before
+        the first step: an earlier checkpoint stays as it was).
     snapshot_every: publish a copy of the Gaussians every so many steps (0: only at the end).
     before_step(trainer): called on the worker before every step (e.g. a random background).
     after_training(trainer): called on the worker once training stops (cancelled or not),

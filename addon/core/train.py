@@ -18,8 +18,9 @@ What it does, as the reference implementation (Kerbl et al. 2023) does unless no
 - deterministic for a given seed (the native kernels are identical for any thread count), for
   a fixed step count;
 - with no step count (`TrainConfig.steps` 0) training stops when done: when the held-out PSNR
-  gains less than `stop_below_db_per_minute` per minute of training (or at `max_steps`). Where
-  that happens depends on the machine's speed, so such a run is not repeatable to the step.
+  gains less than `stop_below_db_per_minute` per minute of training, it anneals the learning
+  rates over `anneal_steps` more steps and stops (or at `max_steps`). Where that happens
+  depends on the machine's speed, so such a run is not repeatable to the step.
 
 `compact()` (after training, not in the reference) prunes Gaussians whose total contribution to
 the training views is negligible and drops SH bands that do not improve them, and reports size
@@ -138,6 +139,7 @@ class Trainer:
         self.step = 0
         self.seconds = 0.0  # training time so far (the steps' wall time, evaluations excluded)
         self.converged = False
+        self.anneal_from: int | None = None  # the step a run until done began to finish at
         self.checks: list[tuple[float, float]] = []  # (seconds, PSNR) at each stopping check
         self.background = np.asarray(config.background, np.float32)
         # A short run spends at most its first half coarse (fixed now: a resume that asks for
@@ -178,9 +180,13 @@ class Trainer:
 
     def learning_rates(self) -> dict[str, float]:
         c = self.config
-        return {"means": position_lr(c, self.step, self.extent), "log_scales": c.scaling_lr,
-                "quats": c.rotation_lr, "opacity_logits": c.opacity_lr, "sh_dc": c.sh_dc_lr,
-                "sh_rest": c.sh_rest_lr}
+        rates = {"means": position_lr(c, self.step, self.extent), "log_scales": c.scaling_lr,
+                 "quats": c.rotation_lr, "opacity_logits": c.opacity_lr, "sh_dc": c.sh_dc_lr,
+                 "sh_rest": c.sh_rest_lr}
+        if self.anneal_from is not None:  # a run until done, finishing: see `run`
+            t = min((self.step - self.anneal_from) / max(c.anneal_steps, 1), 1.0)
+            rates = {name: rate * c.anneal_to ** t for name, rate in rates.items()}
+        return rates
 
     # -- one step -------------------------------------------------------------------------
     def resolution_level(self, step: int | None = None) -> int:
@@ -268,11 +274,15 @@ class Trainer:
         """Train up to `steps` (default: `step_limit`) total steps, or until done, yielding
         each step's stats."""
         target = self.step_limit if steps is None else steps
+        c = self.config
         while self.step < target and not (self.until_done and self.converged):
             stats = self.train_step()
             self.seconds += stats["seconds"]
-            if self.until_done and self.step % self.config.stop_check_every == 0:
-                self.converged = self._gain_has_stalled()
+            if self.until_done and self.anneal_from is None \
+                    and self.step % c.stop_check_every == 0 and self._gain_has_stalled():
+                self.anneal_from = self.step  # the gain stalled: anneal, then stop
+            if self.anneal_from is not None and self.step >= self.anneal_from + c.anneal_steps:
+                self.converged = True
             yield stats
 
     def _gain_has_stalled(self) -> bool:
@@ -315,6 +325,7 @@ class Trainer:
         meta = {"step": self.step, "config": asdict(self.config), "order": self._order,
                 "rng": self.rng.bit_generator.state, "seconds": self.seconds,
                 "converged": self.converged, "checks": self.checks,
+                "anneal_from": self.anneal_from,
                 "coarse_until": self.coarse_until}
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez(tmp, meta=np.frombuffer(repr(meta).encode(), np.uint8),
@@ -335,6 +346,7 @@ class Trainer:
         trainer.step = int(meta["step"])
         trainer.seconds = float(meta.get("seconds", 0.0))
         trainer.converged = bool(meta.get("converged", False))
+        trainer.anneal_from = meta.get("anneal_from")
         trainer.checks = [tuple(c) for c in meta.get("checks", [])]
         trainer.coarse_until = int(meta.get("coarse_until", config.coarse_until))
         trainer._order = list(meta["order"])

@@ -28,4 +28,5 @@ def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator) 
     return kind(config, extent, rng)
 
 
-__all__ = ["STRATEGIES", "AutoStrategy", "DefaultStrategy", "MCMCStrategy", "StepInfo", "Strategy", "make_strategy"]
+__all__ = ["STRATEGIES", "AutoStrategy", "DefaultStrategy", "MCMCStrategy", "StepInfo", "Strategy",
+           "make_strategy"]

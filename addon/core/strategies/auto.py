@@ -99,5 +99,6 @@ class AutoStrategy(MCMCStrategy):
         super().load_state_arrays(data)
         growing, misses, level, fall_sum, fall_steps, count = data["auto_state"]
         self.growing, self.misses, self.level = bool(growing), int(misses), int(level)
-        self.fall_sum, self.fall_steps, self.previous_count = float(fall_sum), int(fall_steps), int(count)
+        self.fall_sum, self.fall_steps = float(fall_sum), int(fall_steps)
+        self.previous_count = int(count)
         self.view_loss = {int(v): (int(s), float(loss)) for v, s, loss in data["auto_view_loss"]}
