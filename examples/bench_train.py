@@ -217,7 +217,7 @@ def replot(sources: list[Path], path: Path) -> None:
                 results[scene, label] = points
     scenes = list(dict.fromkeys(scene for scene, _ in results))  # scene by scene, as measured
     results = {key: results[key] for scene in scenes for key in results if key[0] == scene}
-    note = "; ".join(dict.fromkeys(notes))
+    note = "\n".join(dict.fromkeys(notes))
     plot(results, path, note)
     save(results, path.with_suffix(".json"), note)
 
