@@ -6,7 +6,8 @@
     blender --background --python examples/train.py -- --colmap DIR --steps 7000 --out out.ply
 
 With no --steps, training stops when done: when the held-out PSNR gains less than
---stop-gain dB per minute (checked every 500 steps; at most 30000 steps), then compacts.
+--stop-gain dB per minute (0.1; checked every 500 steps; at most 30000 steps), then compacts.
+The default strategy, "auto", sizes the model itself (--max-gaussians is only a ceiling).
 Every 8th image (by name) is held out; held-out PSNR/SSIM is printed every --eval-every steps
 and at the end. --compact prunes negligible Gaussians and SH bands afterwards and reports size
 against PSNR. --checkpoint saves the full state there at the end (and --resume continues one).
@@ -28,10 +29,7 @@ from addon.core import splat_io  # noqa: E402
 from addon.core.colmap import read_colmap  # noqa: E402
 from addon.core.dataset import ColmapDataset  # noqa: E402
 from addon.core.train import Trainer, TrainConfig, compact, ply_bytes  # noqa: E402
-
-STOP_GAIN_DB_PER_MINUTE = 0.1
-MAX_STEPS = 30_000
-
+from addon.core.train_config import STRATEGY_NAMES  # noqa: E402
 
 def arguments(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -39,11 +37,13 @@ def arguments(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--images", default="images", help="image folder (images, images_4, ...)")
     parser.add_argument("--downscale", type=float, default=1.0, help="further downscale factor")
     parser.add_argument("--steps", type=int, default=None, help="a fixed count (default: until done)")
-    parser.add_argument("--stop-gain", type=float, default=STOP_GAIN_DB_PER_MINUTE,
+    parser.add_argument("--stop-gain", type=float, default=TrainConfig.stop_below_db_per_minute,
                         help="without --steps: stop below this held-out gain, dB per minute")
-    parser.add_argument("--strategy", default=TrainConfig.strategy,
-                        help="densification: mcmc or default (the reference's)")
-    parser.add_argument("--max-gaussians", type=int, default=300_000)
+    parser.add_argument("--strategy", default=TrainConfig.strategy, choices=STRATEGY_NAMES,
+                        help="densification: auto (sizes the model itself), mcmc (grows to "
+                             "--max-gaussians) or default (the reference's)")
+    parser.add_argument("--max-gaussians", type=int, default=TrainConfig.max_gaussians,
+                        help="a ceiling on the Gaussian count")
     parser.add_argument("--sh-degree", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=0, help="0: all cores")
@@ -63,13 +63,13 @@ def main(argv: list[str]) -> None:
     scene = read_colmap(args.colmap, image_folder=args.images, cache_dir=args.cache_dir)
     dataset = ColmapDataset(scene, downscale=args.downscale)
     dataset.preload(threads=args.threads)
-    steps = args.steps or MAX_STEPS
-    config = TrainConfig(steps=steps, max_gaussians=args.max_gaussians, strategy=args.strategy,
-                         sh_degree=args.sh_degree, seed=args.seed, threads=args.threads,
-                         stop_below_db_per_minute=0.0 if args.steps else args.stop_gain)
+    config = TrainConfig(steps=args.steps or 0, max_gaussians=args.max_gaussians,
+                         strategy=args.strategy, sh_degree=args.sh_degree, seed=args.seed,
+                         threads=args.threads, stop_below_db_per_minute=args.stop_gain)
     trainer = (Trainer.load_checkpoint(args.resume, dataset) if args.resume
                else Trainer(dataset, config))
-    trainer.config.steps = steps
+    trainer.config.steps = config.steps
+    steps = trainer.step_limit
     camera = dataset.cameras[0]
     print(f"{len(dataset)} images ({len(dataset.train_indices)} train, "
           f"{len(dataset.test_indices)} held out) at {camera.width}x{camera.height}, "
@@ -84,12 +84,13 @@ def main(argv: list[str]) -> None:
             print(f"{stats['step']:>6} {time.perf_counter() - train_start:>8.1f} "
                   f"{1000 * sum(window) / len(window):>8.1f} {len(trainer):>10} "
                   f"{ply_bytes(len(trainer), trainer.config.sh_degree) / 1e6:>7.2f} "
-                  f"{ev.psnr:>9.2f} {ev.ssim:>9.4f}", flush=True)
+                  f"{ev.psnr:>9.2f} {ev.ssim:>9.4f} {stats['sizing']}", flush=True)
             window = []
-    if trainer.converged:
-        print(f"done at step {trainer.step}: the held-out PSNR gained less than "
-              f"{args.stop_gain} dB a minute; compacting")
-    if args.compact or trainer.converged:
+    if trainer.until_done:
+        print(f"done at step {trainer.step}: " + (
+            f"the held-out PSNR gained less than {args.stop_gain} dB a minute" if trainer.converged
+            else f"the most steps ({steps})") + "; compacting")
+    if args.compact or trainer.until_done:
         report = compact(trainer)
         print(f"compaction: {report.before} -> {report.after}")
     if args.checkpoint:

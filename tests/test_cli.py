@@ -141,3 +141,15 @@ def test_render_gives_each_frame_its_marker_cameras_size(tmp_path, rng):
     assert result.returncode == 0, result.stderr
     assert image_io.read_header(tmp_path / "f_0001.png").size(False) == (80, 60)
     assert image_io.read_header(tmp_path / "f_0002.png").size(False) == (48, 72)
+
+
+def test_train_leaves_the_training_defaults_to_the_operator():
+    parser = cli.build_parser("test")
+    args = parser.parse_args(["train", "scene", "--out", "out.ply"])
+    names = ("steps", "max_gaussians", "strategy", "sh_degree", "compact")
+    assert cli._options(args, names) == {}  # noqa: SLF001 (until done, auto, compacted)
+    args = parser.parse_args(["train", "scene", "--out", "out.ply", "--steps", "7000",
+                              "--strategy", "default", "--no-compact"])
+    assert cli._options(args, names) == {"steps": 7000, "strategy": "default",  # noqa: SLF001
+                                         "compact": False}
+    assert cli.main(["train", "scene", "--out", "o.ply", "--strategy", "nope"]) == 2

@@ -3,6 +3,7 @@ deterministic, it resumes exactly, it keeps to its budget, and compaction shrink
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +11,10 @@ import pytest
 
 from addon.core.colmap import read_colmap
 from addon.core.dataset import ColmapDataset
+from addon.core.jobs import TrainingJob, status_line
 from addon.core.render import project
-from addon.core.train import (Trainer, TrainConfig, compact, downscaled_view, initial_gaussians,
-                              nearest_mean_sq_distance, position_lr)
+from addon.core.train import (Trainer, TrainConfig, compact, contribution, downscaled_view,
+                              initial_gaussians, nearest_mean_sq_distance, position_lr)
 
 DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
 
@@ -118,8 +120,10 @@ def test_compaction_shrinks_and_reports(dataset) -> None:
 
 
 def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
-    # Any real gain is below 1e9 dB a minute: the third check (step 30) stops the run.
-    config = short_config(steps=120, stop_below_db_per_minute=1e9, stop_check_every=10)
+    # With no step count (0: until done), any real gain is below 1e9 dB a minute: the third
+    # check (step 30) stops the run (with no annealing steps after it).
+    config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
+                          stop_check_every=10, anneal_steps=0)
     trainer = Trainer(dataset, config)
     history = list(trainer.run())
     assert trainer.converged and trainer.step == 30 and len(history) == 30
@@ -128,8 +132,8 @@ def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
     resumed = Trainer.load_checkpoint(tmp_path / "state.npz", dataset)
     assert resumed.converged and resumed.checks == trainer.checks
     assert list(resumed.run()) == []
-    # Off by default: the step count alone ends the run.
-    plain = Trainer(dataset, short_config(steps=40))
+    # A fixed step count: the count alone ends the run.
+    plain = Trainer(dataset, short_config(steps=40, stop_below_db_per_minute=1e9))
     list(plain.run())
     assert plain.step == 40 and not plain.converged and plain.checks == []
 
@@ -162,3 +166,56 @@ def test_coarse_to_fine_training_learns(dataset) -> None:
     history = list(trainer.run())
     assert trainer.evaluate(dataset.train_indices[:6]).psnr > start + 3.0
     assert any(s["densified"] for s in history) and trainer.gaussians.non_finite() is None
+
+
+def test_a_job_until_done_ends_done_compacts_and_says_so(dataset) -> None:
+    config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
+                          stop_check_every=10, strategy="auto", anneal_steps=15)
+    seen = []
+    job = TrainingJob(Trainer(dataset, config), compact_after=True, on_progress=seen.append).run()
+    p = job.progress()  # stalled at step 30, annealed 15 steps
+    assert p.phase == "done" and p.step == 45 and p.until_done and p.total == 120
+    assert job.compaction is not None and job.final[0] == 45
+    training = [x for x in seen if x.phase == "training" and x.step > 20]
+    assert training and all(x.sizing in ("growing", "settled") for x in training)
+    line = status_line(training[-1])
+    assert line.startswith("Training step ") and "(until done)" in line
+    assert "Gaussians (growing)" in line or "Gaussians (settled)" in line
+    assert "dB/min" in line and "ETA" not in line
+    # A fixed count ends at its step and shows its ETA.
+    fixed = TrainingJob(Trainer(dataset, short_config(steps=12)), evaluate=False).run()
+    assert fixed.progress().phase == "done" and not fixed.progress().until_done
+    assert "ETA" in status_line(replace(fixed.progress(), phase="training"))
+
+
+def test_contribution_counts_dark_gaussians(dataset) -> None:
+    # Blending weights do not depend on colour: a black Gaussian (red clamped at 0) covers as
+    # much as a grey one and must not read as weightless (compaction would prune it).
+    g = Trainer(dataset, short_config()).gaussians.subset(slice(0, 400)).copy()
+    cameras = [dataset.cameras[i] for i in dataset.train_indices[:3]]
+    grey = contribution(g, cameras, threads=2)
+    g.sh[::2] = -5.0  # every other Gaussian black
+    dark = contribution(g, cameras, threads=2)
+    assert np.array_equal(grey, dark)
+    assert (dark[::2] > 0).sum() > 50
+
+
+def test_a_run_until_done_anneals_its_learning_rates_then_stops(dataset, tmp_path) -> None:
+    config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
+                          stop_check_every=10, anneal_steps=20, anneal_to=0.01)
+    trainer = Trainer(dataset, config)
+    plain = Trainer(dataset, short_config(steps=120))
+    rates = {}
+    for stats in trainer.run():
+        if stats["step"] in (30, 40):
+            rates[stats["step"]] = trainer.learning_rates()
+            trainer.save_checkpoint(tmp_path / f"at{stats['step']}.npz")
+    assert trainer.anneal_from == 30 and trainer.converged and trainer.step == 50
+    plain.step = 40
+    for name, rate in plain.learning_rates().items():  # half way: 0.01 ** (10 / 20) = 0.1
+        assert rates[40][name] == pytest.approx(0.1 * rate, rel=1e-12), name
+    resumed = Trainer.load_checkpoint(tmp_path / "at40.npz", dataset)
+    assert resumed.anneal_from == 30 and not resumed.converged
+    assert len(list(resumed.run())) == 10 and resumed.converged  # it finishes the annealing
+    for name in trainer.params:
+        assert np.array_equal(trainer.params[name], resumed.params[name]), name

@@ -19,7 +19,9 @@ from addon.core.dataset import ColmapDataset
 from addon.core.gaussians import Gaussians
 from addon.core.optimizer import GaussianParameters
 from addon.core.strategies import STRATEGIES, StepInfo, Strategy
+from addon.core.strategies.auto import AutoStrategy
 from addon.core.strategies.mcmc import MCMCStrategy, relocation
+from addon.core.train_config import STRATEGY_NAMES
 from addon.core.train import Trainer, TrainConfig
 
 DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
@@ -126,15 +128,16 @@ def test_mcmc_learns_within_its_budget(dataset) -> None:
     assert trainer.gaussians.non_finite() is None
 
 
-def test_mcmc_is_deterministic_and_resumes_exactly(dataset, tmp_path) -> None:
-    a = Trainer(dataset, mcmc_config(steps=70))
-    b = Trainer(dataset, mcmc_config(steps=70, threads=1))
+@pytest.mark.parametrize("strategy", ["mcmc", "auto"])
+def test_mcmc_is_deterministic_and_resumes_exactly(dataset, tmp_path, strategy) -> None:
+    a = Trainer(dataset, mcmc_config(steps=70, strategy=strategy))
+    b = Trainer(dataset, mcmc_config(steps=70, threads=1, strategy=strategy))
     list(a.run()), list(b.run())
-    first = Trainer(dataset, mcmc_config(steps=70))
+    first = Trainer(dataset, mcmc_config(steps=70, strategy=strategy))
     list(first.run(35))
     first.save_checkpoint(tmp_path / "state.npz")
     resumed = Trainer.load_checkpoint(tmp_path / "state.npz", dataset)
-    assert isinstance(resumed.strategy, MCMCStrategy)
+    assert isinstance(resumed.strategy, STRATEGIES[strategy])
     list(resumed.run())
     for name in a.params:
         assert np.array_equal(a.params[name], b.params[name]), name
@@ -181,6 +184,70 @@ def test_a_strategy_is_called_around_the_optimizer(dataset) -> None:
 
 
 def test_unknown_strategy_is_refused(dataset) -> None:
-    assert {"default", "mcmc"} <= set(STRATEGIES)
+    assert set(STRATEGY_NAMES) == set(STRATEGIES)  # the names UI lists show are the strategies
+    assert {"default", "mcmc", "auto"} <= set(STRATEGIES)
     with pytest.raises(ValueError, match="unknown densification strategy 'nope'.*default"):
         Trainer(dataset, TrainConfig(strategy="nope"))
+
+
+class _LossStream:
+    """Drives an AutoStrategy as a trainer would: steps over 5 views in turn, the loss falling
+    smoothly by a given fraction per densification interval (10 steps), then a growth decision."""
+
+    def __init__(self, strategy, params) -> None:
+        self.strategy, self.params = strategy, params
+        self.step, self.loss = 0, 1.0
+
+    def interval(self, fall: float, level: int = 1, steps: int = 10) -> int:
+        per_step = (1.0 - fall) ** (1.0 / 10)
+        for _ in range(steps):
+            self.step += 1
+            self.loss *= per_step
+            grads = tk.Gradients.zeros_like(self.params.gaussians)
+            self.strategy.after_backward(self.params, StepInfo(
+                self.step, None, None, grads, {}, self.loss, level, self.step % 5))
+        return self.strategy.grow(self.params)
+
+
+def test_auto_grows_while_growth_pays_then_settles(rng) -> None:
+    config = TrainConfig(strategy="auto", densify_every=10, mcmc_growth=0.05,
+                         auto_gain_per_growth=0.2, auto_patience=2, max_gaussians=10_000)
+    params = GaussianParameters(random_gaussians(rng, 200, 0))
+    strategy = AutoStrategy(config, 1.0, rng)
+    strategy.reset(len(params))
+    run = _LossStream(strategy, params)
+    # The loss falls 5 % an interval: each 5 % growth bought more than 0.2 x 5 % = 1 %.
+    assert all(run.interval(0.05) > 0 for _ in range(4)) and strategy.sizing == "growing"
+    # Flat: half of the first flat interval's comparisons reach back into the falling one;
+    # then the first miss still grows (patience 2), the second settles the count.
+    assert run.interval(0.0) > 0
+    assert run.interval(0.0) > 0 and strategy.misses == 1
+    assert run.interval(0.0) == 0 and strategy.sizing == "settled"
+    count = len(params)
+    assert run.interval(0.5) == 0 and run.interval(0.3) == 0  # settled at this resolution
+    assert len(params) == count
+    # Finer images: it grows again.
+    assert run.interval(0.05, level=0) > 0 and strategy.sizing == "growing"
+    assert run.interval(-0.1, level=0) > 0  # a rising loss: the first miss
+    # An interval cut short (too few views seen twice) gives no verdict.
+    assert run.interval(0.0, level=0, steps=1) > 0
+    assert run.interval(0.0, level=0) == 0  # the second miss: settled
+    # The ceiling holds whatever the loss does.
+    strategy.growing = True
+    config.max_gaussians = len(params) + 3
+    assert run.interval(0.2, level=0) == 3
+    assert run.interval(0.2, level=0) == 0 and len(params) == config.max_gaussians
+
+
+def test_auto_learns_and_keeps_its_sizing_through_a_checkpoint(dataset, tmp_path) -> None:
+    trainer = Trainer(dataset, mcmc_config(strategy="auto", steps=150))
+    start = trainer.evaluate(dataset.train_indices[:6]).psnr
+    history = list(trainer.run())
+    assert trainer.evaluate(dataset.train_indices[:6]).psnr > start + 3.0
+    assert len(trainer) > history[0]["gaussians"]  # it grew
+    assert {s["sizing"] for s in history} <= {"growing", "settled"}
+    trainer.save_checkpoint(tmp_path / "state.npz")
+    resumed = Trainer.load_checkpoint(tmp_path / "state.npz", dataset)
+    for name in ("growing", "misses", "level", "fall_sum", "fall_steps", "previous_count",
+                 "view_loss"):
+        assert getattr(resumed.strategy, name) == getattr(trainer.strategy, name), name

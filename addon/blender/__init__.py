@@ -17,6 +17,7 @@ MODULE_NAMES: list[str] = [
     "render_panel", "render_failures", "render_hooks", "viewport",  # rendering with meshes
     "job_runner",  # long jobs: status bar, Esc, splat.train_stop
     "train_operator", "scene_to_splats",  # training: splat.train, splat.bake_to_splats
+    "training_panel",  # 3D View sidebar: start training, follow its progress
     "mesh_convert",  # splats to a textured mesh: splat.convert_to_mesh
     "cli_command",  # blender -c gaussian_splatting <verb> (addon.cli)
 ]

@@ -132,7 +132,8 @@ def draw_status(self, context) -> None:
         bar = row.row(align=True)
         bar.ui_units_x = 6
         bar.progress(factor=p.fraction, type="BAR",
-                     text=f"{running.title} {100 * p.fraction:.0f} %")
+                     text=(f"{running.title} {p.step:,}" if p.until_done else
+                           f"{running.title} {100 * p.fraction:.0f} %"))
         row.label(text=status_line(p, running.title))
         stop = row.operator(SPLAT_OT_train_stop.bl_idname, text="", icon="CANCEL", emboss=False)
         stop.key = running.key

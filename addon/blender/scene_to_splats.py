@@ -2,7 +2,7 @@
 and `scene_to_splats()` for scripts. (Splats to a mesh's texture is `mesh_convert` and
 `addon/core/mesh_texture.py`.)
 
-    bpy.ops.splat.bake_to_splats(cameras=64, resolution=(256, 256), samples=32, steps=3000,
+    bpy.ops.splat.bake_to_splats(cameras=64, resolution=(256, 256), samples=32,
                                  filepath="//chair.ply")
 
 What it does:
@@ -31,7 +31,9 @@ What it does:
    (`addon.core.scene_to_splats.RandomBackground`), so transparent parts of the renders must
    stay transparent: no background, no dark fringe. The Gaussians start from `initial_points`
    points spread over the targets' surfaces (area-weighted, the material's base colour, else
-   grey). By default every view trains (`hold_out` 0).
+   grey). By default every view trains (`hold_out` 0). The training settings and their defaults
+   are Train Gaussians' (`train_operator.TrainingSettings`): until done (with no held-out
+   views the stop test measures up to 8 training views), the "auto" strategy, compaction.
 6. Output: a splat object `<object> Splats` (world space, identity transform) in the active
    collection, and the .ply at `filepath` (`addon.core.splat_io.save`, the standard 3DGS layout
    web viewers read). Empty `filepath`: `<blend>_<object>_splats.ply` beside the saved .blend,
@@ -67,7 +69,7 @@ from . import dependencies, splat_object
 from .camera_adapter import set_camera
 from .job_runner import (JobOperator, OperatorJob, draw_settings, is_running, preparing,
                          registration)
-from .train_operator import COMPACT_DESCRIPTION, TrainingSettings
+from .train_operator import TrainingSettings
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "CURVES", "POINTCLOUD", "VOLUME",
                   "GREASEPENCIL"}
@@ -337,7 +339,9 @@ def default_ply_path(name: str) -> Path:
 
 
 def prepare_scene_to_splats(context, *, cameras: int = 64, resolution=(256, 256), samples: int = 32,
-                 denoise: bool = False, steps: int = 3000, max_gaussians: int = 200_000,
+                 denoise: bool = False, steps: int = TrainConfig.steps,
+                 max_gaussians: int = TrainConfig.max_gaussians,
+                 strategy: str = TrainConfig.strategy,
                  sh_degree: int = 3, radius_factor: float = 2.5, upper_hemisphere: bool = False,
                  only_selected: bool = True, initial_points: int = 10_000, hold_out: int = 0,
                  seed: int = 0, threads: int = 0, compact: bool = True, update_every: int = 200,
@@ -369,7 +373,7 @@ def prepare_scene_to_splats(context, *, cameras: int = 64, resolution=(256, 256)
                           progress=progress)
     dataset = ImageDataset(views, images, points, test_every=hold_out)
     name = f"{targets[0].name} Splats" if len(targets) == 1 else "Baked Splats"
-    config = TrainConfig(steps=int(steps), max_gaussians=int(max_gaussians),
+    config = TrainConfig(steps=int(steps), max_gaussians=int(max_gaussians), strategy=strategy,
                          sh_degree=int(sh_degree), seed=int(seed), threads=int(threads),
                          max_initial_points=max(1, int(initial_points)))
     path = Path(bpy.path.abspath(filepath)) if filepath else default_ply_path(name)
@@ -484,8 +488,6 @@ class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator)
                          description="Cycles samples per view")
     denoise: BoolProperty(name="Denoise", default=False,
                           description="Denoise the renders (cleaner targets at few samples)")
-    steps: IntProperty(name="Steps", default=3000, min=1, soft_max=30000)
-    max_gaussians: IntProperty(name="Max Gaussians", default=200_000, min=1, soft_max=3_000_000)
     radius_factor: FloatProperty(
         name="Distance", default=2.5, min=1.05, soft_max=10.0,
         description="Camera distance from the centre, in bounding-sphere radii")
@@ -500,14 +502,13 @@ class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator)
     hold_out: IntProperty(name="Hold Out Every", default=0, min=0, soft_max=32,
                           description="Every n-th view is held out to measure quality (0: all "
                                       "views train)")
-    compact: BoolProperty(name="Compact", default=True, description=COMPACT_DESCRIPTION)
     filepath: StringProperty(name="Output", subtype="FILE_PATH",
                              description="The .ply to write (empty: beside the .blend, or the "
                                          "temporary folder)")
 
     DIALOG = (("cameras", "resolution", "samples", "denoise", "radius_factor",
                "upper_hemisphere", "only_selected"),
-              ("steps", "max_gaussians", "sh_degree", "initial_points", "compact"),
+              ("steps", "max_gaussians", "strategy", "sh_degree", "initial_points", "compact"),
               ("hold_out", "update_every", "threads", "seed"), "filepath")
 
     @classmethod
@@ -523,7 +524,7 @@ class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator)
     def _options(self) -> dict:
         return dict(cameras=self.cameras, resolution=tuple(self.resolution), samples=self.samples,
                     denoise=self.denoise, steps=self.steps, max_gaussians=self.max_gaussians,
-                    sh_degree=self.sh_degree, radius_factor=self.radius_factor,
+                    strategy=self.strategy, sh_degree=self.sh_degree, radius_factor=self.radius_factor,
                     upper_hemisphere=self.upper_hemisphere, only_selected=self.only_selected,
                     initial_points=self.initial_points, hold_out=self.hold_out, seed=self.seed,
                     threads=self.threads, compact=self.compact, update_every=self.update_every,

@@ -1,8 +1,13 @@
 """Training Gaussians in Blender: `bpy.ops.splat.train` on an imported COLMAP scene, and
 `train_colmap_collection()` for scripts.
 
-    bpy.ops.splat.train(collection="garden", steps=7000, max_gaussians=200_000)   # blocks
+    bpy.ops.splat.train(collection="garden")   # blocks; until done, as many Gaussians as needed
+    bpy.ops.splat.train(collection="garden", steps=7000, max_gaussians=200_000)   # fixed count
     bpy.ops.splat.train("INVOKE_DEFAULT")      # the menu's way: a dialog, then in the background
+
+The defaults are `TrainConfig`'s, shared with Bake to Splats (`TrainingSettings`): no step
+count (train until the held-out PSNR gains less than 0.1 dB a minute), the "auto" strategy
+(the count follows from the photos; Max Gaussians is a ceiling), compaction afterwards.
 
     from addon.blender.train_operator import train_colmap_collection
     obj = train_colmap_collection(bpy.data.collections["garden"], TrainConfig(steps=3000))
@@ -49,7 +54,7 @@ from typing import Callable
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ..core import colmap_training
 from ..core.colmap_training import ColmapSource, TrainRequest
@@ -57,6 +62,7 @@ from ..core.dataset import NO_CAMERA, Points
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, TrainingJob, compaction_note
 from ..core.train import TrainConfig
+from ..core.train_config import STRATEGY_NAMES
 from . import dependencies, job_runner, splat_object
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, draw_settings, registration
@@ -196,7 +202,7 @@ def write_splats(collection_name: str, gaussians: Gaussians, *, antialiased: boo
 def train_request(collection, config: TrainConfig | None = None, *, image_folder: str = "",
                   downscale: float = 1.0, test_every: int = 8, checkpoint: str | Path = "",
                   resume: bool = False, checkpoint_every: int = 1000, update_every: int = 200,
-                  compact: bool = False) -> TrainRequest:
+                  compact: bool = True) -> TrainRequest:
     """Read the collection and check the inputs on the main thread; raises ValueError /
     FileNotFoundError, or MissingModule (an ImportError) for a module training needs."""
     for module in ("splatcore", "OpenImageIO", "pycolmap"):  # kernels, photos, the model
@@ -324,12 +330,36 @@ def train_colmap_collection(collection, config: TrainConfig | None = None,
 # -- operators ------------------------------------------------------------------------------------
 
 COMPACT_DESCRIPTION = "After training, prune negligible Gaussians and unneeded SH bands"
+STRATEGY_ITEMS = {
+    "auto": ("Automatic", "As many Gaussians as the images need: 3DGS-MCMC that grows while "
+                          "added Gaussians still lower the training error, then settles"),
+    "mcmc": ("MCMC", "3DGS-MCMC: grows 5 % every 100 steps up to Max Gaussians"),
+    "default": ("Reference", "The reference 3DGS densification (clone, split, prune) within "
+                             "Max Gaussians"),
+}
+_STRATEGY_ENUM = [(name, *STRATEGY_ITEMS[name]) for name in STRATEGY_NAMES]
+_DEFAULTS = TrainConfig()
 
 
 class TrainingSettings:
-    """Settings both training operators share (Train Gaussians, Bake to Splats)."""
+    """Settings both training operators share (Train Gaussians, Bake to Splats), with one set
+    of defaults: `TrainConfig`'s."""
 
-    sh_degree: IntProperty(name="SH Degree", default=3, min=0, max=3,
+    steps: IntProperty(name="Steps", default=_DEFAULTS.steps, min=0, soft_max=30000,
+                       description=f"A fixed number of optimisation steps; 0: until done, when "
+                                   f"the held-out PSNR (with no held-out views, the training "
+                                   f"views') gains less than "
+                                   f"{_DEFAULTS.stop_below_db_per_minute} dB a minute (at most "
+                                   f"{_DEFAULTS.max_steps:,} steps)")
+    max_gaussians: IntProperty(name="Max Gaussians", default=_DEFAULTS.max_gaussians, min=1,
+                               soft_max=3_000_000,
+                               description="A ceiling on the Gaussian count (Automatic sizes "
+                                           "the model itself below it)")
+    strategy: EnumProperty(name="Densification", default=_DEFAULTS.strategy,
+                           items=_STRATEGY_ENUM,
+                           description="How the Gaussians grow and move while training")
+    compact: BoolProperty(name="Compact", default=True, description=COMPACT_DESCRIPTION)
+    sh_degree: IntProperty(name="SH Degree", default=_DEFAULTS.sh_degree, min=0, max=3,
                            description="Spherical-harmonics bands to train (view-dependent colour)")
     seed: IntProperty(name="Seed", default=0, min=0)
     threads: IntProperty(name="Threads", default=0, min=0, soft_max=64,
@@ -350,10 +380,6 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
     collection: StringProperty(name="COLMAP Scene", description=(
         "The imported COLMAP collection (empty: the active object's, the active collection, or "
         "the scene's only one)"))
-    steps: IntProperty(name="Steps", default=7000, min=1, soft_max=30000,
-                       description="Total optimisation steps (when resuming: up to this many)")
-    max_gaussians: IntProperty(name="Max Gaussians", default=300_000, min=1,
-                               soft_max=3_000_000, description="The Gaussian budget")
     image_folder: StringProperty(name="Image Folder", description=(
         "Photos to train on: a folder beside the model (images_2, images_4, ...) or an absolute "
         "path (empty: the import's)"))
@@ -366,14 +392,13 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
                               description="Train for the Mip-Splatting antialiased render mode")
     checkpoint_every: IntProperty(name="Checkpoint Every", default=1000, min=0, soft_max=10000,
                                   description="Steps between checkpoints (0: only at the end)")
-    compact: BoolProperty(name="Compact", default=False, description=COMPACT_DESCRIPTION)
     resume: BoolProperty(name="Resume", default=False,
                          description="Continue from the checkpoint (up to Steps in total)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH",
                                description="Checkpoint file (empty: beside the .blend, or the "
                                            "user cache folder for an unsaved file)")
 
-    DIALOG = ("collection", ("steps", "max_gaussians", "sh_degree"),
+    DIALOG = ("collection", ("steps", "max_gaussians", "strategy", "sh_degree"),
               ("image_folder", "downscale", "hold_out"),
               ("update_every", "checkpoint_every", "threads", "seed"),
               "antialiased", "compact", "resume", "checkpoint")
@@ -400,8 +425,8 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
             return {"CANCELLED"}
         self.collection = collection.name
         config = TrainConfig(steps=self.steps, max_gaussians=self.max_gaussians,
-                             sh_degree=self.sh_degree, seed=self.seed, threads=self.threads,
-                             antialiased=self.antialiased)
+                             strategy=self.strategy, sh_degree=self.sh_degree, seed=self.seed,
+                             threads=self.threads, antialiased=self.antialiased)
         try:
             request = train_request(collection, config, image_folder=self.image_folder,
                                     downscale=self.downscale, test_every=self.hold_out,

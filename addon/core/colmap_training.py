@@ -86,7 +86,7 @@ class TrainRequest:
     test_every: int = 8
     checkpoint_every: int = 1000
     update_every: int = 200
-    compact: bool = False
+    compact: bool = True
 
     def make_trainer(self, job: TrainingJob | None = None) -> Trainer:
         """Load the photos and make (or resume) the trainer; `job.loading` reports (and stops a
@@ -112,7 +112,7 @@ class TrainRequest:
 def train_request(source: ColmapSource, checkpoint: Path, config: TrainConfig | None = None, *,
                   resume: bool = False, image_folder: str = "", downscale: float = 1.0,
                   test_every: int = 8, checkpoint_every: int = 1000, update_every: int = 200,
-                  compact: bool = False) -> TrainRequest:
+                  compact: bool = True) -> TrainRequest:
     """Check the inputs; raises ValueError / FileNotFoundError."""
     if resume and not Path(checkpoint).is_file():
         raise FileNotFoundError(f"no checkpoint to resume at {checkpoint}")

@@ -20,8 +20,12 @@ a half-updated or half-densified state. After `done`, `job.trainer` belongs to t
 
 Progress numbers: `loss` and `psnr` are means over the last `window` training steps (a single
 step's values depend on which view it drew); `eta` is the mean wall time of those steps times
-the steps left (steps get slower as densification adds Gaussians, so early estimates are low).
-Held-out PSNR/SSIM (`Trainer.evaluate`) is computed once, at the end, unless cancelled.
+the steps left (steps get slower as densification adds Gaussians, so early estimates are low;
+a run until done has none: `until_done`, and `gain_per_minute` says how close it is to
+stopping); `sizing` is the strategy's word for the count ("growing", "settled").
+Held-out PSNR/SSIM (`Trainer.evaluate`) is computed once, at the end, unless cancelled. A run
+until done that stops because its gain stalled has finished (it is compacted, evaluated and
+reported as done), not cancelled.
 """
 
 from __future__ import annotations
@@ -47,10 +51,13 @@ class Progress:
     message: str = ""
     step: int = 0  # the trainer's step (counts from the checkpoint when resumed)
     start_step: int = 0  # the step this job began at
-    total: int = 0  # the step training stops at
+    total: int = 0  # the step training stops at (until done: at the latest)
+    until_done: bool = False  # no fixed step count: training stops when the gain stalls
     loss: float = float("nan")  # mean over the last `window` steps
     psnr: float = float("nan")  # training-view PSNR, mean over the last `window` steps
     gaussians: int = 0
+    sizing: str = ""  # how the count changes ("growing", "settled"; "" if not said)
+    gain_per_minute: float = float("nan")  # held-out PSNR gain at the last stop check
     sh_degree: int = 0
     elapsed: float = 0.0  # seconds since training (not loading) began
     seconds_per_step: float = float("nan")  # mean wall time of the last `window` steps
@@ -96,15 +103,20 @@ def status_line(p: Progress, title: str = "Training") -> str:
         return f"{title}: {p.message or p.phase}"
     if p.phase in ("compacting", "evaluating", "saving"):
         return f"{title}: {p.message or p.phase}..."
-    parts = [f"{title} {p.step:,}/{p.total:,} ({100 * p.fraction:.0f} %)"]
+    if p.until_done:
+        parts = [f"{title} step {p.step:,} (until done)"]
+    else:
+        parts = [f"{title} {p.step:,}/{p.total:,} ({100 * p.fraction:.0f} %)"]
     if p.loss == p.loss:
         parts.append(f"loss {p.loss:.4f}")
     if p.psnr == p.psnr:
         parts.append(f"PSNR {p.psnr:.2f} dB")
-    parts.append(f"{p.gaussians:,} Gaussians")
+    parts.append(f"{p.gaussians:,} Gaussians" + (f" ({p.sizing})" if p.sizing else ""))
     if p.seconds_per_step == p.seconds_per_step:
         parts.append(f"{1000 * p.seconds_per_step:.0f} ms/step")
-    if p.phase == "training":
+    if p.until_done and p.gain_per_minute == p.gain_per_minute:
+        parts.append(f"gaining {p.gain_per_minute:+.2f} dB/min")
+    if p.phase == "training" and not p.until_done:
         parts.append(f"ETA {format_duration(p.eta)}")
     elif p.phase == "cancelled":
         parts.append("cancelled")
@@ -134,10 +146,11 @@ class TrainingJob:
     either); it may call `job.loading(fraction, message)` to report, which raises
     `JobCancelled` once the job is cancelled (the job then ends "cancelled", with no trainer).
 
-    steps: the step to stop at (None: the trainer's config.steps); it is written into the
-        trainer's config. checkpoint: a path; saved every `checkpoint_every` steps (0: never
-        in between) and at the end, also when cancelled after some steps (not when failed, nor
-        when cancelled before the first step: an earlier checkpoint stays as it was).
+    steps: the step to stop at (None: the trainer's config.steps; 0: until done, as
+        `Trainer.run`); it is written into the trainer's config.
+    checkpoint: a path; saved every `checkpoint_every` steps (0: never in between) and at the
+        end, also when cancelled after some steps (not when failed, nor when cancelled before
+        the first step: an earlier checkpoint stays as it was).
     snapshot_every: publish a copy of the Gaussians every so many steps (0: only at the end).
     before_step(trainer): called on the worker before every step (e.g. a random background).
     after_training(trainer): called on the worker once training stops (cancelled or not),
@@ -275,14 +288,15 @@ class TrainingJob:
                 trainer = self.trainer = self._make(self)
             if self.steps is not None:
                 trainer.config.steps = int(self.steps)
-            total = trainer.config.steps
+            total = trainer.step_limit
             start = trainer.step
             self._set(phase="training", message="", step=start, start_step=start, total=total,
-                      gaussians=len(trainer), elapsed=0.0)
+                      until_done=trainer.until_done, gaussians=len(trainer),
+                      sizing=trainer.strategy.sizing, elapsed=0.0)
             self._train(trainer, total)
             if self.after_training is not None:
                 self.after_training(trainer)
-            finished = trainer.step >= total
+            finished = trainer.step >= total or (trainer.until_done and trainer.converged)
             evaluation = None
             if finished and self.compact_after:
                 self._set(phase="compacting", message="compacting")
@@ -336,7 +350,8 @@ class TrainingJob:
                     and step % self.checkpoint_every == 0 and step < total):
                 self._save_checkpoint(trainer)
             self._set(step=step, loss=sum(losses) / len(losses), psnr=sum(psnrs) / len(psnrs),
-                      gaussians=stats["gaussians"], sh_degree=stats["sh_degree"],
+                      gaussians=stats["gaussians"], sizing=stats.get("sizing", ""),
+                      gain_per_minute=trainer.gain_per_minute, sh_degree=stats["sh_degree"],
                       elapsed=now - started, seconds_per_step=per_step,
                       eta=per_step * (total - step) if len(self._window) >= 3 else None)
 

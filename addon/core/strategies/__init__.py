@@ -9,11 +9,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..train_config import TrainConfig
+from .auto import AutoStrategy
 from .base import StepInfo, Strategy
 from .default import DefaultStrategy
 from .mcmc import MCMCStrategy
 
-STRATEGIES: dict[str, type[Strategy]] = {"default": DefaultStrategy, "mcmc": MCMCStrategy}
+STRATEGIES: dict[str, type[Strategy]] = {"auto": AutoStrategy, "default": DefaultStrategy,
+                                          "mcmc": MCMCStrategy}
 
 
 def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator) -> Strategy:
@@ -26,4 +28,5 @@ def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator) 
     return kind(config, extent, rng)
 
 
-__all__ = ["STRATEGIES", "DefaultStrategy", "MCMCStrategy", "StepInfo", "Strategy", "make_strategy"]
+__all__ = ["STRATEGIES", "AutoStrategy", "DefaultStrategy", "MCMCStrategy", "StepInfo", "Strategy",
+           "make_strategy"]

@@ -41,6 +41,9 @@ class StepInfo:
     state: TrainState                  # the forward pass (visibility)
     grads: Gradients                   # dL/d(parameters) of this step
     learning_rates: dict[str, float]   # this step's rates (`optimizer.LEARNING_RATES` keys)
+    loss: float = float("nan")         # this step's training loss
+    level: int = 0                     # how many times this step's image was halved
+    view: int = -1                     # the dataset index of this step's view
 
 
 class Strategy:
@@ -62,6 +65,12 @@ class Strategy:
 
     def after_step(self, params: GaussianParameters, info: StepInfo) -> int:
         return 0
+
+    @property
+    def sizing(self) -> str:
+        """How the count is changing, for progress displays ("growing", "settled"; "" when
+        the strategy does not say)."""
+        return ""
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         return {}

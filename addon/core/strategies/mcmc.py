@@ -78,10 +78,14 @@ class MCMCStrategy(Strategy):
             s = np.exp(params.params["log_scales"].astype(np.float64))
             info.grads.log_scales += (c.mcmc_scale_reg / (3 * n) * s).astype(np.float32)
 
+    def densifies_from(self) -> int:
+        """The first step after which it relocates and grows."""
+        return self.config.densify_from
+
     def after_step(self, params: GaussianParameters, info: StepInfo) -> int:
         c, step = self.config, info.step
         before = len(params)
-        if c.densify_from < step < c.densify_until and step % c.densify_every == 0:
+        if self.densifies_from() < step < c.densify_until and step % c.densify_every == 0:
             self.relocate(params)
             self.grow(params)
         self.add_noise(params, info.learning_rates["means"] * c.mcmc_noise_lr)
