@@ -10,7 +10,7 @@ import pytest
 
 from addon.core.colmap import read_colmap
 from addon.core.dataset import ColmapDataset
-from addon.core.strategies import Strategy
+from addon.core.strategies import Strategy, make_strategy
 from addon.core.train import Trainer, TrainConfig
 
 DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
@@ -49,3 +49,37 @@ def test_sparse_adam_moves_only_what_a_step_drew_and_learns(dataset) -> None:
     for _ in trainer.run():
         pass
     assert trainer.evaluate(dataset.train_indices[:6]).psnr > start + 2.0
+
+
+class RecordVisibleDense(RecordVisible):
+    sparse_adam = False
+
+
+class RecordVisibleSparse(RecordVisible):
+    sparse_adam = True
+
+
+def _undrawn_moved(dataset, strategy_class, sparse_adam) -> bool:
+    """Whether, over a few steps, a Gaussian that a step did not draw moved in that step."""
+    config = TrainConfig(steps=80, sh_degree=1, coarse_levels=0, sparse_adam=sparse_adam,
+                         threads=2, seed=5)
+    strategy = strategy_class(config, 1.0, np.random.default_rng(0))
+    trainer = Trainer(dataset, config, strategy=strategy)
+    moved_undrawn = False
+    for _ in range(6):
+        before = trainer.params["means"].copy()
+        trainer.train_step()
+        moved = (trainer.params["means"] != before).any(axis=1)
+        moved_undrawn |= bool(moved[~strategy.visible].any())
+    return moved_undrawn
+
+
+def test_the_strategy_chooses_sparse_adam_unless_the_config_says(dataset) -> None:
+    assert make_strategy(TrainConfig(strategy="auto"), 1.0, np.random.default_rng(0)).sparse_adam
+    assert make_strategy(TrainConfig(strategy="mcmc"), 1.0, np.random.default_rng(0)).sparse_adam
+    assert not make_strategy(TrainConfig(strategy="default"), 1.0,
+                             np.random.default_rng(0)).sparse_adam
+    assert not _undrawn_moved(dataset, RecordVisibleSparse, None)
+    assert _undrawn_moved(dataset, RecordVisibleDense, None)  # dense Adam: moments keep moving
+    assert _undrawn_moved(dataset, RecordVisibleSparse, False)
+    assert not _undrawn_moved(dataset, RecordVisibleDense, True)

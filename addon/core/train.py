@@ -147,6 +147,8 @@ class Trainer:
         self.coarse_until = (min(config.coarse_until, config.steps // 2) if config.steps
                              else config.coarse_until)
         self.strategy = strategy or make_strategy(config, self.extent, self.rng)
+        self._sparse_adam = (self.strategy.sparse_adam if config.sparse_adam is None
+                             else config.sparse_adam)
         if gaussians is None:
             points = dataset.points
             gaussians = self.strategy.prepare_initial(
@@ -244,7 +246,7 @@ class Trainer:
                         view)
         self.strategy.after_backward(self.parameters, info)
         self.parameters.adam_step(grads, info.learning_rates, self.step, threads=c.threads,
-                                  rows=state.visible if c.sparse_adam else None)
+                                  rows=state.visible if self._sparse_adam else None)
         densified = self.strategy.after_step(self.parameters, info)
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
                 "psnr": psnr(result.rgb, target), "gaussians": len(self), "sh_degree": degree,

@@ -92,6 +92,7 @@ class TrainConfig:
     auto_densify_from: int = 100
     max_initial_points: int = 50_000  # the 3-NN scale estimate is quadratic in this
     # Adam over only the Gaussians each step drew (gsplat's `visible_adam`): the others keep
-    # their parameters and moments. Off: on cup it loses 0.5-0.7 dB with "default" (and gains
-    # about 1 dB with "mcmc"; README, "Training kernels").
-    sparse_adam: bool = False
+    # their parameters and moments. None: the strategy's choice (`Strategy.sparse_adam`), on for
+    # "mcmc" and "auto" (cup, 2000 steps, 2 seeds: +1.0 dB with mcmc, +0.6/+0.7 dB with auto),
+    # off for "default" (-0.5 to -0.7 dB; README, "Training kernels").
+    sparse_adam: bool | None = None

@@ -49,6 +49,9 @@ class StepInfo:
 class Strategy:
     """Base class: a strategy that never changes the Gaussians."""
 
+    # Whether Adam moves only the Gaussians a step drew, unless `TrainConfig.sparse_adam` says.
+    sparse_adam = False
+
     def __init__(self, config: TrainConfig, extent: float, rng: np.random.Generator) -> None:
         self.config = config
         self.extent = extent  # the scene's radius (`train.scene_extent`)

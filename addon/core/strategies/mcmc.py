@@ -61,6 +61,10 @@ def relocation(opacity: np.ndarray, scale: np.ndarray, copies: np.ndarray) -> tu
 class MCMCStrategy(Strategy):
     """Relocate dead Gaussians, grow by a fixed fraction to the budget, regularise, add noise."""
 
+    # With dense Adam the regularisers' tiny gradients on Gaussians a view does not see become
+    # full-size steps (Adam normalises them): sparse Adam measured better (TrainConfig).
+    sparse_adam = True
+
     def prepare_initial(self, gaussians: Gaussians) -> Gaussians:
         c = self.config
         log_scales = gaussians.log_scales + np.float32(math.log(c.mcmc_initial_scale))
