@@ -200,6 +200,13 @@ def adhoc_signature_ok(binary: Path) -> bool:
     return False
 
 
+# The compositor's kernels compiled once per x86-64 level (SC_MULTIVERSION in composite.c and
+# composite_backward.c): the forward (render, record for training, the exhaustive twin) and
+# the backward per tile (with and without the depth terms).
+COMPOSITOR_KERNELS = {"composite_render", "composite_record", "composite_exhaustive",
+                      "back_tile", "back_tile_depth"}
+
+
 def check_vectorised(platform: str, build_dir: Path) -> str:
     """That each instruction-set copy of the compositor kernels really uses its instructions
     (a target attribute the compiler ignored would leave SSE2 code behind every label)."""
@@ -217,8 +224,8 @@ def check_vectorised(platform: str, build_dir: Path) -> str:
     notes = []
     for level, register in (("v3", "ymm"), ("v4", "zmm")):
         copies = {n: b for n, b in functions.items() if n.endswith("_" + level)}
-        ok = len(copies) == 3 and all(register in b and re.search(r"vfn?m(add|sub)", b)
-                                      for b in copies.values())
+        ok = {n[:-len(level) - 1] for n in copies} == COMPOSITOR_KERNELS and all(
+            register in b and re.search(r"vfn?m(add|sub)", b) for b in copies.values())
         check(ok, f"{platform}: {level} kernels {sorted(copies)} lack {register} or FMA code")
         notes.append(f"{len(copies)} {level} kernels with {register}+FMA")
     return ", ".join(notes)
