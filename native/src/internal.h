@@ -130,11 +130,6 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
                                  const sc_splat *s, const double *d, sc_gaussian_grads *out,
                                  int64_t *flushed);
 
-/* Backward of sc_sh_colour_f: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
- * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
- * free vector; the caller applies the normalisation). */
-void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const double d_rgb[3],
-                    double *d_coeffs, double d_dir[3]);
 
 /* ---------------------------------------------------------------- CPU dispatch
  * The compositor kernels are compiled once per instruction-set level and the best one for this

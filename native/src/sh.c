@@ -1,102 +1,35 @@
-/* Real spherical harmonics up to degree 3, with the constants and basis order of the reference
- * 3DGS code (computeColorFromSH), so trained coefficients mean the same thing here. */
-#include "internal.h"
-
-static const double C0 = 0.28209479177387814;
-static const double C1 = 0.4886025119029199;
-static const double C2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-                             -1.0925484305920792, 0.5462742152960396};
-static const double C3[7] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
-                             0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
-                             -0.5900435899266435};
-
-/* Backward: the colour is sum_i basis_i(dir) coeffs_i, so dL/dcoeffs_i = basis_i dL/drgb and
- * dL/ddir = sum_i grad(basis_i) (coeffs_i . dL/drgb), with grad(basis_i) the derivatives of
- * the polynomials above in x, y, z (as the reference backward.cu computes them). */
-void sc_sh_backward(int degree, const float *coeffs, const double dir[3], const double d_rgb[3],
-                    double *d_coeffs, double d_dir[3]) {
-    const double x = dir[0], y = dir[1], z = dir[2];
-    double basis[16], gx[16] = {0}, gy[16] = {0}, gz[16] = {0};
-    int k = 1;
-    basis[0] = C0;
-    if (degree >= 1) {
-        basis[1] = -C1 * y, gy[1] = -C1;
-        basis[2] = C1 * z, gz[2] = C1;
-        basis[3] = -C1 * x, gx[3] = -C1;
-        k = 4;
-    }
-    if (degree >= 2) {
-        const double xx = x * x, yy = y * y, zz = z * z;
-        basis[4] = C2[0] * x * y, gx[4] = C2[0] * y, gy[4] = C2[0] * x;
-        basis[5] = C2[1] * y * z, gy[5] = C2[1] * z, gz[5] = C2[1] * y;
-        basis[6] = C2[2] * (2.0 * zz - xx - yy);
-        gx[6] = -2.0 * C2[2] * x, gy[6] = -2.0 * C2[2] * y, gz[6] = 4.0 * C2[2] * z;
-        basis[7] = C2[3] * x * z, gx[7] = C2[3] * z, gz[7] = C2[3] * x;
-        basis[8] = C2[4] * (xx - yy), gx[8] = 2.0 * C2[4] * x, gy[8] = -2.0 * C2[4] * y;
-        k = 9;
-        if (degree >= 3) {
-            basis[9] = C3[0] * y * (3.0 * xx - yy);
-            gx[9] = C3[0] * 6.0 * x * y, gy[9] = C3[0] * 3.0 * (xx - yy);
-            basis[10] = C3[1] * x * y * z;
-            gx[10] = C3[1] * y * z, gy[10] = C3[1] * x * z, gz[10] = C3[1] * x * y;
-            basis[11] = C3[2] * y * (4.0 * zz - xx - yy);
-            gx[11] = -2.0 * C3[2] * x * y, gy[11] = C3[2] * (4.0 * zz - xx - 3.0 * yy);
-            gz[11] = 8.0 * C3[2] * y * z;
-            basis[12] = C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
-            gx[12] = -6.0 * C3[3] * x * z, gy[12] = -6.0 * C3[3] * y * z;
-            gz[12] = C3[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy);
-            basis[13] = C3[4] * x * (4.0 * zz - xx - yy);
-            gx[13] = C3[4] * (4.0 * zz - 3.0 * xx - yy), gy[13] = -2.0 * C3[4] * x * y;
-            gz[13] = 8.0 * C3[4] * x * z;
-            basis[14] = C3[5] * z * (xx - yy);
-            gx[14] = 2.0 * C3[5] * x * z, gy[14] = -2.0 * C3[5] * y * z, gz[14] = C3[5] * (xx - yy);
-            basis[15] = C3[6] * x * (xx - 3.0 * yy);
-            gx[15] = C3[6] * 3.0 * (xx - yy), gy[15] = -6.0 * C3[6] * x * y;
-            k = 16;
-        }
-    }
-    d_dir[0] = d_dir[1] = d_dir[2] = 0.0;
-    for (int i = 0; i < k; ++i) {
-        const float *c = coeffs + 3 * i;
-        const double along = c[0] * d_rgb[0] + c[1] * d_rgb[1] + c[2] * d_rgb[2];
-        d_coeffs[3 * i + 0] = basis[i] * d_rgb[0];
-        d_coeffs[3 * i + 1] = basis[i] * d_rgb[1];
-        d_coeffs[3 * i + 2] = basis[i] * d_rgb[2];
-        d_dir[0] += gx[i] * along;
-        d_dir[1] += gy[i] * along;
-        d_dir[2] += gz[i] * along;
-    }
-}
+/* The colour of real spherical harmonics up to degree 3 (constants and backward: sh_basis.h). */
+#include "sh_basis.h"
 
 /* The colour of SH `degree` (0..3) for one Gaussian: coeffs (K,3), dir a unit vector. In float
- * (the constants above, rounded), as the projection computes it. */
+ * (the constants of sh_basis.h, rounded), as the projection computes it. */
 void sc_sh_colour_f(int degree, const float *coeffs, const float dir[3], float rgb[3]) {
     float basis[16];
     const float x = dir[0], y = dir[1], z = dir[2];
     int k = 1;
-    basis[0] = (float)C0;
+    basis[0] = (float)SC_SH_C0;
     if (degree >= 1) {
-        basis[1] = (float)-C1 * y;
-        basis[2] = (float)C1 * z;
-        basis[3] = (float)-C1 * x;
+        basis[1] = (float)-SC_SH_C1 * y;
+        basis[2] = (float)SC_SH_C1 * z;
+        basis[3] = (float)-SC_SH_C1 * x;
         k = 4;
     }
     if (degree >= 2) {
         const float xx = x * x, yy = y * y, zz = z * z;
-        basis[4] = (float)C2[0] * x * y;
-        basis[5] = (float)C2[1] * y * z;
-        basis[6] = (float)C2[2] * (2.0f * zz - xx - yy);
-        basis[7] = (float)C2[3] * x * z;
-        basis[8] = (float)C2[4] * (xx - yy);
+        basis[4] = (float)SC_SH_C2[0] * x * y;
+        basis[5] = (float)SC_SH_C2[1] * y * z;
+        basis[6] = (float)SC_SH_C2[2] * (2.0f * zz - xx - yy);
+        basis[7] = (float)SC_SH_C2[3] * x * z;
+        basis[8] = (float)SC_SH_C2[4] * (xx - yy);
         k = 9;
         if (degree >= 3) {
-            basis[9] = (float)C3[0] * y * (3.0f * xx - yy);
-            basis[10] = (float)C3[1] * x * y * z;
-            basis[11] = (float)C3[2] * y * (4.0f * zz - xx - yy);
-            basis[12] = (float)C3[3] * z * (2.0f * zz - 3.0f * xx - 3.0f * yy);
-            basis[13] = (float)C3[4] * x * (4.0f * zz - xx - yy);
-            basis[14] = (float)C3[5] * z * (xx - yy);
-            basis[15] = (float)C3[6] * x * (xx - 3.0f * yy);
+            basis[9] = (float)SC_SH_C3[0] * y * (3.0f * xx - yy);
+            basis[10] = (float)SC_SH_C3[1] * x * y * z;
+            basis[11] = (float)SC_SH_C3[2] * y * (4.0f * zz - xx - yy);
+            basis[12] = (float)SC_SH_C3[3] * z * (2.0f * zz - 3.0f * xx - 3.0f * yy);
+            basis[13] = (float)SC_SH_C3[4] * x * (4.0f * zz - xx - yy);
+            basis[14] = (float)SC_SH_C3[5] * z * (xx - yy);
+            basis[15] = (float)SC_SH_C3[6] * x * (xx - 3.0f * yy);
             k = 16;
         }
     }

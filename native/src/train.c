@@ -20,7 +20,7 @@
 
 #include "internal.h"
 
-enum { MAX_THREADS = 256, PAD = 8 };
+enum { MAX_THREADS = 256, PAD = 8, GATHER_AHEAD = 16 };
 
 void sc_train_state_free(sc_train_state *state) {
     sc_frame_free(&state->frame);
@@ -127,9 +127,15 @@ static void gather_gradients(void *ctx, int64_t begin, int64_t end, int thread) 
     (void)thread;
     backward_job *j = ctx;
     const sc_frame *f = &j->state->frame;
+    const int64_t last_pair = f->pair_offsets[end];
     for (int64_t k = begin; k < end; ++k) {
         double d[SC_DG_COUNT] = {0};
         for (int64_t p = f->pair_offsets[k]; p < f->pair_offsets[k + 1]; ++p) {
+            if (p + GATHER_AHEAD < last_pair) { /* the records lie apart: fetch ahead */
+                const float *ahead = j->records + (int64_t)f->pairs[p + GATHER_AHEAD] * SC_DG_COUNT;
+                SC_PREFETCH(ahead);
+                SC_PREFETCH(ahead + SC_DG_COUNT - 1);
+            }
             const float *rec = j->records + (int64_t)f->pairs[p] * SC_DG_COUNT;
             for (int q = 0; q < SC_DG_COUNT; ++q) d[q] += rec[q];
         }
