@@ -118,14 +118,14 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
                          f"got {mesh_rgba.shape}")
     blocks = _row_blocks(height, width)
     if color_space == "SRGB":
-        layer = np.empty((height, width, 4), np.float32)
+        layer = colour.display_from_linear(np.ascontiguousarray(mesh_rgba), threads=threads)
 
-        def encode(rows: slice) -> None:
-            block = colour.display_from_linear(mesh_rgba[rows], out=layer[rows])
+        def keep_finite(rows: slice) -> None:
+            block = layer[rows]
             if not np.isfinite(block).all():
                 np.nan_to_num(block, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
 
-        _in_parallel(encode, blocks, threads)
+        _in_parallel(keep_finite, blocks, threads)
     else:
         layer = mesh_rgba
         if not np.isfinite(layer).all():
@@ -151,14 +151,14 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
                     pixels = np.empty((count, 4), np.float32)
                     pixels[:, :3] = rgb[changed]
                     pixels[:, 3] = alpha[changed]
-                    target[changed] = colour.linear_from_display(pixels, out=pixels)
+                    target[changed] = colour.linear_from_display(pixels, out=pixels, threads=1)
                 return
             # Many: convert the whole block (masked gathers and scatters cost more than that).
             pixels = np.empty(target.shape, np.float32)
             for channel in range(3):  # one channel at a time: long strided loops, not short
                 pixels[:, channel] = rgb[:, channel]
             pixels[:, 3] = alpha
-            colour.linear_from_display(pixels, out=pixels)
+            colour.linear_from_display(pixels, out=pixels, threads=1)
             where = np.empty(target.shape, bool)
             where[...] = changed[:, None]
             np.copyto(target, pixels, where=where)

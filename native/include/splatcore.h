@@ -261,6 +261,13 @@ void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t r
                   int64_t width, const uint8_t *mask, int64_t lead, double lead_lr,
                   const sc_adam_options *o, int threads);
 
+/* Premultiplied float32 RGBA pixels (4 floats each) from scene-linear to display sRGB
+ * (decode 0) or back (decode 1), the extended sRGB transfer of addon/core/colour.py on
+ * rgb / alpha (alpha not > 0: as if 1), alpha passed through. dst may be src itself (not
+ * otherwise overlapping). Identical for any thread count. */
+void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
+                           int threads);
+
 #ifdef __cplusplus
 }
 #endif

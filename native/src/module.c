@@ -739,6 +739,42 @@ fail:
     return NULL;
 }
 
+/* srgb_premultiplied(src, dst, decode, threads): see sc_srgb_premultiplied. Both float32,
+ * C-contiguous, of one shape (..., 4); dst writable and either src itself or not overlapping it. */
+static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *src_obj, *dst_obj;
+    int decode, threads;
+    if (!PyArg_ParseTuple(args, "OOpO&:srgb_premultiplied", &src_obj, &dst_obj, &decode,
+                          parse_threads, &threads))
+        return NULL;
+    buffers b = {.count = 0};
+    int64_t n = 0;
+    const float *src = get_any_float(&b, src_obj, "rgba", 0, NULL, &n);
+    if (!src) goto fail;
+    const Py_buffer *like = &b.views[0];
+    if (like->ndim < 1 || like->shape[like->ndim - 1] != 4) {
+        PyErr_Format(PyExc_ValueError, "rgba must have shape (..., 4), got %d dimensions ending in %zd",
+                     like->ndim, like->ndim ? like->shape[like->ndim - 1] : (Py_ssize_t)0);
+        goto fail;
+    }
+    float *dst = get_any_float(&b, dst_obj, "out", 1, like, NULL);
+    if (!dst) goto fail;
+    const char *a = (const char *)src, *d = (const char *)dst;
+    if (a != d && a < d + 4 * n && d < a + 4 * n) {
+        PyErr_SetString(PyExc_ValueError, "out must be rgba itself or not overlap it");
+        goto fail;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    sc_srgb_premultiplied(src, dst, n / 4, decode, threads ? threads : sc_cpu_count());
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    Py_RETURN_NONE;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     (void)self;
     int count, iterations;
@@ -806,6 +842,10 @@ static PyMethodDef methods[] = {
      "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape. rows: "
      "uint8 (shape[0],) or None: rows where it is 0 are left as they are (moments too). The "
      "first `lead` values of each row (along the first axis) step at lead_lr."},
+    {"srgb_premultiplied", py_srgb_premultiplied, METH_VARARGS,
+     "srgb_premultiplied(rgba, out, decode, threads)\n\n"
+     "Premultiplied float32 RGBA (..., 4) scene-linear -> display sRGB (decode False) or back "
+     "(True), into out (rgba itself, or a C-contiguous float32 array of its shape)."},
     {"composite_microbench", py_composite_microbench, METH_VARARGS,
      "composite_microbench(count, iterations) -> seconds for the compositor's inner loop over "
      "one in-cache tile covered by `count` Gaussians."},

@@ -1,0 +1,163 @@
+/* Premultiplied RGBA between scene-linear and display sRGB: addon/core/colour.py's
+ * display_from_linear and linear_from_display for float32 pixels, on the thread pool.
+ *
+ * The transfer is the extended sRGB of colour.py (mirrored for negatives, the linear segment at
+ * and below the cut, HDR above 1), applied to the straight colour `rgb / a` and multiplied back
+ * by `a` (a pixel whose alpha is not > 0, NaN included, converts as if its alpha were 1; alpha
+ * itself passes through). Each value is computed in double and rounded to float once, so the
+ * result is within about half a float32 ulp of the float64 formula.
+ *
+ * The power is the costly part, and libm's pow is slower than NumPy's vectorised one, so it is
+ * split: v = m 2^e with m in [1, 2), v^p = (2^e)^p * c^p * (m / c)^p, where c is the centre of
+ * the sixteenth of [1, 2) that m lies in; the first two factors come from tables and the last
+ * is the binomial series of (1 + d)^p, |d| <= 1/32, to degree 5 (truncation below 1e-11
+ * relative). Values outside the tables' exponents (never reached from float32 input, except
+ * NaN and infinity) take libm's pow. Every value is independent of the others, so results are
+ * the same for any thread count. */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "internal.h"
+
+enum { EXP_MIN = -64, EXP_MAX = 320, EXP_COUNT = EXP_MAX - EXP_MIN + 1, SUBDIV = 16, DEGREE = 5 };
+
+static const double LINEAR_CUT = 0.0031308, ENCODED_CUT = 0.04045;
+
+typedef struct {
+    double exponent[EXP_COUNT]; /* (2^e)^p */
+    double centre[SUBDIV];      /* c^p */
+    double inverse[SUBDIV];     /* 1 / c */
+    double series[DEGREE + 1];  /* binomial coefficients of (1 + d)^p */
+    double p;
+} power_table;
+
+typedef struct {
+    const float *src;
+    float *dst;
+    int decode;
+    power_table table;
+} job;
+
+static void power_table_init(power_table *t, double p) {
+    t->p = p;
+    for (int e = EXP_MIN; e <= EXP_MAX; ++e) t->exponent[e - EXP_MIN] = exp2((double)e * p);
+    for (int i = 0; i < SUBDIV; ++i) {
+        const double c = 1.0 + (i + 0.5) / SUBDIV;
+        t->centre[i] = pow(c, p);
+        t->inverse[i] = 1.0 / c;
+    }
+    double coefficient = 1.0;
+    for (int k = 0; k <= DEGREE; ++k) {
+        t->series[k] = coefficient;
+        coefficient *= (p - k) / (k + 1);
+    }
+}
+
+/* v^p for v > 0 (NaN and infinity too, through pow). */
+static SC_ALWAYS_INLINE double power(const power_table *t, double v) {
+    uint64_t bits;
+    memcpy(&bits, &v, sizeof bits);
+    const int e = (int)((bits >> 52) & 0x7ff) - 1023;
+    if (e < EXP_MIN || e > EXP_MAX) return pow(v, t->p); /* also NaN, infinity, denormals */
+    const int i = (int)((bits >> (52 - 4)) & (SUBDIV - 1));
+    const uint64_t mantissa_bits = (bits & 0x000fffffffffffffULL) | 0x3ff0000000000000ULL;
+    double m;
+    memcpy(&m, &mantissa_bits, sizeof m);
+    const double d = m * t->inverse[i] - 1.0;
+    const double *s = t->series;
+    const double series = s[0] + d * (s[1] + d * (s[2] + d * (s[3] + d * (s[4] + d * s[5]))));
+    return t->exponent[e - EXP_MIN] * t->centre[i] * series;
+}
+
+/* The extended transfer of one straight value. */
+static SC_ALWAYS_INLINE double transfer(const power_table *t, int decode, double v) {
+    const double a = fabs(v);
+    double out;
+    if (decode)
+        out = a <= ENCODED_CUT ? a / 12.92 : power(t, (a + 0.055) / 1.055);
+    else
+        out = a <= LINEAR_CUT ? 12.92 * a : 1.055 * power(t, a) - 0.055;
+    return v < 0 ? -out : out;
+}
+
+enum { CHUNK = 256 }; /* pixels per vectorised pass */
+
+/* v^p for every v, branch-free so that the loop vectorises; v outside the tables' exponents
+ * (0, denormals, NaN, infinity) gives a wrong value and sets *outside. */
+static SC_ALWAYS_INLINE double power_table_only(const power_table *t, double v, int *outside) {
+    uint64_t bits;
+    memcpy(&bits, &v, sizeof bits);
+    const int64_t biased = (int64_t)((bits >> 52) & 0x7ff) - 1023 - EXP_MIN;
+    *outside = biased < 0 || biased >= EXP_COUNT;
+    const int64_t e = biased < 0 ? 0 : biased >= EXP_COUNT ? EXP_COUNT - 1 : biased;
+    const int64_t i = (int64_t)((bits >> (52 - 4)) & (SUBDIV - 1));
+    const uint64_t mantissa_bits = (bits & 0x000fffffffffffffULL) | 0x3ff0000000000000ULL;
+    double m;
+    memcpy(&m, &mantissa_bits, sizeof m);
+    const double d = m * t->inverse[i] - 1.0;
+    const double *s = t->series;
+    const double series = s[0] + d * (s[1] + d * (s[2] + d * (s[3] + d * (s[4] + d * s[5]))));
+    return t->exponent[e] * t->centre[i] * series;
+}
+
+/* Pixels [begin, end) in chunks: scales, then every value (alpha too, put back after) through
+ * the branch-free transfer, then the rare values outside the tables again through `transfer`,
+ * alpha put back. */
+static SC_ALWAYS_INLINE int convert_body(const job *j, int64_t begin, int64_t end) {
+    const power_table *t = &j->table;
+    const int decode = j->decode;
+    const double cut = decode ? ENCODED_CUT : LINEAR_CUT;
+    double scale[CHUNK * 4], inverse[CHUNK * 4];
+    float result[CHUNK * 4]; /* out may be the input itself: written when the chunk is done */
+    int outside[CHUNK * 4];
+    for (int64_t first = begin; first < end; first += CHUNK) {
+        const int64_t count = end - first < CHUNK ? end - first : CHUNK;
+        const float *in = j->src + 4 * first;
+        float *out = j->dst + 4 * first;
+        for (int64_t p = 0; p < count; ++p) {
+            const float alpha = in[4 * p + 3];
+            const double s = alpha > 0 ? (double)alpha : 1.0;
+            const double r = 1.0 / s;
+            scale[4 * p] = scale[4 * p + 1] = scale[4 * p + 2] = scale[4 * p + 3] = s;
+            inverse[4 * p] = inverse[4 * p + 1] = inverse[4 * p + 2] = inverse[4 * p + 3] = r;
+        }
+        int any_outside = 0;
+        for (int64_t k = 0; k < 4 * count; ++k) {
+            const double v = (double)in[k] * inverse[k];
+            const double a = fabs(v);
+            const double x = decode ? (a + 0.055) * (1.0 / 1.055) : a;
+            int off;
+            const double curve = power_table_only(t, x, &off);
+            const double bent = decode ? curve : 1.055 * curve - 0.055;
+            const double straight = decode ? a * (1.0 / 12.92) : 12.92 * a;
+            const int small = a <= cut;
+            const double r = small ? straight : bent;
+            outside[k] = off & !small;
+            any_outside |= outside[k];
+            result[k] = (float)((v < 0 ? -r : r) * scale[k]);
+        }
+        if (any_outside)
+            for (int64_t k = 0; k < 4 * count; ++k)
+                if (outside[k])
+                    result[k] = (float)(transfer(t, decode, (double)in[k] * inverse[k]) * scale[k]);
+        for (int64_t p = 0; p < count; ++p) result[4 * p + 3] = in[4 * p + 3];
+        memcpy(out, result, (size_t)(4 * count) * sizeof *out);
+    }
+    return 0;
+}
+
+SC_MULTIVERSION(int, convert_isa, (const job *j, int64_t begin, int64_t end), (j, begin, end),
+                convert_body(j, begin, end))
+
+static void convert_pixels(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    convert_isa(ctx, begin, end);
+}
+
+void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
+                           int threads) {
+    job j = {.src = src, .dst = dst, .decode = decode};
+    power_table_init(&j.table, decode ? 2.4 : 1.0 / 2.4);
+    sc_parallel_for(threads, pixels, 1 << 14, convert_pixels, &j);
+}
