@@ -27,6 +27,7 @@ static const double LINEAR_CUT = 0.0031308, ENCODED_CUT = 0.04045;
 typedef struct {
     double exponent[EXP_COUNT]; /* (2^e)^p */
     double centre[SUBDIV];      /* c^p */
+    double both[EXP_COUNT * SUBDIV]; /* (2^e c)^p: one lookup in the vectorised loop */
     double inverse[SUBDIV];     /* 1 / c */
     double series[DEGREE + 1];  /* binomial coefficients of (1 + d)^p */
     double p;
@@ -47,6 +48,8 @@ static void power_table_init(power_table *t, double p) {
         t->centre[i] = pow(c, p);
         t->inverse[i] = 1.0 / c;
     }
+    for (int e = 0; e < EXP_COUNT; ++e)
+        for (int i = 0; i < SUBDIV; ++i) t->both[e * SUBDIV + i] = t->exponent[e] * t->centre[i];
     double coefficient = 1.0;
     for (int k = 0; k <= DEGREE; ++k) {
         t->series[k] = coefficient;
@@ -98,61 +101,74 @@ static SC_ALWAYS_INLINE double power_table_only(const power_table *t, double v, 
     const double d = m * t->inverse[i] - 1.0;
     const double *s = t->series;
     const double series = s[0] + d * (s[1] + d * (s[2] + d * (s[3] + d * (s[4] + d * s[5]))));
-    return t->exponent[e] * t->centre[i] * series;
+    return t->both[e * SUBDIV + i] * series;
 }
 
-/* Pixels [begin, end) in chunks: scales, then every value (alpha too, put back after) through
- * the branch-free transfer, then the rare values outside the tables again through `transfer`,
- * alpha put back. */
-static SC_ALWAYS_INLINE int convert_body(const job *j, int64_t begin, int64_t end) {
+/* Pixels [begin, end) in chunks: the straight colour values (alpha apart), every one through
+ * the branch-free transfer, the rare values outside the tables again through `transfer`, then
+ * the chunk written back premultiplied, alpha as it was. */
+static SC_ALWAYS_INLINE int convert_body(const job *j, int64_t begin, int64_t end,
+                                         const int decode) {
     const power_table *t = &j->table;
-    const int decode = j->decode;
     const double cut = decode ? ENCODED_CUT : LINEAR_CUT;
-    double scale[CHUNK * 4], inverse[CHUNK * 4];
-    float result[CHUNK * 4]; /* out may be the input itself: written when the chunk is done */
-    int outside[CHUNK * 4];
+    double straight[CHUNK * 3], scale[CHUNK * 3], converted[CHUNK * 3];
     for (int64_t first = begin; first < end; first += CHUNK) {
         const int64_t count = end - first < CHUNK ? end - first : CHUNK;
         const float *in = j->src + 4 * first;
         float *out = j->dst + 4 * first;
         for (int64_t p = 0; p < count; ++p) {
             const float alpha = in[4 * p + 3];
-            const double s = alpha > 0 ? (double)alpha : 1.0;
-            const double r = 1.0 / s;
-            scale[4 * p] = scale[4 * p + 1] = scale[4 * p + 2] = scale[4 * p + 3] = s;
-            inverse[4 * p] = inverse[4 * p + 1] = inverse[4 * p + 2] = inverse[4 * p + 3] = r;
+            const double s = alpha > 0 ? (double)alpha : 1.0, inverse = 1.0 / s;
+            for (int c = 0; c < 3; ++c) {
+                scale[3 * p + c] = s;
+                straight[3 * p + c] = (double)in[4 * p + c] * inverse;
+            }
         }
         int any_outside = 0;
-        for (int64_t k = 0; k < 4 * count; ++k) {
-            const double v = (double)in[k] * inverse[k];
+        for (int64_t k = 0; k < 3 * count; ++k) {
+            const double v = straight[k];
             const double a = fabs(v);
             const double x = decode ? (a + 0.055) * (1.0 / 1.055) : a;
             int off;
             const double curve = power_table_only(t, x, &off);
             const double bent = decode ? curve : 1.055 * curve - 0.055;
-            const double straight = decode ? a * (1.0 / 12.92) : 12.92 * a;
+            const double linear = decode ? a * (1.0 / 12.92) : 12.92 * a;
             const int small = a <= cut;
-            const double r = small ? straight : bent;
-            outside[k] = off & !small;
-            any_outside |= outside[k];
-            result[k] = (float)((v < 0 ? -r : r) * scale[k]);
+            const double r = small ? linear : bent;
+            any_outside |= off & !small;
+            converted[k] = (v < 0 ? -r : r) * scale[k];
         }
         if (any_outside)
-            for (int64_t k = 0; k < 4 * count; ++k)
-                if (outside[k])
-                    result[k] = (float)(transfer(t, decode, (double)in[k] * inverse[k]) * scale[k]);
-        for (int64_t p = 0; p < count; ++p) result[4 * p + 3] = in[4 * p + 3];
-        memcpy(out, result, (size_t)(4 * count) * sizeof *out);
+            for (int64_t k = 0; k < 3 * count; ++k) {
+                const double a = fabs(straight[k]);
+                const double x = decode ? (a + 0.055) * (1.0 / 1.055) : a;
+                int off;
+                (void)power_table_only(t, x, &off);
+                if (off && !(a <= cut)) converted[k] = transfer(t, decode, straight[k]) * scale[k];
+            }
+        /* out may be the input itself: each pixel is read (its alpha) before it is written. */
+        for (int64_t p = 0; p < count; ++p) {
+            const float alpha = in[4 * p + 3];
+            for (int c = 0; c < 3; ++c) out[4 * p + c] = (float)converted[3 * p + c];
+            out[4 * p + 3] = alpha;
+        }
     }
     return 0;
 }
 
-SC_MULTIVERSION(int, convert_isa, (const job *j, int64_t begin, int64_t end), (j, begin, end),
-                convert_body(j, begin, end))
+/* One kernel per direction, so that each loop holds only its own transfer. */
+SC_MULTIVERSION(int, encode_isa, (const job *j, int64_t begin, int64_t end), (j, begin, end),
+                convert_body(j, begin, end, 0))
+SC_MULTIVERSION(int, decode_isa, (const job *j, int64_t begin, int64_t end), (j, begin, end),
+                convert_body(j, begin, end, 1))
 
 static void convert_pixels(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
-    convert_isa(ctx, begin, end);
+    const job *j = ctx;
+    if (j->decode)
+        decode_isa(j, begin, end);
+    else
+        encode_isa(j, begin, end);
 }
 
 void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
