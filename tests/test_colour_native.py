@@ -132,3 +132,37 @@ def test_native_conversion_refuses_bad_arrays():
     flat[:16] = src.reshape(-1)
     colour.display_from_linear(flat[:16].reshape(4, 4), out=flat[4:20].reshape(4, 4))
     assert np.array_equal(flat[4:20].reshape(4, 4), expected)
+
+
+def test_decode_changed_is_the_decode_where_the_composite_differs(rng):
+    """compose's way back: changed pixels (colour bits, or alpha by more than 1e-6) are the
+    premultiplied decode of the composite; the others are the mesh pixel, bit for bit; the
+    same on any thread count."""
+    h, w = 97, 301
+    mesh = rng.random((h, w, 4)).astype(np.float32)
+    layer = colour.display_from_linear(mesh)
+    rgb = layer[..., :3].copy()
+    alpha = layer[..., 3].copy()
+    touched = rng.random((h, w)) < 0.3
+    rgb[touched] = rng.random((int(touched.sum()), 3)).astype(np.float32) * 2 - 0.2
+    alpha[touched] = rng.random(int(touched.sum())).astype(np.float32)
+    rounding = ~touched & (rng.random((h, w)) < 0.1)     # alpha off by rounding only
+    alpha[rounding] = np.nextafter(alpha[rounding], np.float32(0))
+    shifted = ~touched & ~rounding & (rng.random((h, w)) < 0.05)  # alpha off by more
+    alpha[shifted] *= np.float32(0.5)
+    rgb[0, 0, 1] = np.nan
+    changed = touched | shifted
+    changed[0, 0] = True
+    expected = colour.linear_from_display(np.concatenate([rgb, alpha[..., None]], -1))
+    results = []
+    for threads in (1, 2, 5):
+        out = layer.copy()
+        native.srgb_decode_changed(rgb, alpha, mesh, out, threads)
+        results.append(out)
+        assert np.array_equal(out[~changed].view(np.uint32), mesh[~changed].view(np.uint32))
+        assert np.array_equal(out[changed].view(np.uint32), expected[changed].view(np.uint32))
+    assert all(np.array_equal(r.view(np.uint32), results[0].view(np.uint32)) for r in results)
+    with pytest.raises(ValueError, match="overlap"):
+        native.srgb_decode_changed(rgb, alpha, layer, layer, 1)
+    with pytest.raises(ValueError, match="shape"):
+        native.srgb_decode_changed(rgb, alpha[:-1], mesh, layer.copy(), 1)

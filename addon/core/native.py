@@ -109,3 +109,12 @@ def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads:
     if rgba.ndim < 1 or rgba.shape[-1] != 4:
         raise ValueError(f"rgba must have shape (..., 4), got {rgba.shape}")
     splatcore().srgb_premultiplied(rgba, out, bool(decode), thread_count(threads))
+
+
+def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, layer: np.ndarray,
+                        threads: int) -> None:
+    """compose's way back to scene-linear, in place in `layer` (the (H, W, 4) display layer the
+    composite was made over): the composite (rgb (H, W, 3), alpha (H, W), display sRGB) decoded
+    where its colour bits or its alpha (by more than 1e-6) differ from `layer`; `mesh`'s
+    scene-linear pixel, bit for bit, elsewhere. All float32, C-contiguous."""
+    splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))

@@ -268,6 +268,14 @@ void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t r
 void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
                            int threads);
 
+/* The composite back to scene-linear where it differs from the display layer it was composed
+ * over: rgb (pixels, 3) and alpha (pixels) in display sRGB; layer (pixels, 4) the display layer
+ * on input, the result on output: per pixel, where rgb's bits or alpha (by more than 1e-6)
+ * differ from layer's, rgb/alpha decoded as sc_srgb_premultiplied does; elsewhere mesh's pixel
+ * (pixels, 4, scene-linear) bit for bit. Identical for any thread count. */
+void sc_srgb_decode_changed(const float *rgb, const float *alpha, const float *mesh, float *layer,
+                            int64_t pixels, int threads);
+
 #ifdef __cplusplus
 }
 #endif

@@ -104,48 +104,58 @@ static SC_ALWAYS_INLINE double power_table_only(const power_table *t, double v, 
     return t->both[e * SUBDIV + i] * series;
 }
 
-/* Pixels [begin, end) in chunks: the straight colour values (alpha apart), every one through
- * the branch-free transfer, the rare values outside the tables again through `transfer`, then
- * the chunk written back premultiplied, alpha as it was. */
+/* `count` straight values through the branch-free transfer, times their scales, into
+ * `converted`; the rare values outside the tables again through `transfer`. */
+static SC_ALWAYS_INLINE void transfer_values(const power_table *t, const double *straight,
+                                             const double *scale, double *converted,
+                                             int64_t count, const int decode) {
+    const double cut = decode ? ENCODED_CUT : LINEAR_CUT;
+    int any_outside = 0;
+    for (int64_t k = 0; k < count; ++k) {
+        const double v = straight[k];
+        const double a = fabs(v);
+        const double x = decode ? (a + 0.055) * (1.0 / 1.055) : a;
+        int off;
+        const double curve = power_table_only(t, x, &off);
+        const double bent = decode ? curve : 1.055 * curve - 0.055;
+        const double linear = decode ? a * (1.0 / 12.92) : 12.92 * a;
+        const int small = a <= cut;
+        const double r = small ? linear : bent;
+        any_outside |= off & !small;
+        converted[k] = (v < 0 ? -r : r) * scale[k];
+    }
+    if (any_outside)
+        for (int64_t k = 0; k < count; ++k) {
+            const double a = fabs(straight[k]);
+            const double x = decode ? (a + 0.055) * (1.0 / 1.055) : a;
+            int off;
+            (void)power_table_only(t, x, &off);
+            if (off && !(a <= cut)) converted[k] = transfer(t, decode, straight[k]) * scale[k];
+        }
+}
+
+/* The straight colour of one premultiplied pixel, and its scale, into slot `k` (3 values). */
+static SC_ALWAYS_INLINE void straighten(const float *rgb, float alpha, double *straight,
+                                        double *scale, int64_t k) {
+    const double s = alpha > 0 ? (double)alpha : 1.0, inverse = 1.0 / s;
+    for (int c = 0; c < 3; ++c) {
+        scale[3 * k + c] = s;
+        straight[3 * k + c] = (double)rgb[c] * inverse;
+    }
+}
+
+/* Pixels [begin, end) in chunks: the straight colour values (alpha apart) through the
+ * transfer, then written back premultiplied, alpha as it was. */
 static SC_ALWAYS_INLINE int convert_body(const job *j, int64_t begin, int64_t end,
                                          const int decode) {
     const power_table *t = &j->table;
-    const double cut = decode ? ENCODED_CUT : LINEAR_CUT;
     double straight[CHUNK * 3], scale[CHUNK * 3], converted[CHUNK * 3];
     for (int64_t first = begin; first < end; first += CHUNK) {
         const int64_t count = end - first < CHUNK ? end - first : CHUNK;
         const float *in = j->src + 4 * first;
         float *out = j->dst + 4 * first;
-        for (int64_t p = 0; p < count; ++p) {
-            const float alpha = in[4 * p + 3];
-            const double s = alpha > 0 ? (double)alpha : 1.0, inverse = 1.0 / s;
-            for (int c = 0; c < 3; ++c) {
-                scale[3 * p + c] = s;
-                straight[3 * p + c] = (double)in[4 * p + c] * inverse;
-            }
-        }
-        int any_outside = 0;
-        for (int64_t k = 0; k < 3 * count; ++k) {
-            const double v = straight[k];
-            const double a = fabs(v);
-            const double x = decode ? (a + 0.055) * (1.0 / 1.055) : a;
-            int off;
-            const double curve = power_table_only(t, x, &off);
-            const double bent = decode ? curve : 1.055 * curve - 0.055;
-            const double linear = decode ? a * (1.0 / 12.92) : 12.92 * a;
-            const int small = a <= cut;
-            const double r = small ? linear : bent;
-            any_outside |= off & !small;
-            converted[k] = (v < 0 ? -r : r) * scale[k];
-        }
-        if (any_outside)
-            for (int64_t k = 0; k < 3 * count; ++k) {
-                const double a = fabs(straight[k]);
-                const double x = decode ? (a + 0.055) * (1.0 / 1.055) : a;
-                int off;
-                (void)power_table_only(t, x, &off);
-                if (off && !(a <= cut)) converted[k] = transfer(t, decode, straight[k]) * scale[k];
-            }
+        for (int64_t p = 0; p < count; ++p) straighten(in + 4 * p, in[4 * p + 3], straight, scale, p);
+        transfer_values(t, straight, scale, converted, 3 * count, decode);
         /* out may be the input itself: each pixel is read (its alpha) before it is written. */
         for (int64_t p = 0; p < count; ++p) {
             const float alpha = in[4 * p + 3];
@@ -156,11 +166,60 @@ static SC_ALWAYS_INLINE int convert_body(const job *j, int64_t begin, int64_t en
     return 0;
 }
 
+/* compose's way back: per pixel, the composite (rgb, alpha) in display sRGB against the display
+ * layer it was composed over (`layer`, overwritten with the result): where the colour's bits or
+ * the alpha (by more than 1e-6, the compositor's 1 - (1 - a) rounding) differ, the composite
+ * decoded to scene-linear; elsewhere the scene-linear mesh pixel itself, bit for bit. */
+typedef struct {
+    const float *rgb, *alpha, *mesh;
+    float *layer;
+    power_table table;
+} changed_job;
+
+static SC_ALWAYS_INLINE int changed_body(const changed_job *j, int64_t begin, int64_t end) {
+    double straight[CHUNK * 3], scale[CHUNK * 3], converted[CHUNK * 3];
+    int64_t index[CHUNK];
+    for (int64_t first = begin; first < end; first += CHUNK) {
+        const int64_t count = end - first < CHUNK ? end - first : CHUNK;
+        int64_t n = 0;
+        for (int64_t p = first; p < first + count; ++p) {
+            const float *rgb = j->rgb + 3 * p;
+            float *layer = j->layer + 4 * p;
+            uint32_t a[3], b[3];
+            memcpy(a, rgb, sizeof a);
+            memcpy(b, layer, sizeof b);
+            const int changed = a[0] != b[0] || a[1] != b[1] || a[2] != b[2] ||
+                                fabsf(j->alpha[p] - layer[3]) > 1e-6f;
+            if (changed) {
+                straighten(rgb, j->alpha[p], straight, scale, n);
+                index[n++] = p;
+            } else {
+                memcpy(layer, j->mesh + 4 * p, 4 * sizeof *layer);
+            }
+        }
+        transfer_values(&j->table, straight, scale, converted, 3 * n, 1);
+        for (int64_t i = 0; i < n; ++i) {
+            float *layer = j->layer + 4 * index[i];
+            for (int c = 0; c < 3; ++c) layer[c] = (float)converted[3 * i + c];
+            layer[3] = j->alpha[index[i]];
+        }
+    }
+    return 0;
+}
+
 /* One kernel per direction, so that each loop holds only its own transfer. */
 SC_MULTIVERSION(int, encode_isa, (const job *j, int64_t begin, int64_t end), (j, begin, end),
                 convert_body(j, begin, end, 0))
 SC_MULTIVERSION(int, decode_isa, (const job *j, int64_t begin, int64_t end), (j, begin, end),
                 convert_body(j, begin, end, 1))
+
+SC_MULTIVERSION(int, changed_isa, (const changed_job *j, int64_t begin, int64_t end),
+                (j, begin, end), changed_body(j, begin, end))
+
+static void changed_pixels(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    changed_isa(ctx, begin, end);
+}
 
 static void convert_pixels(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
@@ -176,4 +235,11 @@ void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int dec
     job j = {.src = src, .dst = dst, .decode = decode};
     power_table_init(&j.table, decode ? 2.4 : 1.0 / 2.4);
     sc_parallel_for(threads, pixels, 1 << 14, convert_pixels, &j);
+}
+
+void sc_srgb_decode_changed(const float *rgb, const float *alpha, const float *mesh, float *layer,
+                            int64_t pixels, int threads) {
+    changed_job j = {.rgb = rgb, .alpha = alpha, .mesh = mesh, .layer = layer};
+    power_table_init(&j.table, 2.4);
+    sc_parallel_for(threads, pixels, 1 << 14, changed_pixels, &j);
 }
