@@ -30,6 +30,7 @@ import numpy as np
 from . import colour
 from .cameras import Camera
 from .gaussians import Gaussians
+from . import native
 from .native import cpu_count
 from .render import render
 
@@ -86,19 +87,6 @@ def _in_parallel(work, blocks: list, threads: int) -> None:
             pass
 
 
-def _changed_pixels(rgb: np.ndarray, alpha: np.ndarray, layer: np.ndarray) -> np.ndarray:
-    """(N,) mask over N pixels ((N, 3) colour and (N,) alpha against the (N, 4) layer): colour
-    bits differ, or alpha by more than rounding (the native compositor's alpha, 1 - (1 - a),
-    may differ from a in the last bit where no splat is). One channel at a time: cheaper than
-    interleaving the composite first."""
-    new, old = rgb.view(np.uint32), layer.view(np.uint32)
-    changed = new[:, 0] != old[:, 0]
-    changed |= new[:, 1] != old[:, 1]
-    changed |= new[:, 2] != old[:, 2]
-    changed |= np.abs(alpha - layer[:, 3]) > 1e-6
-    return changed
-
-
 def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_depth: np.ndarray,
             *, color_space: str = "SRGB", antialiased: bool = False, near: float = 0.01,
             sh_degree: int | None = None, threads: int = 0) -> CompositeResult:
@@ -118,14 +106,14 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
                          f"got {mesh_rgba.shape}")
     blocks = _row_blocks(height, width)
     if color_space == "SRGB":
-        layer = np.empty((height, width, 4), np.float32)
+        layer = colour.display_from_linear(np.ascontiguousarray(mesh_rgba), threads=threads)
 
-        def encode(rows: slice) -> None:
-            block = colour.display_from_linear(mesh_rgba[rows], out=layer[rows])
+        def keep_finite(rows: slice) -> None:
+            block = layer[rows]
             if not np.isfinite(block).all():
                 np.nan_to_num(block, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
 
-        _in_parallel(encode, blocks, threads)
+        _in_parallel(keep_finite, blocks, threads)
     else:
         layer = mesh_rgba
         if not np.isfinite(layer).all():
@@ -136,34 +124,11 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     start = time.perf_counter()
     if color_space == "SRGB":
         # Only pixels the splats changed go back through the conversion; the others keep the
-        # mesh layer's own values, bit for bit. The result replaces the display layer, block
-        # by block (one frame-sized buffer fewer).
+        # mesh layer's own values, bit for bit. The result replaces the display layer (one
+        # frame-sized buffer fewer), natively on the thread pool.
         out = layer
-
-        def decode(rows: slice) -> None:
-            rgb, alpha = result.rgb[rows].reshape(-1, 3), result.alpha[rows].reshape(-1)
-            target = out[rows].reshape(-1, 4)
-            changed = _changed_pixels(rgb, alpha, target)
-            count = int(np.count_nonzero(changed))
-            target[...] = mesh_rgba[rows].reshape(-1, 4)
-            if 4 * count <= len(changed):  # few changed: gather, convert and scatter them
-                if count:
-                    pixels = np.empty((count, 4), np.float32)
-                    pixels[:, :3] = rgb[changed]
-                    pixels[:, 3] = alpha[changed]
-                    target[changed] = colour.linear_from_display(pixels, out=pixels)
-                return
-            # Many: convert the whole block (masked gathers and scatters cost more than that).
-            pixels = np.empty(target.shape, np.float32)
-            for channel in range(3):  # one channel at a time: long strided loops, not short
-                pixels[:, channel] = rgb[:, channel]
-            pixels[:, 3] = alpha
-            colour.linear_from_display(pixels, out=pixels)
-            where = np.empty(target.shape, bool)
-            where[...] = changed[:, None]
-            np.copyto(target, pixels, where=where)
-
-        _in_parallel(decode, blocks, threads)
+        native.srgb_decode_changed(result.rgb, result.alpha, np.ascontiguousarray(mesh_rgba),
+                                   out, threads)
     else:
         out = np.empty((height, width, 4), np.float32)
         out[..., :3] = result.rgb

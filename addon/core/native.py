@@ -98,3 +98,23 @@ def rgb_image(name: str, value) -> np.ndarray:
     if array.ndim != 3 or array.shape[2] != 3:
         raise ValueError(f"{name} must have shape (H, W, 3), got {array.shape}")
     return array
+
+
+def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads: int) -> None:
+    """Premultiplied float32 RGBA (..., 4) through the extended sRGB transfer into `out`
+    (`rgba` itself, or a C-contiguous float32 array of its shape not overlapping it):
+    scene-linear -> display, or back with `decode` (see `addon.core.colour`)."""
+    if rgba.dtype != np.float32 or not rgba.flags.c_contiguous:
+        raise ValueError(f"rgba must be a C-contiguous float32 array, got {rgba.dtype}")
+    if rgba.ndim < 1 or rgba.shape[-1] != 4:
+        raise ValueError(f"rgba must have shape (..., 4), got {rgba.shape}")
+    splatcore().srgb_premultiplied(rgba, out, bool(decode), thread_count(threads))
+
+
+def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, layer: np.ndarray,
+                        threads: int) -> None:
+    """compose's way back to scene-linear, in place in `layer` (the (H, W, 4) display layer the
+    composite was made over): the composite (rgb (H, W, 3), alpha (H, W), display sRGB) decoded
+    where its colour bits or its alpha (by more than 1e-6) differ from `layer`; `mesh`'s
+    scene-linear pixel, bit for bit, elsewhere. All float32, C-contiguous."""
+    splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))

@@ -261,6 +261,21 @@ void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t r
                   int64_t width, const uint8_t *mask, int64_t lead, double lead_lr,
                   const sc_adam_options *o, int threads);
 
+/* Premultiplied float32 RGBA pixels (4 floats each) from scene-linear to display sRGB
+ * (decode 0) or back (decode 1), the extended sRGB transfer of addon/core/colour.py on
+ * rgb / alpha (alpha not > 0: as if 1), alpha passed through. dst may be src itself (not
+ * otherwise overlapping). Identical for any thread count. */
+void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
+                           int threads);
+
+/* The composite back to scene-linear where it differs from the display layer it was composed
+ * over: rgb (pixels, 3) and alpha (pixels) in display sRGB; layer (pixels, 4) the display layer
+ * on input, the result on output: per pixel, where rgb's bits or alpha (by more than 1e-6)
+ * differ from layer's, rgb/alpha decoded as sc_srgb_premultiplied does; elsewhere mesh's pixel
+ * (pixels, 4, scene-linear) bit for bit. Identical for any thread count. */
+void sc_srgb_decode_changed(const float *rgb, const float *alpha, const float *mesh, float *layer,
+                            int64_t pixels, int threads);
+
 #ifdef __cplusplus
 }
 #endif

@@ -739,6 +739,81 @@ fail:
     return NULL;
 }
 
+/* srgb_premultiplied(src, dst, decode, threads): see sc_srgb_premultiplied. Both float32,
+ * C-contiguous, of one shape (..., 4); dst writable and either src itself or not overlapping it. */
+static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *src_obj, *dst_obj;
+    int decode, threads;
+    if (!PyArg_ParseTuple(args, "OOpO&:srgb_premultiplied", &src_obj, &dst_obj, &decode,
+                          parse_threads, &threads))
+        return NULL;
+    buffers b = {.count = 0};
+    int64_t n = 0;
+    const float *src = get_any_float(&b, src_obj, "rgba", 0, NULL, &n);
+    if (!src) goto fail;
+    const Py_buffer *like = &b.views[0];
+    if (like->ndim < 1 || like->shape[like->ndim - 1] != 4) {
+        PyErr_Format(PyExc_ValueError, "rgba must have shape (..., 4), got %d dimensions ending in %zd",
+                     like->ndim, like->ndim ? like->shape[like->ndim - 1] : (Py_ssize_t)0);
+        goto fail;
+    }
+    float *dst = get_any_float(&b, dst_obj, "out", 1, like, NULL);
+    if (!dst) goto fail;
+    const char *a = (const char *)src, *d = (const char *)dst;
+    if (a != d && a < d + 4 * n && d < a + 4 * n) {
+        PyErr_SetString(PyExc_ValueError, "out must be rgba itself or not overlap it");
+        goto fail;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    sc_srgb_premultiplied(src, dst, n / 4, decode, threads ? threads : sc_cpu_count());
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    Py_RETURN_NONE;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
+/* srgb_decode_changed(rgb, alpha, mesh, layer, threads): see sc_srgb_decode_changed. float32
+ * C-contiguous (H, W, 3), (H, W), (H, W, 4), (H, W, 4) writable, layer overlapping none of them. */
+static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *objs[4];
+    int threads;
+    if (!PyArg_ParseTuple(args, "OOOOO&:srgb_decode_changed", &objs[0], &objs[1], &objs[2],
+                          &objs[3], parse_threads, &threads))
+        return NULL;
+    buffers b = {.count = 0};
+    const Py_ssize_t any3[] = {-1, -1, 3};
+    const float *rgb = get_array(&b, objs[0], "rgb", 'f', 3, any3, 0);
+    if (!rgb) goto fail;
+    const Py_ssize_t h = b.views[0].shape[0], w = b.views[0].shape[1];
+    const Py_ssize_t plane[] = {h, w}, rgba[] = {h, w, 4};
+    const float *alpha = get_array(&b, objs[1], "alpha", 'f', 2, plane, 0);
+    const float *mesh = alpha ? get_array(&b, objs[2], "mesh", 'f', 3, rgba, 0) : NULL;
+    float *layer = mesh ? (float *)get_array(&b, objs[3], "layer", 'f', 3, rgba, 1) : NULL;
+    if (!layer) goto fail;
+    const char *l = (const char *)layer;
+    const Py_ssize_t layer_len = b.views[3].len;
+    for (int i = 0; i < 3; ++i) {
+        const char *o = (const char *)b.views[i].buf;
+        if (o < l + layer_len && l < o + b.views[i].len) {
+            PyErr_SetString(PyExc_ValueError, "layer must not overlap rgb, alpha or mesh");
+            goto fail;
+        }
+    }
+    Py_BEGIN_ALLOW_THREADS
+    sc_srgb_decode_changed(rgb, alpha, mesh, layer, (int64_t)h * w,
+                           threads ? threads : sc_cpu_count());
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    Py_RETURN_NONE;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     (void)self;
     int count, iterations;
@@ -806,6 +881,14 @@ static PyMethodDef methods[] = {
      "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape. rows: "
      "uint8 (shape[0],) or None: rows where it is 0 are left as they are (moments too). The "
      "first `lead` values of each row (along the first axis) step at lead_lr."},
+    {"srgb_premultiplied", py_srgb_premultiplied, METH_VARARGS,
+     "srgb_premultiplied(rgba, out, decode, threads)\n\n"
+     "Premultiplied float32 RGBA (..., 4) scene-linear -> display sRGB (decode False) or back "
+     "(True), into out (rgba itself, or a C-contiguous float32 array of its shape)."},
+    {"srgb_decode_changed", py_srgb_decode_changed, METH_VARARGS,
+     "srgb_decode_changed(rgb, alpha, mesh, layer, threads)\n\n"
+     "compose's way back: layer (H, W, 4), the display layer, becomes the scene-linear result: "
+     "the composite (rgb, alpha) decoded where it differs from layer, mesh's pixel elsewhere."},
     {"composite_microbench", py_composite_microbench, METH_VARARGS,
      "composite_microbench(count, iterations) -> seconds for the compositor's inner loop over "
      "one in-cache tile covered by `count` Gaussians."},
