@@ -57,35 +57,6 @@ static void power_table_init(power_table *t, double p) {
     }
 }
 
-/* v^p for v > 0 (NaN and infinity too, through pow). */
-static SC_ALWAYS_INLINE double power(const power_table *t, double v) {
-    uint64_t bits;
-    memcpy(&bits, &v, sizeof bits);
-    const int e = (int)((bits >> 52) & 0x7ff) - 1023;
-    if (e < EXP_MIN || e > EXP_MAX) return pow(v, t->p); /* also NaN, infinity, denormals */
-    const int i = (int)((bits >> (52 - 4)) & (SUBDIV - 1));
-    const uint64_t mantissa_bits = (bits & 0x000fffffffffffffULL) | 0x3ff0000000000000ULL;
-    double m;
-    memcpy(&m, &mantissa_bits, sizeof m);
-    const double d = m * t->inverse[i] - 1.0;
-    const double *s = t->series;
-    const double series = s[0] + d * (s[1] + d * (s[2] + d * (s[3] + d * (s[4] + d * s[5]))));
-    return t->exponent[e - EXP_MIN] * t->centre[i] * series;
-}
-
-/* The extended transfer of one straight value. */
-static SC_ALWAYS_INLINE double transfer(const power_table *t, int decode, double v) {
-    const double a = fabs(v);
-    double out;
-    if (decode)
-        out = a <= ENCODED_CUT ? a / 12.92 : power(t, (a + 0.055) / 1.055);
-    else
-        out = a <= LINEAR_CUT ? 12.92 * a : 1.055 * power(t, a) - 0.055;
-    return v < 0 ? -out : out;
-}
-
-enum { CHUNK = 256 }; /* pixels per vectorised pass */
-
 /* v^p for every v, branch-free so that the loop vectorises; v outside the tables' exponents
  * (0, denormals, NaN, infinity) gives a wrong value and sets *outside. */
 static SC_ALWAYS_INLINE double power_table_only(const power_table *t, double v, int *outside) {
@@ -103,6 +74,26 @@ static SC_ALWAYS_INLINE double power_table_only(const power_table *t, double v, 
     const double series = s[0] + d * (s[1] + d * (s[2] + d * (s[3] + d * (s[4] + d * s[5]))));
     return t->both[e * SUBDIV + i] * series;
 }
+
+/* v^p for v > 0 (NaN and infinity too, through pow). */
+static SC_ALWAYS_INLINE double power(const power_table *t, double v) {
+    int outside;
+    const double tabled = power_table_only(t, v, &outside);
+    return outside ? pow(v, t->p) : tabled;
+}
+
+/* The extended transfer of one straight value. */
+static SC_ALWAYS_INLINE double transfer(const power_table *t, int decode, double v) {
+    const double a = fabs(v);
+    double out;
+    if (decode)
+        out = a <= ENCODED_CUT ? a / 12.92 : power(t, (a + 0.055) / 1.055);
+    else
+        out = a <= LINEAR_CUT ? 12.92 * a : 1.055 * power(t, a) - 0.055;
+    return v < 0 ? -out : out;
+}
+
+enum { CHUNK = 256 }; /* pixels per vectorised pass */
 
 /* `count` straight values through the branch-free transfer, times their scales, into
  * `converted`; the rare values outside the tables again through `transfer`. */
