@@ -25,9 +25,7 @@ enum { EXP_MIN = -64, EXP_MAX = 320, EXP_COUNT = EXP_MAX - EXP_MIN + 1, SUBDIV =
 static const double LINEAR_CUT = 0.0031308, ENCODED_CUT = 0.04045;
 
 typedef struct {
-    double exponent[EXP_COUNT]; /* (2^e)^p */
-    double centre[SUBDIV];      /* c^p */
-    double both[EXP_COUNT * SUBDIV]; /* (2^e c)^p: one lookup in the vectorised loop */
+    double both[EXP_COUNT * SUBDIV]; /* (2^e)^p c^p: one lookup per value */
     double inverse[SUBDIV];     /* 1 / c */
     double series[DEGREE + 1];  /* binomial coefficients of (1 + d)^p */
     double p;
@@ -42,14 +40,15 @@ typedef struct {
 
 static void power_table_init(power_table *t, double p) {
     t->p = p;
-    for (int e = EXP_MIN; e <= EXP_MAX; ++e) t->exponent[e - EXP_MIN] = exp2((double)e * p);
+    double exponent[EXP_COUNT], centre[SUBDIV]; /* (2^e)^p and c^p */
+    for (int e = EXP_MIN; e <= EXP_MAX; ++e) exponent[e - EXP_MIN] = exp2((double)e * p);
     for (int i = 0; i < SUBDIV; ++i) {
         const double c = 1.0 + (i + 0.5) / SUBDIV;
-        t->centre[i] = pow(c, p);
+        centre[i] = pow(c, p);
         t->inverse[i] = 1.0 / c;
     }
     for (int e = 0; e < EXP_COUNT; ++e)
-        for (int i = 0; i < SUBDIV; ++i) t->both[e * SUBDIV + i] = t->exponent[e] * t->centre[i];
+        for (int i = 0; i < SUBDIV; ++i) t->both[e * SUBDIV + i] = exponent[e] * centre[i];
     double coefficient = 1.0;
     for (int k = 0; k <= DEGREE; ++k) {
         t->series[k] = coefficient;
