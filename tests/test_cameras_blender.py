@@ -29,8 +29,10 @@ check is |du|, |dv| <= 1e-6 * E: a relative 1e-6, about ten times the float32 no
 (worst about 1e-7 E for camera_from_blender over thousands of random cameras). A camera set
 from camera_to_blender(c) is compared with c itself, whose float64 numbers Blender stores
 rounded to float32 (lens, shifts, pixel aspect, pose: several roundings that add up): there
-the bound is 3e-6 * E (worst seen about 4.5e-7 E), while reading that Blender camera back
-through camera_from_blender matches Blender's projection to the 1e-6 above.
+too the bound is 1e-6 * E (worst seen 2.6e-7 E over 25 runs of 200 cameras), and reading that
+Blender camera back through camera_from_blender matches Blender's projection to the same 1e-6.
+The pose is stored as a quaternion (`camera_adapter.set_camera`): as Euler angles, a view near
+gimbal lock came back 3.9e-6 E off (`test_pose_near_gimbal_lock_is_kept`).
 """
 
 from __future__ import annotations
@@ -43,10 +45,10 @@ import numpy as np
 import pytest
 from bpy_extras.object_utils import world_to_camera_view
 
+from addon.blender.camera_adapter import set_camera
 from addon.core.cameras import BlenderCameraParams, Camera, camera_from_blender, camera_to_blender
 
 REL = 1e-6  # of the error scale E; see the module docstring
-REL_STORED = 3e-6  # the same, after our float64 camera is stored in Blender's float32 fields
 
 
 class _ProbeEngine(bpy.types.RenderEngine):
@@ -119,12 +121,9 @@ def params_from_bpy(camera_obj, scene) -> BlenderCameraParams:
 
 def set_bpy_camera(camera_obj, scene, params: BlenderCameraParams) -> None:
     """Apply `params` to a parentless camera object and the scene's render settings."""
-    cam, render = camera_obj.data, scene.render
-    cam.type = "PERSP"
+    render = scene.render
     camera_obj.parent = None
-    camera_obj.matrix_world = mathutils.Matrix(params.matrix_world.tolist())  # rows
-    for name in ("lens", "sensor_width", "sensor_height", "sensor_fit", "shift_x", "shift_y"):
-        setattr(cam, name, getattr(params, name))
+    set_camera(camera_obj, params)
     for name in ("resolution_x", "resolution_y", "resolution_percentage",
                  "pixel_aspect_x", "pixel_aspect_y"):
         setattr(render, name, getattr(params, name))
@@ -157,6 +156,7 @@ def randomize_bpy_camera(rng, camera_obj, parent, scene, fit: str) -> None:
     render.pixel_aspect_x, render.pixel_aspect_y = aspect
 
     camera_obj.location = rng.uniform(-10, 10, size=3).tolist()
+    camera_obj.rotation_mode = "XYZ"  # `set_camera` (other tests) leaves it a quaternion
     camera_obj.rotation_euler = rng.uniform(-math.pi, math.pi, size=3).tolist()
     camera_obj.scale = np.exp(rng.uniform(np.log(0.2), np.log(5.0), size=3)).tolist()
     # Sometimes under a rotated, non-uniformly scaled parent: the world matrix is sheared.
@@ -264,7 +264,7 @@ def test_camera_to_blender_matches_blender(blender_scene, rng):
         points = sample_points(camera, rng)
         err = pixel_error(camera, camera_pixels(camera, points), blender_pixels(probe, points),
                           points)
-        assert err <= REL_STORED, (err, camera)
+        assert err <= REL, (err, camera)
         worst = max(worst, err)
         # Read back from Blender (float32 storage): the same camera, and exactly Blender's view.
         back = camera_from_blender(params_from_bpy(evaluated_camera(camera_obj, scene), scene))
@@ -274,6 +274,25 @@ def test_camera_to_blender_matches_blender(blender_scene, rng):
         scale = max(width, height, abs(camera.cx), abs(camera.cy))
         assert abs(back.cx - camera.cx) <= 1e-6 * scale and abs(back.cy - camera.cy) <= 1e-6 * scale
     print(f"worst pixel error {worst:.2e} of the error scale")
+
+
+@pytest.mark.parametrize("pitch", [math.pi / 2 - 3e-4, -math.pi / 2 + 1e-5, math.pi / 2])
+def test_pose_near_gimbal_lock_is_kept(blender_scene, rng, pitch):
+    """A view whose Euler XYZ decomposition is ill-conditioned (Y rotation near +-90 degrees)
+    keeps its pose to float32 rounding: the case of a random camera that came back 0.13 px off
+    when the pose went through Euler angles."""
+    scene, camera_obj, _ = blender_scene
+    euler = mathutils.Euler((float(rng.uniform(-math.pi, math.pi)), pitch,
+                             float(rng.uniform(-math.pi, math.pi))), "XYZ")
+    camera_to_world = np.eye(4)
+    camera_to_world[:3, :3] = np.array(euler.to_matrix(), np.float64) @ np.diag([1, -1, -1])
+    camera_to_world[:3, 3] = rng.uniform(-10, 10, size=3)
+    camera = Camera(np.linalg.inv(camera_to_world), 4746.06, 14950.73, 70.34, -94.15, 2354, 1007)
+    set_bpy_camera(camera_obj, scene, camera_to_blender(camera))
+    probe = render_probe(scene)
+    points = sample_points(camera, rng)
+    err = pixel_error(camera, camera_pixels(camera, points), blender_pixels(probe, points), points)
+    assert err <= REL, err
 
 
 def test_world_to_camera_view_agrees(blender_scene, rng):

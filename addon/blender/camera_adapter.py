@@ -70,8 +70,13 @@ def set_lens(cam, params: BlenderCameraParams) -> None:
 
 
 def set_camera(camera_obj, params: BlenderCameraParams) -> None:
-    """Place a camera object and set its lens so that it renders `params`' view."""
+    """Place a camera object and set its lens so that it renders `params`' view.
+
+    The pose is kept as a quaternion: Blender stores an object's rotation in its rotation mode,
+    in float32, and an Euler decomposition near gimbal lock loses digits (a COLMAP view looking
+    almost along world X came back 0.13 px off at 2354x1007 with Euler XYZ)."""
     set_lens(camera_obj.data, params)
+    camera_obj.rotation_mode = "QUATERNION"
     camera_obj.matrix_world = to_matrix(params.matrix_world)
 
 
