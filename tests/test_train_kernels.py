@@ -1,5 +1,5 @@
-"""The loss and optimizer kernels (`addon.core.train_kernels.l1_ssim_loss`, `adam_step`)
-against float64 NumPy references (tests/reference_backward.py).
+"""The loss, optimizer and noise kernels (`addon.core.train_kernels.l1_ssim_loss`, `adam_step`,
+`position_noise`) against float64 NumPy references (tests/reference_backward.py).
 
 Tolerances: the loss kernel works in float32 (as the 3DGS training code does on the GPU), with
 the image means summed in double. L1 is exact differences of the float32 inputs summed in double:
@@ -10,7 +10,8 @@ measured: the mean SSIM within 3e-6 absolute and the gradient within 1.2e-4 of i
 on flat images, 1e-6 on random ones. The tests allow 1e-5 absolute on SSIM, 2e-5 of the largest
 gradient element on random images and 5e-4 on flat ones. The reference's own analytic SSIM
 gradient is held against central finite differences (1e-6 relative). Adam works in float32 like
-torch: 1e-5 relative per step."""
+torch: 1e-5 relative per step. The position noise is double inside, rounded once to float32 when
+added to the float32 mean: within a float32 ulp of the step and one of the sum."""
 
 from __future__ import annotations
 
@@ -311,3 +312,55 @@ def test_parameters_adam_step_over_visible_rows(rng):
             assert not sparse.moments[name][0][~rows].any()  # never selected, never moved
             if step == 1:  # from equal states, the selected rows get the dense update
                 assert np.array_equal(array[rows], dense.params[name][rows])
+
+
+def _noise_inputs(rng, n):
+    means = rng.normal(0, 2, (n, 3)).astype(np.float32)
+    log_scales = rng.normal(-2, 1, (n, 3)).astype(np.float32)
+    quats = (rng.normal(size=(n, 4)) * rng.uniform(0.1, 3, (n, 1))).astype(np.float32)
+    quats[0] = 0.0  # a zero quaternion: identity
+    logits = rng.normal(-4, 3, n).astype(np.float32)  # gates from 0 to ~1
+    return means, log_scales, quats, logits, rng.standard_normal((n, 3))
+
+
+def test_position_noise_matches_reference(rng):
+    means, log_scales, quats, logits, noise = _noise_inputs(rng, 3000)
+    want = rb.position_noise(means, log_scales, quats, logits, noise, 0.3)
+    got = means.copy()
+    tk.position_noise(got, log_scales, quats, logits, noise, 0.3)
+    # Two float32 roundings: of the step, and of the sum.
+    ulps = np.spacing(np.abs(np.float32(want))) + np.spacing(np.abs(np.float32(want - means)))
+    assert (np.abs(got - want) <= ulps).all()
+    moved = (got != means).any(1)
+    assert 100 < moved.sum() < 2900  # opaque ones stay, transparent ones move
+    o = 1 / (1 + np.exp(-np.float64(logits)))
+    assert not moved[o > 0.3].any()
+
+
+def test_position_noise_identical_for_any_thread_count(rng):
+    means, log_scales, quats, logits, noise = _noise_inputs(rng, 20_000)
+    results = []
+    for threads in (1, 2, 5):
+        got = means.copy()
+        tk.position_noise(got, log_scales, quats, logits, noise, 0.1, threads=threads)
+        results.append(got)
+    assert all(np.array_equal(results[0], r) for r in results[1:])
+
+
+def test_position_noise_rejects_bad_input(rng):
+    means, log_scales, quats, logits, noise = _noise_inputs(rng, 10)
+    for args, error, keyword in [
+        ((means.astype(np.float64), log_scales, quats, logits, noise, 1.0), TypeError, "means"),
+        ((means, log_scales[:5], quats, logits, noise, 1.0), ValueError, "log_scales"),
+        ((means, log_scales, quats[:, :3], logits, noise, 1.0), ValueError, "quats"),
+        ((means, log_scales, quats, logits, noise[:4], 1.0), ValueError, "noise"),
+        ((means, log_scales, quats, logits, noise, float("nan")), ValueError, "scale"),
+    ]:
+        before = args[0].copy()
+        with pytest.raises(error, match=keyword):
+            tk.position_noise(*args)
+        assert np.array_equal(args[0], before)
+    frozen = means.copy()
+    frozen.flags.writeable = False
+    with pytest.raises(ValueError, match="writable"):
+        tk.position_noise(frozen, log_scales, quats, logits, noise, 1.0)

@@ -260,3 +260,21 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
     native.splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1),
                             float(beta2), float(eps), int(step), native.thread_count(threads),
                             rows, int(lead), float(lr if lead_lr is None else lead_lr))
+
+
+def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
+                   opacity_logits: np.ndarray, noise: np.ndarray, scale: float, *,
+                   threads: int = 0) -> None:
+    """3DGS-MCMC's position noise, in place on `means` (float32 (N, 3), C-contiguous):
+
+        o = sigmoid(opacity_logits);  gate = sigmoid(100 ((1 - o) - 0.995))
+        means += float32(R diag(exp(log_scales)^2) R^T noise * gate * scale)
+
+    R the rotation of the normalised quaternion (identity for a zero one), noise (N, 3) the
+    caller's standard normal draw (float64, so the random stream stays the caller's); in double
+    per Gaussian, as the reference's float64 NumPy. Means whose gate is at most 1e-12 (opacity
+    above about 0.27: a move below float32 resolution) are left exactly as they are.
+    """
+    native.splatcore().position_noise(means, log_scales, quats, opacity_logits,
+                                      np.ascontiguousarray(noise, np.float64), float(scale),
+                                      native.thread_count(threads))

@@ -29,6 +29,7 @@
  *   train.c               the training forward (keeps an sc_train_state) and the backward
  *   loss.c                L1 + SSIM loss and its gradient
  *   adam.c                the Adam update
+ *   position_noise.c      3DGS-MCMC's noise on the positions of nearly transparent Gaussians
  */
 #ifndef SPLATCORE_H
 #define SPLATCORE_H
@@ -260,6 +261,15 @@ void sc_adam(float *param, const float *grad, float *m, float *v, int64_t n,
 void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t rows,
                   int64_t width, const uint8_t *mask, int64_t lead, double lead_lr,
                   const sc_adam_options *o, int threads);
+
+/* 3DGS-MCMC's position noise, in place: each of `count` means moves by R diag(s^2) R^T z
+ * times sigmoid(100 ((1 - o) - 0.995)) times `scale`, o = sigmoid(opacity logit), s = exp(log
+ * scales), R the normalised quaternion's rotation, z = noise (count, 3) float64 (the caller's
+ * standard normal draw); computed in double; a gate at or below 1e-12 leaves a mean exactly as
+ * it is. Identical for any thread count. */
+void sc_position_noise(float *means, const float *log_scales, const float *quats,
+                       const float *opacity_logits, const double *noise, int64_t count,
+                       double scale, int threads);
 
 /* Premultiplied float32 RGBA pixels (4 floats each) from scene-linear to display sRGB
  * (decode 0) or back (decode 1), the extended sRGB transfer of addon/core/colour.py on

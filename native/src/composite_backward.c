@@ -144,7 +144,8 @@ static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *bl
             power_y[j] = -(c.half_cc * dys[j] * dys[j]), cb_dy[j] = c.cb * dys[j];
         }
         lane_sums sums;
-        memset(&sums, 0, sizeof sums);
+        for (int q = 0; q < NG; ++q) /* a loop, not memset: the sums then live in registers */
+            for (int x = 0; x < BLOCK; ++x) sums.v[q][x] = 0.0f;
         while (todo) { /* row by row, left to right: the sums' fixed order */
             const int q = sc_lowest_bit(todo), j = q >> 1;
             todo &= todo - 1;

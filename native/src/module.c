@@ -739,6 +739,39 @@ fail:
     return NULL;
 }
 
+/* position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads): see
+ * sc_position_noise. float32 parameters (means writable) of N rows, noise (N, 3) float64. */
+static PyObject *py_position_noise(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *objs[5];
+    double scale;
+    int threads;
+    if (!PyArg_ParseTuple(args, "OOOOOdO&:position_noise", &objs[0], &objs[1], &objs[2],
+                          &objs[3], &objs[4], &scale, parse_threads, &threads))
+        return NULL;
+    if (!isfinite(scale)) return value_error("scale must be finite, got %g", scale), NULL;
+    buffers b = {.count = 0};
+    const Py_ssize_t n3[] = {-1, 3};
+    float *means = (float *)get_array(&b, objs[0], "means", 'f', 2, n3, 1);
+    if (!means) goto fail;
+    const Py_ssize_t n = b.views[b.count - 1].shape[0];
+    const Py_ssize_t rows3[] = {n, 3}, rows4[] = {n, 4}, rows1[] = {n};
+    const float *log_scales = get_array(&b, objs[1], "log_scales", 'f', 2, rows3, 0);
+    const float *quats = log_scales ? get_array(&b, objs[2], "quats", 'f', 2, rows4, 0) : NULL;
+    const float *logits = quats ? get_array(&b, objs[3], "opacity_logits", 'f', 1, rows1, 0) : NULL;
+    const double *noise = logits ? get_array(&b, objs[4], "noise", 'd', 2, rows3, 0) : NULL;
+    if (!noise) goto fail;
+    Py_BEGIN_ALLOW_THREADS
+    sc_position_noise(means, log_scales, quats, logits, noise, n, scale,
+                      threads ? threads : sc_cpu_count());
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    Py_RETURN_NONE;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
 /* srgb_premultiplied(src, dst, decode, threads): see sc_srgb_premultiplied. Both float32,
  * C-contiguous, of one shape (..., 4); dst writable and either src itself or not overlapping it. */
 static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args) {
@@ -881,6 +914,10 @@ static PyMethodDef methods[] = {
      "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape. rows: "
      "uint8 (shape[0],) or None: rows where it is 0 are left as they are (moments too). The "
      "first `lead` values of each row (along the first axis) step at lead_lr."},
+    {"position_noise", py_position_noise, METH_VARARGS,
+     "position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads)\n\n"
+     "3DGS-MCMC's noise on the means in place (sc_position_noise): float32 parameters of N "
+     "Gaussians (means writable), noise (N, 3) float64 standard normal."},
     {"srgb_premultiplied", py_srgb_premultiplied, METH_VARARGS,
      "srgb_premultiplied(rgba, out, decode, threads)\n\n"
      "Premultiplied float32 RGBA (..., 4) scene-linear -> display sRGB (decode False) or back "
