@@ -283,12 +283,67 @@ def test_sparse_adam_rejects_bad_rows_and_lead(rng):
         (dict(rows=np.ones(9, bool)), ValueError, "shape"),
         (dict(rows=np.ones(10, np.int64)), TypeError, "uint8"),
         (dict(lead=4), ValueError, "lead"),
+        (dict(used=4), ValueError, "used"),
+        (dict(used=1, lead=2), ValueError, "lead"),
         (dict(lead=-1), ValueError, "lead"),
         (dict(lead=1, lead_lr=float("inf")), ValueError, "lead_lr"),
     ]:
         with pytest.raises(error, match=keyword):
             tk.adam_step(p, g, m, v, lr=0.1, step=1, **kwargs)
     assert not p.any()
+
+
+def test_adam_used_values_update_only_a_row_prefix(rng):
+    shape = (300, 16, 3)
+    param, grad = rng.normal(size=shape).astype(np.float32), rng.normal(size=shape).astype(np.float32)
+    m, v = rng.normal(size=shape).astype(np.float32), np.abs(rng.normal(size=shape)).astype(np.float32)
+    rows = rng.uniform(size=shape[0]) < 0.6
+    full = [a.copy() for a in (param, m, v)]
+    tk.adam_step(full[0], grad, full[1], full[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2)
+    part = [a.copy() for a in (param, m, v)]
+    tk.adam_step(part[0], grad, part[1], part[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2,
+                 used=12)
+    for got, want, old in zip(part, full, (param, m, v)):
+        assert np.array_equal(got[:, :4], want[:, :4])  # the first 12 values: the full update
+        assert np.array_equal(got[:, 4:], old[:, 4:])  # the rest: untouched
+    # Values with zero gradient and zero moments: the full update leaves them as they are too.
+    grad[:, 4:] = 0.0
+    m[:, 4:] = 0.0
+    v[:, 4:] = 0.0
+    tk.adam_step(param, grad, m, v, lr=1e-3, step=4, rows=rows)
+    assert np.array_equal(param[:, 4:], part[0][:, 4:]) and not m[:, 4:].any() and not v[:, 4:].any()
+    grad[0, 5, 1] = np.nan  # a value the update does not read is not checked
+    tk.adam_step(param, grad, m, v, lr=1e-3, step=5, used=12)
+    with pytest.raises(ValueError, match="non-finite"):
+        tk.adam_step(param, grad, m, v, lr=1e-3, step=5, used=18)
+
+
+def test_parameters_adam_skips_sh_bands_never_rendered(rng):
+    from addon.core.optimizer import GaussianParameters
+    from tests.scenes import random_gaussians
+
+    g = random_gaussians(rng, 60, 3)
+    lrs = {"means": 1e-3, "log_scales": 2e-3, "quats": 3e-3, "opacity_logits": 4e-3,
+           "sh_dc": 2.5e-3, "sh_rest": 1.25e-4}
+    skipping, full = GaussianParameters(g), GaussianParameters(g)
+    assert skipping.sh_moved == 0
+    for step, degree in enumerate([0, 0, 1, 1, 2, 1, 3], start=1):
+        grads = tk.Gradients.zeros_like(g)
+        for array in grads.arrays().values():
+            array[:] = rng.normal(size=array.shape)
+        grads.sh[:, (degree + 1) ** 2:] = 0.0  # as the backward leaves bands not rendered
+        rows = rng.uniform(size=60) < 0.7
+        skipping.adam_step(grads, lrs, step, rows=rows, sh_coeffs=(degree + 1) ** 2)
+        full.adam_step(grads, lrs, step, rows=rows)
+        assert skipping.sh_moved == max((d + 1) ** 2 for d in [0, 0, 1, 1, 2, 1, 3][:step])
+        for name in skipping.params:
+            assert np.array_equal(skipping.params[name], full.params[name])
+            assert all(np.array_equal(a, b) for a, b in zip(skipping.moments[name], full.moments[name]))
+    restored = GaussianParameters.from_state_arrays(skipping.state_arrays())
+    assert restored.sh_moved == 16
+    fresh = GaussianParameters(g)
+    fresh.moments["sh"][1][5, 6] = 1.0
+    assert GaussianParameters.from_state_arrays(fresh.state_arrays()).sh_moved == 7
 
 
 def test_parameters_adam_step_over_visible_rows(rng):

@@ -246,7 +246,8 @@ class Trainer:
                         view)
         self.strategy.after_backward(self.parameters, info)
         self.parameters.adam_step(grads, info.learning_rates, self.step, threads=c.threads,
-                                  rows=state.visible if self._sparse_adam else None)
+                                  rows=state.visible if self._sparse_adam else None,
+                                  sh_coeffs=(degree + 1) ** 2)
         densified = self.strategy.after_step(self.parameters, info)
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
                 "psnr": psnr(result.rgb, target), "gaussians": len(self), "sh_degree": degree,

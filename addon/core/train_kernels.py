@@ -237,7 +237,7 @@ def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float =
 def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_sq: np.ndarray,
               *, lr: float, step: int, beta1: float = ADAM_BETA1, beta2: float = ADAM_BETA2,
               eps: float = ADAM_EPS, rows: np.ndarray | None = None, lead: int = 0,
-              lead_lr: float | None = None, threads: int = 0) -> None:
+              lead_lr: float | None = None, used: int | None = None, threads: int = 0) -> None:
     """One Adam update of `param` in place, with its moments `exp_avg`, `exp_avg_sq` (in place).
 
     torch.optim.Adam's formula (no weight decay, no amsgrad), in float32:
@@ -252,6 +252,9 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
         moments; `step` still counts every step, as there).
     lead, lead_lr: the first `lead` values of each row step at `lead_lr` instead of `lr` (the
         SH DC coefficients of an (N, K, 3) array: lead 3).
+    used: only the first `used` values of each row are updated, the rest left as they are
+        (None: all). Values whose gradient and moments are all 0 (SH bands never rendered yet)
+        would not change anyway: leaving them out only saves the time.
     """
     if rows is not None:
         rows = np.asarray(rows)
@@ -259,7 +262,8 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
             rows = rows.view(np.uint8)
     native.splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1),
                             float(beta2), float(eps), int(step), native.thread_count(threads),
-                            rows, int(lead), float(lr if lead_lr is None else lead_lr))
+                            rows, int(lead), float(lr if lead_lr is None else lead_lr),
+                            -1 if used is None else int(used))
 
 
 def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,

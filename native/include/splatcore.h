@@ -256,10 +256,11 @@ void sc_adam(float *param, const float *grad, float *m, float *v, int64_t n,
 
 /* sc_adam over the rows of (rows, width) arrays, with the rows where mask[r] is 0 left exactly
  * as they are, moments included (mask NULL: every row; a step's visible Gaussians as gsplat's
- * visible_adam), and the first `lead` values of each row at the rate lead_lr instead of o->lr
- * (the SH DC coefficients; lead 0: none). */
+ * visible_adam), the first `lead` values of each row at the rate lead_lr instead of o->lr
+ * (the SH DC coefficients; lead 0: none), and only the first `used` values of each row updated
+ * (the rest left as they are; `width` or more, or negative: all). */
 void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t rows,
-                  int64_t width, const uint8_t *mask, int64_t lead, double lead_lr,
+                  int64_t width, const uint8_t *mask, int64_t lead, double lead_lr, int64_t used,
                   const sc_adam_options *o, int threads);
 
 /* 3DGS-MCMC's position noise, in place: each of `count` means moves by R diag(s^2) R^T z

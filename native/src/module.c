@@ -356,6 +356,23 @@ static int check_finite_array(const float *v, int64_t n, const char *name) {
     return 0;
 }
 
+/* check_finite_array over the first `used` values of each of `rows` rows of `width`. */
+static int check_finite_rows(const float *v, int64_t rows, int64_t width, int64_t used,
+                             const char *name) {
+    for (int64_t r = 0; r < rows; ++r) {
+        if (check_finite_array(v + r * width, used, name) == 0) continue;
+        PyErr_Clear();
+        for (int64_t i = 0; i < used; ++i)
+            if (!isfinite(v[r * width + i])) {
+                PyErr_Format(PyExc_ValueError, "%s has a non-finite value (NaN or Inf) at flat "
+                             "index %lld", name, (long long)(r * width + i));
+                break;
+            }
+        return -1;
+    }
+    return 0;
+}
+
 /* The optional background (3) and the three images render() and render_train() write:
  * out_rgb (H,W,3), out_alpha and out_depth (H,W). */
 static int parse_image(buffers *b, PyObject *background, PyObject *const *outs, int width,
@@ -686,12 +703,12 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[4], *mask_obj = Py_None;
     sc_adam_options o;
-    long long step, lead = 0;
+    long long step, lead = 0, used = -1;
     double lead_lr = NAN;
     int threads;
-    if (!PyArg_ParseTuple(args, "OOOOddddLO&|OLd:adam", &objs[0], &objs[1], &objs[2], &objs[3],
+    if (!PyArg_ParseTuple(args, "OOOOddddLO&|OLdL:adam", &objs[0], &objs[1], &objs[2], &objs[3],
                           &o.lr, &o.beta1, &o.beta2, &o.eps, &step, parse_threads, &threads,
-                          &mask_obj, &lead, &lead_lr))
+                          &mask_obj, &lead, &lead_lr, &used))
         return NULL;
     o.step = step;
     if (isnan(lead_lr)) lead_lr = o.lr;
@@ -722,14 +739,23 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
         const Py_ssize_t mask_shape[] = {(Py_ssize_t)rows};
         if (!(mask = get_array(&b, mask_obj, "rows", 'B', 1, mask_shape, 0))) goto fail;
     }
-    if (lead < 0 || lead > width) {
-        PyErr_Format(PyExc_ValueError, "lead must be in 0..%lld (the values in a row), got %lld",
-                     (long long)width, lead);
+    if (used < 0) used = width;
+    if (used > width) {
+        PyErr_Format(PyExc_ValueError, "used must be in 0..%lld (the values in a row), got %lld",
+                     (long long)width, used);
         goto fail;
     }
-    if (check_finite_array(grad, n, "grad") != 0) goto fail;
+    if (lead < 0 || lead > used) {
+        PyErr_Format(PyExc_ValueError, "lead must be in 0..%lld (the values in a row updated), "
+                     "got %lld", (long long)used, lead);
+        goto fail;
+    }
+    /* The values the update reads: every one, or each row's first `used`. */
+    if (used == width ? check_finite_array(grad, n, "grad") != 0
+                      : check_finite_rows(grad, rows, width, used, "grad") != 0)
+        goto fail;
     Py_BEGIN_ALLOW_THREADS
-    sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, &o,
+    sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, used, &o,
                  threads ? threads : sc_cpu_count());
     Py_END_ALLOW_THREADS
     release_all(&b);
@@ -910,10 +936,11 @@ static PyMethodDef methods[] = {
      "out_grad when it is not None."},
     {"adam", py_adam, METH_VARARGS,
      "adam(param, grad, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, step, threads, rows=None, "
-     "lead=0, lead_lr=lr)\n\n"
+     "lead=0, lead_lr=lr, used=-1)\n\n"
      "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape. rows: "
      "uint8 (shape[0],) or None: rows where it is 0 are left as they are (moments too). The "
-     "first `lead` values of each row (along the first axis) step at lead_lr."},
+     "first `lead` values of each row (along the first axis) step at lead_lr; only the first "
+     "`used` values of each row are updated (negative: all)."},
     {"position_noise", py_position_noise, METH_VARARGS,
      "position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads)\n\n"
      "3DGS-MCMC's noise on the means in place (sc_position_noise): float32 parameters of N "
