@@ -63,6 +63,18 @@ def test_loss_and_gradient_match_reference(rng, size, lam):
     _check_loss(image, target, lam, grad_tolerance=2e-5)
 
 
+def test_loss_reports_the_mse_psnr_measures(rng):
+    # The image beyond [0, 1] on purpose: the MSE is of the image clamped, as PSNR's.
+    image = rng.uniform(-0.3, 1.3, (31, 45, 3)).astype(np.float32)
+    target = rng.uniform(0, 1, image.shape).astype(np.float32)
+    want = np.mean((np.clip(np.float64(image), 0, 1) - target) ** 2)
+    for need_grad in (True, False):
+        got = tk.l1_ssim_loss(image, target, need_grad=need_grad, threads=2)
+        assert abs(got.mse - want) <= 1e-12 * want
+    assert tk.psnr_of_mse(got.mse) == pytest.approx(-10 * np.log10(want), abs=1e-9)
+    assert tk.psnr_of_mse(0.0) == float("inf")
+
+
 @pytest.mark.parametrize("size", SIZES)
 @pytest.mark.parametrize("level", [0.02, 0.5, 0.98])
 def test_loss_on_flat_images_matches_reference(rng, size, level):

@@ -25,6 +25,7 @@ boundaries are listed in native/include/splatcore.h, "training"):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -116,12 +117,14 @@ class Gradients:
 
 @dataclass
 class LossResult:
-    """loss = (1 - lambda) l1 + lambda (1 - ssim); grad = dloss/d(image) (H, W, 3) or None."""
+    """loss = (1 - lambda) l1 + lambda (1 - ssim); grad = dloss/d(image) (H, W, 3) or None;
+    mse: the mean squared error of the image clamped to [0, 1] (`psnr_of_mse` gives the PSNR)."""
 
     loss: float
     l1: float
     ssim: float
     grad: np.ndarray | None
+    mse: float = float("nan")
 
 
 def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | None = None,
@@ -230,8 +233,14 @@ def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float =
     grad = None
     if need_grad:
         grad = np.empty(image.shape, np.float32) if out_grad is None else out_grad
-    loss, l1, ssim = native.splatcore().l1_ssim(image, target, lam, native.thread_count(threads), grad)
-    return LossResult(loss, l1, ssim, grad)
+    loss, l1, ssim, mse = native.splatcore().l1_ssim(image, target, lam,
+                                                     native.thread_count(threads), grad)
+    return LossResult(loss, l1, ssim, grad, mse)
+
+
+def psnr_of_mse(mse: float) -> float:
+    """PSNR in dB of a mean squared error of [0, 1] images (inf for 0)."""
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
 
 
 def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_sq: np.ndarray,

@@ -238,10 +238,12 @@ sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const 
  * 5 pixels (the 3DGS training code's conv2d(padding = 5)), the map the same size as the image.
  * Writes dL/d(image) (H,W,3) into grad when non-NULL (d|x|/dx at 0 is 0). Float32 arithmetic (as the
  * 3DGS training code), the means summed in double.
+ * With mse non-NULL, also the mean squared error of the image clamped to [0, 1] (what PSNR
+ * measures), in double.
  * Returns SC_ERR_MEMORY or SC_OK. */
 sc_status sc_l1_ssim(const float *image, const float *target, int width, int height,
                      double lambda, int threads, float *grad, double *loss, double *l1,
-                     double *ssim);
+                     double *ssim, double *mse);
 
 typedef struct {
     double lr, beta1, beta2, eps;

@@ -657,15 +657,15 @@ static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
     float *grad = NULL;
     if (grad_obj != Py_None && !(grad = (float *)get_array(&b, grad_obj, "out_grad", 'f', 3, shape, 1)))
         goto fail;
-    double loss = 0, l1 = 0, ssim = 0;
+    double loss = 0, l1 = 0, ssim = 0, mse = 0;
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
     status = sc_l1_ssim(image, target, (int)width, (int)height, lambda,
-                        threads ? threads : sc_cpu_count(), grad, &loss, &l1, &ssim);
+                        threads ? threads : sc_cpu_count(), grad, &loss, &l1, &ssim, &mse);
     Py_END_ALLOW_THREADS
     release_all(&b);
     if (status != SC_OK) return PyErr_NoMemory();
-    return Py_BuildValue("(ddd)", loss, l1, ssim);
+    return Py_BuildValue("(dddd)", loss, l1, ssim, mse);
 fail:
     release_all(&b);
     return NULL;
@@ -931,9 +931,9 @@ static PyMethodDef methods[] = {
      "dL/d(depth) (H, W) or None, w.r.t. the Gaussians render_train drew (the same arrays, "
      "unchanged), into the out_* arrays (overwritten)."},
     {"l1_ssim", py_l1_ssim, METH_VARARGS,
-     "l1_ssim(image, target, lambda_dssim, threads, out_grad) -> (loss, l1, ssim)\n\n"
+     "l1_ssim(image, target, lambda_dssim, threads, out_grad) -> (loss, l1, ssim, mse)\n\n"
      "(1 - lambda) L1 + lambda (1 - SSIM) of (H, W, 3) float32 images; dL/d(image) into "
-     "out_grad when it is not None."},
+     "out_grad when it is not None; mse: of the image clamped to [0, 1] (PSNR's)."},
     {"adam", py_adam, METH_VARARGS,
      "adam(param, grad, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, step, threads, rows=None, "
      "lead=0, lead_lr=lr, used=-1)\n\n"
