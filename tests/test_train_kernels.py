@@ -324,10 +324,11 @@ def test_adam_used_values_update_only_a_row_prefix(rng):
     v[:, 4:] = 0.0
     tk.adam_step(param, grad, m, v, lr=1e-3, step=4, rows=rows)
     assert np.array_equal(param[:, 4:], part[0][:, 4:]) and not m[:, 4:].any() and not v[:, 4:].any()
-    grad[0, 5, 1] = np.nan  # a value the update does not read is not checked
-    tk.adam_step(param, grad, m, v, lr=1e-3, step=5, used=12)
+    grad[0, 5, 1] = np.nan  # refused, even where the update would not read it
+    before = param.copy()
     with pytest.raises(ValueError, match="non-finite"):
-        tk.adam_step(param, grad, m, v, lr=1e-3, step=5, used=18)
+        tk.adam_step(param, grad, m, v, lr=1e-3, step=5, used=12)
+    assert np.array_equal(param, before)
 
 
 def test_parameters_adam_skips_sh_bands_never_rendered(rng):
