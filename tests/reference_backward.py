@@ -244,3 +244,20 @@ def adam(param, grad, m, v, *, lr, step, beta1=0.9, beta2=0.999, eps=1e-15):
     step_size = lr / (1 - beta1 ** step)
     denom = np.sqrt(v) / np.sqrt(1 - beta2 ** step) + eps
     return param - step_size * m / denom, m, v
+
+
+def position_noise(means, log_scales, quats, opacity_logits, noise, scale) -> np.ndarray:
+    """3DGS-MCMC's position noise in float64: the new means (N, 3) float64 (not rounded)."""
+    o = 1.0 / (1.0 + np.exp(-np.float64(opacity_logits)))
+    gate = 1.0 / (1.0 + np.exp(-100.0 * ((1.0 - o) - 0.995)))
+    q = np.float64(quats)
+    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    q = np.where(norm > 0, q / np.where(norm > 0, norm, 1.0), [1.0, 0.0, 0.0, 0.0])
+    w, x, y, z = q.T
+    r = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                  np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                  np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)],
+                 axis=1)
+    covariance = r @ (np.exp(2.0 * np.float64(log_scales))[:, :, None] * np.swapaxes(r, 1, 2))
+    step = covariance @ (np.float64(noise) * (gate * scale)[:, None])[:, :, None]
+    return np.float64(means) + step[:, :, 0]

@@ -89,6 +89,16 @@ def assert_gradients_close(got: tk.Gradients, want: dict, rtol=RTOL, floor=FLOOR
                 f"{actual[at]!r}, finite difference {expected[at]!r} (largest |gradient| {scale:.3g})")
 
 
+def assert_scene_matches_finite_differences(rng, make):
+    """A scene from `make` clear of kinks, over the background, with random weights on rgb,
+    alpha and depth: the native gradients against finite differences of the reference."""
+    gaussians, camera = clear_scene(rng, make, background=BACKGROUND)
+    w = weights(rng, camera, alpha=True, depth=True)
+    got = native_gradients(gaussians, camera, *w, background=BACKGROUND)
+    want = rb.finite_difference_gradients(gaussians, camera, *w, background=BACKGROUND)
+    assert_gradients_close(got, want)
+
+
 # ---------------------------------------------------------------- the training forward
 
 
@@ -147,11 +157,19 @@ def test_many_overlapping_layers(rng):
         g.opacity_logits[:] = r.uniform(0.5, 2.0, 12)
         g.log_scales += np.float32(0.7)
         return g, cam
-    gaussians, camera = clear_scene(rng, make, background=BACKGROUND)
-    w = weights(rng, camera, alpha=True, depth=True)
-    got = native_gradients(gaussians, camera, *w, background=BACKGROUND)
-    want = rb.finite_difference_gradients(gaussians, camera, *w, background=BACKGROUND)
-    assert_gradients_close(got, want)
+    assert_scene_matches_finite_differences(rng, make)
+
+
+def test_broad_gaussians_over_several_tiles(rng):
+    # Gaussians 6-24 pixels wide and elongated, over 3 x 3 tiles: spans of many half rows, where
+    # the backward evaluates only the half rows inside each one's alpha >= 1/255 ellipse (the
+    # forward's footprint masks) and those with a pixel that had not stopped.
+    def make(r):
+        g, cam = tiny_scene(r, n=6, degree=1, width=40, height=36)
+        g.log_scales += np.float32(np.log(4.0))
+        g.log_scales[:, 0] += np.float32(0.8)
+        return g, cam
+    assert_scene_matches_finite_differences(rng, make)
 
 
 def test_screen_space_gradients(rng):

@@ -1,5 +1,5 @@
-"""The loss and optimizer kernels (`addon.core.train_kernels.l1_ssim_loss`, `adam_step`)
-against float64 NumPy references (tests/reference_backward.py).
+"""The loss, optimizer and noise kernels (`addon.core.train_kernels.l1_ssim_loss`, `adam_step`,
+`position_noise`) against float64 NumPy references (tests/reference_backward.py).
 
 Tolerances: the loss kernel works in float32 (as the 3DGS training code does on the GPU), with
 the image means summed in double. L1 is exact differences of the float32 inputs summed in double:
@@ -10,7 +10,8 @@ measured: the mean SSIM within 3e-6 absolute and the gradient within 1.2e-4 of i
 on flat images, 1e-6 on random ones. The tests allow 1e-5 absolute on SSIM, 2e-5 of the largest
 gradient element on random images and 5e-4 on flat ones. The reference's own analytic SSIM
 gradient is held against central finite differences (1e-6 relative). Adam works in float32 like
-torch: 1e-5 relative per step."""
+torch: 1e-5 relative per step. The position noise is double inside, rounded once to float32 when
+added to the float32 mean: within a float32 ulp of the step and one of the sum."""
 
 from __future__ import annotations
 
@@ -60,6 +61,18 @@ def test_reference_filter_is_torch_conv2d_with_zero_padding():
 def test_loss_and_gradient_match_reference(rng, size, lam):
     image, target = _images(rng, *size)
     _check_loss(image, target, lam, grad_tolerance=2e-5)
+
+
+def test_loss_reports_the_mse_psnr_measures(rng):
+    # The image beyond [0, 1] on purpose: the MSE is of the image clamped, as PSNR's.
+    image = rng.uniform(-0.3, 1.3, (31, 45, 3)).astype(np.float32)
+    target = rng.uniform(0, 1, image.shape).astype(np.float32)
+    want = np.mean((np.clip(np.float64(image), 0, 1) - target) ** 2)
+    for need_grad in (True, False):
+        got = tk.l1_ssim_loss(image, target, need_grad=need_grad, threads=2)
+        assert abs(got.mse - want) <= 1e-12 * want
+    assert tk.psnr_of_mse(got.mse) == pytest.approx(-10 * np.log10(want), abs=1e-9)
+    assert tk.psnr_of_mse(0.0) == float("inf")
 
 
 @pytest.mark.parametrize("size", SIZES)
@@ -282,12 +295,68 @@ def test_sparse_adam_rejects_bad_rows_and_lead(rng):
         (dict(rows=np.ones(9, bool)), ValueError, "shape"),
         (dict(rows=np.ones(10, np.int64)), TypeError, "uint8"),
         (dict(lead=4), ValueError, "lead"),
+        (dict(used=4), ValueError, "used"),
+        (dict(used=1, lead=2), ValueError, "lead"),
         (dict(lead=-1), ValueError, "lead"),
         (dict(lead=1, lead_lr=float("inf")), ValueError, "lead_lr"),
     ]:
         with pytest.raises(error, match=keyword):
             tk.adam_step(p, g, m, v, lr=0.1, step=1, **kwargs)
     assert not p.any()
+
+
+def test_adam_used_values_update_only_a_row_prefix(rng):
+    shape = (300, 16, 3)
+    param, grad = rng.normal(size=shape).astype(np.float32), rng.normal(size=shape).astype(np.float32)
+    m, v = rng.normal(size=shape).astype(np.float32), np.abs(rng.normal(size=shape)).astype(np.float32)
+    rows = rng.uniform(size=shape[0]) < 0.6
+    full = [a.copy() for a in (param, m, v)]
+    tk.adam_step(full[0], grad, full[1], full[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2)
+    part = [a.copy() for a in (param, m, v)]
+    tk.adam_step(part[0], grad, part[1], part[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2,
+                 used=12)
+    for got, want, old in zip(part, full, (param, m, v)):
+        assert np.array_equal(got[:, :4], want[:, :4])  # the first 12 values: the full update
+        assert np.array_equal(got[:, 4:], old[:, 4:])  # the rest: untouched
+    # Values with zero gradient and zero moments: the full update leaves them as they are too.
+    grad[:, 4:] = 0.0
+    m[:, 4:] = 0.0
+    v[:, 4:] = 0.0
+    tk.adam_step(param, grad, m, v, lr=1e-3, step=4, rows=rows)
+    assert np.array_equal(param[:, 4:], part[0][:, 4:]) and not m[:, 4:].any() and not v[:, 4:].any()
+    grad[0, 5, 1] = np.nan  # refused, even where the update would not read it
+    before = param.copy()
+    with pytest.raises(ValueError, match="non-finite"):
+        tk.adam_step(param, grad, m, v, lr=1e-3, step=5, used=12)
+    assert np.array_equal(param, before)
+
+
+def test_parameters_adam_skips_sh_bands_never_rendered(rng):
+    from addon.core.optimizer import GaussianParameters
+    from tests.scenes import random_gaussians
+
+    g = random_gaussians(rng, 60, 3)
+    lrs = {"means": 1e-3, "log_scales": 2e-3, "quats": 3e-3, "opacity_logits": 4e-3,
+           "sh_dc": 2.5e-3, "sh_rest": 1.25e-4}
+    skipping, full = GaussianParameters(g), GaussianParameters(g)
+    assert skipping.sh_moved == 0
+    for step, degree in enumerate([0, 0, 1, 1, 2, 1, 3], start=1):
+        grads = tk.Gradients.zeros_like(g)
+        for array in grads.arrays().values():
+            array[:] = rng.normal(size=array.shape)
+        grads.sh[:, (degree + 1) ** 2:] = 0.0  # as the backward leaves bands not rendered
+        rows = rng.uniform(size=60) < 0.7
+        skipping.adam_step(grads, lrs, step, rows=rows, sh_coeffs=(degree + 1) ** 2)
+        full.adam_step(grads, lrs, step, rows=rows)
+        assert skipping.sh_moved == max((d + 1) ** 2 for d in [0, 0, 1, 1, 2, 1, 3][:step])
+        for name in skipping.params:
+            assert np.array_equal(skipping.params[name], full.params[name])
+            assert all(np.array_equal(a, b) for a, b in zip(skipping.moments[name], full.moments[name]))
+    restored = GaussianParameters.from_state_arrays(skipping.state_arrays())
+    assert restored.sh_moved == 16
+    fresh = GaussianParameters(g)
+    fresh.moments["sh"][1][5, 6] = 1.0
+    assert GaussianParameters.from_state_arrays(fresh.state_arrays()).sh_moved == 7
 
 
 def test_parameters_adam_step_over_visible_rows(rng):
@@ -311,3 +380,55 @@ def test_parameters_adam_step_over_visible_rows(rng):
             assert not sparse.moments[name][0][~rows].any()  # never selected, never moved
             if step == 1:  # from equal states, the selected rows get the dense update
                 assert np.array_equal(array[rows], dense.params[name][rows])
+
+
+def _noise_inputs(rng, n):
+    means = rng.normal(0, 2, (n, 3)).astype(np.float32)
+    log_scales = rng.normal(-2, 1, (n, 3)).astype(np.float32)
+    quats = (rng.normal(size=(n, 4)) * rng.uniform(0.1, 3, (n, 1))).astype(np.float32)
+    quats[0] = 0.0  # a zero quaternion: identity
+    logits = rng.normal(-4, 3, n).astype(np.float32)  # gates from 0 to ~1
+    return means, log_scales, quats, logits, rng.standard_normal((n, 3))
+
+
+def test_position_noise_matches_reference(rng):
+    means, log_scales, quats, logits, noise = _noise_inputs(rng, 3000)
+    want = rb.position_noise(means, log_scales, quats, logits, noise, 0.3)
+    got = means.copy()
+    tk.position_noise(got, log_scales, quats, logits, noise, 0.3)
+    # Two float32 roundings: of the step, and of the sum.
+    ulps = np.spacing(np.abs(np.float32(want))) + np.spacing(np.abs(np.float32(want - means)))
+    assert (np.abs(got - want) <= ulps).all()
+    moved = (got != means).any(1)
+    assert 100 < moved.sum() < 2900  # opaque ones stay, transparent ones move
+    o = 1 / (1 + np.exp(-np.float64(logits)))
+    assert not moved[o > 0.3].any()
+
+
+def test_position_noise_identical_for_any_thread_count(rng):
+    means, log_scales, quats, logits, noise = _noise_inputs(rng, 20_000)
+    results = []
+    for threads in (1, 2, 5):
+        got = means.copy()
+        tk.position_noise(got, log_scales, quats, logits, noise, 0.1, threads=threads)
+        results.append(got)
+    assert all(np.array_equal(results[0], r) for r in results[1:])
+
+
+def test_position_noise_rejects_bad_input(rng):
+    means, log_scales, quats, logits, noise = _noise_inputs(rng, 10)
+    for args, error, keyword in [
+        ((means.astype(np.float64), log_scales, quats, logits, noise, 1.0), TypeError, "means"),
+        ((means, log_scales[:5], quats, logits, noise, 1.0), ValueError, "log_scales"),
+        ((means, log_scales, quats[:, :3], logits, noise, 1.0), ValueError, "quats"),
+        ((means, log_scales, quats, logits, noise[:4], 1.0), ValueError, "noise"),
+        ((means, log_scales, quats, logits, noise, float("nan")), ValueError, "scale"),
+    ]:
+        before = args[0].copy()
+        with pytest.raises(error, match=keyword):
+            tk.position_noise(*args)
+        assert np.array_equal(args[0], before)
+    frozen = means.copy()
+    frozen.flags.writeable = False
+    with pytest.raises(ValueError, match="writable"):
+        tk.position_noise(frozen, log_scales, quats, logits, noise, 1.0)

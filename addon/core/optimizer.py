@@ -34,6 +34,9 @@ class GaussianParameters:
     def __init__(self, gaussians: Gaussians) -> None:
         self.params = {name: array.copy() for name, array in gaussians.arrays().items()}
         self.moments = {name: (np.zeros_like(a), np.zeros_like(a)) for name, a in self.params.items()}
+        # Beyond this many leading SH coefficients every moment is 0 (bands never rendered): see
+        # `adam_step`. Row edits keep it true (new and reset rows have zero moments).
+        self.sh_moved = 0
 
     def __len__(self) -> int:
         return len(self.params["means"])
@@ -48,12 +51,22 @@ class GaussianParameters:
         return Gaussians(**self.params)
 
     def adam_step(self, grads: tk.Gradients, lrs: dict[str, float], step: int, *,
-                  rows: np.ndarray | None = None, threads: int = 0) -> None:
+                  rows: np.ndarray | None = None, sh_coeffs: int | None = None,
+                  threads: int = 0) -> None:
         """One Adam update of every parameter from `grads` with the rates `lrs` (keys
         `LEARNING_RATES`). rows: (N,) bool, or None for all: only these Gaussians are updated,
         the others keep their parameters and moments (`train_kernels.adam_step`; the step's
-        visible Gaussians make this gsplat's `visible_adam`)."""
+        visible Gaussians make this gsplat's `visible_adam`).
+
+        sh_coeffs: how many leading SH coefficients can have nonzero gradients (the rendered
+        degree's (d + 1)^2; the backward gives 0 above it), or None: all. Coefficients beyond
+        both it and every earlier step's have zero gradient and zero moments, where Adam leaves
+        them exactly as they are: they are skipped (SH degree 0 of 3: 45 of 48 values a row)."""
         arrays = grads.arrays()
+        count = self.params["sh"].shape[1]
+        if sh_coeffs is None or sh_coeffs > count:
+            sh_coeffs = count
+        self.sh_moved = max(self.sh_moved, sh_coeffs)
         for name in PARAMETERS[:-1]:
             if self.params[name].size:
                 m, v = self.moments[name]
@@ -64,7 +77,8 @@ class GaussianParameters:
         if self.params["sh"].size:
             m, v = self.moments["sh"]
             tk.adam_step(self.params["sh"], arrays["sh"], m, v, lr=lrs["sh_rest"], step=step,
-                         rows=rows, lead=3, lead_lr=lrs["sh_dc"], threads=threads)
+                         rows=rows, lead=3, lead_lr=lrs["sh_dc"], used=3 * self.sh_moved,
+                         threads=threads)
 
     # -- row edits (densification) ------------------------------------------------------------
     def rows(self, index: np.ndarray) -> dict[str, np.ndarray]:
@@ -106,4 +120,7 @@ class GaussianParameters:
         out = cls.__new__(cls)
         out.params = {k: array("param", k) for k in PARAMETERS}
         out.moments = {k: (array("m", k), array("v", k)) for k in PARAMETERS}
+        m, v = out.moments["sh"]
+        moved = np.flatnonzero((m != 0).any(axis=(0, 2)) | (v != 0).any(axis=(0, 2)))
+        out.sh_moved = int(moved[-1]) + 1 if len(moved) else 0
         return out

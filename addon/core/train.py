@@ -114,8 +114,9 @@ def downscaled_view(camera: Camera, image: np.ndarray, factor: int) -> tuple[Cam
 
 
 def psnr(image: np.ndarray, target: np.ndarray) -> float:
-    mse = float(np.mean((np.clip(image, 0.0, 1.0) - target) ** 2))
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
+    """PSNR in dB of `image` clamped to [0, 1] against `target` (the loss kernel's `mse` gives
+    the same in a step, without another pass over the images)."""
+    return tk.psnr_of_mse(float(np.mean((np.clip(image, 0.0, 1.0) - target) ** 2)))
 
 
 @dataclass
@@ -246,10 +247,11 @@ class Trainer:
                         view)
         self.strategy.after_backward(self.parameters, info)
         self.parameters.adam_step(grads, info.learning_rates, self.step, threads=c.threads,
-                                  rows=state.visible if self._sparse_adam else None)
+                                  rows=state.visible if self._sparse_adam else None,
+                                  sh_coeffs=(degree + 1) ** 2)
         densified = self.strategy.after_step(self.parameters, info)
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
-                "psnr": psnr(result.rgb, target), "gaussians": len(self), "sh_degree": degree,
+                "psnr": tk.psnr_of_mse(loss.mse), "gaussians": len(self), "sh_degree": degree,
                 "densified": densified, "sizing": self.strategy.sizing,
                 "seconds": time.perf_counter() - start}
 

@@ -25,6 +25,7 @@ boundaries are listed in native/include/splatcore.h, "training"):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -116,12 +117,14 @@ class Gradients:
 
 @dataclass
 class LossResult:
-    """loss = (1 - lambda) l1 + lambda (1 - ssim); grad = dloss/d(image) (H, W, 3) or None."""
+    """loss = (1 - lambda) l1 + lambda (1 - ssim); grad = dloss/d(image) (H, W, 3) or None;
+    mse: the mean squared error of the image clamped to [0, 1] (`psnr_of_mse` gives the PSNR)."""
 
     loss: float
     l1: float
     ssim: float
     grad: np.ndarray | None
+    mse: float = float("nan")
 
 
 def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | None = None,
@@ -230,14 +233,20 @@ def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float =
     grad = None
     if need_grad:
         grad = np.empty(image.shape, np.float32) if out_grad is None else out_grad
-    loss, l1, ssim = native.splatcore().l1_ssim(image, target, lam, native.thread_count(threads), grad)
-    return LossResult(loss, l1, ssim, grad)
+    loss, l1, ssim, mse = native.splatcore().l1_ssim(image, target, lam,
+                                                     native.thread_count(threads), grad)
+    return LossResult(loss, l1, ssim, grad, mse)
+
+
+def psnr_of_mse(mse: float) -> float:
+    """PSNR in dB of a mean squared error of [0, 1] images (inf for 0)."""
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
 
 
 def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_sq: np.ndarray,
               *, lr: float, step: int, beta1: float = ADAM_BETA1, beta2: float = ADAM_BETA2,
               eps: float = ADAM_EPS, rows: np.ndarray | None = None, lead: int = 0,
-              lead_lr: float | None = None, threads: int = 0) -> None:
+              lead_lr: float | None = None, used: int | None = None, threads: int = 0) -> None:
     """One Adam update of `param` in place, with its moments `exp_avg`, `exp_avg_sq` (in place).
 
     torch.optim.Adam's formula (no weight decay, no amsgrad), in float32:
@@ -252,6 +261,9 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
         moments; `step` still counts every step, as there).
     lead, lead_lr: the first `lead` values of each row step at `lead_lr` instead of `lr` (the
         SH DC coefficients of an (N, K, 3) array: lead 3).
+    used: only the first `used` values of each row are updated, the rest left as they are
+        (None: all). Values whose gradient and moments are all 0 (SH bands never rendered yet)
+        would not change anyway: leaving them out only saves the time.
     """
     if rows is not None:
         rows = np.asarray(rows)
@@ -259,4 +271,23 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
             rows = rows.view(np.uint8)
     native.splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1),
                             float(beta2), float(eps), int(step), native.thread_count(threads),
-                            rows, int(lead), float(lr if lead_lr is None else lead_lr))
+                            rows, int(lead), float(lr if lead_lr is None else lead_lr),
+                            -1 if used is None else int(used))
+
+
+def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
+                   opacity_logits: np.ndarray, noise: np.ndarray, scale: float, *,
+                   threads: int = 0) -> None:
+    """3DGS-MCMC's position noise, in place on `means` (float32 (N, 3), C-contiguous):
+
+        o = sigmoid(opacity_logits);  gate = sigmoid(100 ((1 - o) - 0.995))
+        means += float32(R diag(exp(log_scales)^2) R^T noise * gate * scale)
+
+    R the rotation of the normalised quaternion (identity for a zero one), noise (N, 3) the
+    caller's standard normal draw (float64, so the random stream stays the caller's); in double
+    per Gaussian, as the reference's float64 NumPy. Means whose gate is at most 1e-12 (opacity
+    above about 0.27: a move below float32 resolution) are left exactly as they are.
+    """
+    native.splatcore().position_noise(means, log_scales, quats, opacity_logits,
+                                      np.ascontiguousarray(noise, np.float64), float(scale),
+                                      native.thread_count(threads))

@@ -29,6 +29,7 @@
  *   train.c               the training forward (keeps an sc_train_state) and the backward
  *   loss.c                L1 + SSIM loss and its gradient
  *   adam.c                the Adam update
+ *   position_noise.c      3DGS-MCMC's noise on the positions of nearly transparent Gaussians
  */
 #ifndef SPLATCORE_H
 #define SPLATCORE_H
@@ -237,10 +238,12 @@ sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const 
  * 5 pixels (the 3DGS training code's conv2d(padding = 5)), the map the same size as the image.
  * Writes dL/d(image) (H,W,3) into grad when non-NULL (d|x|/dx at 0 is 0). Float32 arithmetic (as the
  * 3DGS training code), the means summed in double.
+ * With mse non-NULL, also the mean squared error of the image clamped to [0, 1] (what PSNR
+ * measures), in double.
  * Returns SC_ERR_MEMORY or SC_OK. */
 sc_status sc_l1_ssim(const float *image, const float *target, int width, int height,
                      double lambda, int threads, float *grad, double *loss, double *l1,
-                     double *ssim);
+                     double *ssim, double *mse);
 
 typedef struct {
     double lr, beta1, beta2, eps;
@@ -255,11 +258,21 @@ void sc_adam(float *param, const float *grad, float *m, float *v, int64_t n,
 
 /* sc_adam over the rows of (rows, width) arrays, with the rows where mask[r] is 0 left exactly
  * as they are, moments included (mask NULL: every row; a step's visible Gaussians as gsplat's
- * visible_adam), and the first `lead` values of each row at the rate lead_lr instead of o->lr
- * (the SH DC coefficients; lead 0: none). */
+ * visible_adam), the first `lead` values of each row at the rate lead_lr instead of o->lr
+ * (the SH DC coefficients; lead 0: none), and only the first `used` values of each row updated
+ * (the rest left as they are; `width` or more, or negative: all). */
 void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t rows,
-                  int64_t width, const uint8_t *mask, int64_t lead, double lead_lr,
+                  int64_t width, const uint8_t *mask, int64_t lead, double lead_lr, int64_t used,
                   const sc_adam_options *o, int threads);
+
+/* 3DGS-MCMC's position noise, in place: each of `count` means moves by R diag(s^2) R^T z
+ * times sigmoid(100 ((1 - o) - 0.995)) times `scale`, o = sigmoid(opacity logit), s = exp(log
+ * scales), R the normalised quaternion's rotation, z = noise (count, 3) float64 (the caller's
+ * standard normal draw); computed in double; a gate at or below 1e-12 leaves a mean exactly as
+ * it is. Identical for any thread count. */
+void sc_position_noise(float *means, const float *log_scales, const float *quats,
+                       const float *opacity_logits, const double *noise, int64_t count,
+                       double scale, int threads);
 
 /* Premultiplied float32 RGBA pixels (4 floats each) from scene-linear to display sRGB
  * (decode 0) or back (decode 1), the extended sRGB transfer of addon/core/colour.py on

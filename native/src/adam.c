@@ -9,7 +9,10 @@
  *  - a row mask: rows not set are left exactly as they are, moments included (gsplat's
  *    `visible_adam`: Gaussians a step did not see neither decay their moments nor move);
  *  - the first `lead` values of every row may take their own rate (the SH DC coefficients
- *    beside the higher bands, without splitting the array).
+ *    beside the higher bands, without splitting the array);
+ *  - only the first `used` values of every row may be updated (SH bands that have never had a
+ *    gradient: with g = m = v = 0 the update leaves them exactly as they are, so skipping them
+ *    changes nothing but the time).
  * The loops are compiled per instruction-set level (SC_MULTIVERSION); runs of consecutive
  * selected rows without a lead are one flat loop. */
 #include <math.h>
@@ -20,7 +23,7 @@ typedef struct {
     float *param, *m, *v;
     const float *grad;
     const uint8_t *mask; /* (rows) or NULL: every row */
-    int64_t rows, width, lead;
+    int64_t rows, width, lead, used;
     float b2, one_minus_b1, one_minus_b2, step_size, lead_step_size, inv_bc2_sqrt, eps;
 } job;
 
@@ -45,9 +48,9 @@ static SC_ALWAYS_INLINE int rows_body(const job *j, int64_t begin, int64_t end) 
     const int64_t w = j->width;
     for (int64_t r = begin; r < end; ++r) {
         if (j->mask && !j->mask[r]) continue;
-        if (j->lead > 0) {
+        if (j->lead > 0 || j->used < w) {
             update(j, r * w, r * w + j->lead, j->lead_step_size);
-            update(j, r * w + j->lead, (r + 1) * w, j->step_size);
+            update(j, r * w + j->lead, r * w + j->used, j->step_size);
             continue;
         }
         int64_t run = r + 1; /* the selected rows from r on, as one flat loop */
@@ -67,12 +70,13 @@ static void adam_rows(void *ctx, int64_t begin, int64_t end, int thread) {
 }
 
 void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t rows,
-                  int64_t width, const uint8_t *mask, int64_t lead, double lead_lr,
+                  int64_t width, const uint8_t *mask, int64_t lead, double lead_lr, int64_t used,
                   const sc_adam_options *o, int threads) {
+    used = used < 0 || used > width ? width : used;
     const double bc1 = 1.0 - pow(o->beta1, (double)o->step);
     const double bc2 = 1.0 - pow(o->beta2, (double)o->step);
     job j = {.param = param, .m = m, .v = v, .grad = grad, .mask = mask, .rows = rows,
-             .width = width, .lead = lead < 0 ? 0 : lead > width ? width : lead,
+             .width = width, .lead = lead < 0 ? 0 : lead > used ? used : lead, .used = used,
              .b2 = (float)o->beta2,
              .one_minus_b1 = (float)(1.0 - o->beta1), .one_minus_b2 = (float)(1.0 - o->beta2),
              .step_size = (float)(o->lr / bc1), .lead_step_size = (float)(lead_lr / bc1),
@@ -84,5 +88,5 @@ void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t r
 
 void sc_adam(float *param, const float *grad, float *m, float *v, int64_t n,
              const sc_adam_options *o, int threads) {
-    sc_adam_rows(param, grad, m, v, n, 1, NULL, 0, o->lr, o, threads);
+    sc_adam_rows(param, grad, m, v, n, 1, NULL, 0, o->lr, 1, o, threads);
 }

@@ -103,6 +103,14 @@ static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, int fir
     }
 }
 
+/* The half rows with a pixel whose n_contrib reaches past entry k (those where entry k may have
+ * been added), for every k at once: bit q of live[k] for k < block_last[q]. */
+static SC_ALWAYS_INLINE sc_half_rows live_half_rows(const int32_t *block_last, int32_t k) {
+    sc_half_rows live = 0;
+    for (int q = 0; q < PIXELS / BLOCK; ++q) live |= (sc_half_rows)(k < block_last[q]) << q;
+    return live;
+}
+
 static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *block_last, int x0,
                                               int y0, int32_t kmax, const sc_splat *splats,
                                               const uint32_t *list, float *records,
@@ -113,24 +121,37 @@ static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *bl
         /* The splats are read in list order but lie apart in memory: fetch a few ahead. */
         if (k >= PREFETCH) SC_PREFETCH(&splats[list[k - PREFETCH]]);
         const sc_splat *s = &splats[list[k]];
+        float *rec = records + (int64_t)k * NG;
         int j0, j1, i0, i1;
         sc_tile_span(s, x0, y0, &j0, &j1, &i0, &i1);
+        /* Only the half rows the forward could have added this Gaussian to: inside its
+         * alpha >= 1/255 ellipse (the forward's footprint masks) and with a pixel that had not
+         * stopped before it. Every pixel left out adds exactly 0 to the record. */
+        sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1) & live_half_rows(block_last, k);
         sc_columns c;
-        sc_prepare_columns(&c, s, px0);
-        lane_sums sums;
-        memset(&sums, 0, sizeof sums);
-        for (int j = j0; j <= j1; ++j) {
-            const float dy = c.y - ((float)(y0 + j) + 0.5f);
-            const float power_y = -(c.half_cc * dy * dy), cb_dy = c.cb * dy;
-            for (int i = i0; i < i1; i += BLOCK) {
-                const int p = j * SC_TILE + i;
-                if (k >= block_last[p / BLOCK]) continue; /* every pixel stopped before k */
-                back_block(st, &sums, p, dy, power_y, cb_dy, &c, s->ca, s->cb, s->cc, k + 1,
-                           depth);
-                evaluations += BLOCK;
-            }
+        if (todo) {
+            sc_prepare_columns(&c, s, px0);
+            if (sc_popcount(todo) > 3) todo = sc_footprint_half_rows(s, &c, y0, todo);
         }
-        float *rec = records + (int64_t)k * NG;
+        if (!todo) {
+            memset(rec, 0, sizeof(float) * NG);
+            continue;
+        }
+        evaluations += BLOCK * (int64_t)sc_popcount(todo);
+        float dys[SC_TILE], power_y[SC_TILE], cb_dy[SC_TILE]; /* all rows at once (vectorised) */
+        for (int j = 0; j < SC_TILE; ++j) {
+            dys[j] = c.y - ((float)(y0 + j) + 0.5f);
+            power_y[j] = -(c.half_cc * dys[j] * dys[j]), cb_dy[j] = c.cb * dys[j];
+        }
+        lane_sums sums;
+        for (int q = 0; q < NG; ++q) /* a loop, not memset: the sums then live in registers */
+            for (int x = 0; x < BLOCK; ++x) sums.v[q][x] = 0.0f;
+        while (todo) { /* row by row, left to right: the sums' fixed order */
+            const int q = sc_lowest_bit(todo), j = q >> 1;
+            todo &= todo - 1;
+            back_block(st, &sums, q * BLOCK, dys[j], power_y[j], cb_dy[j], &c, s->ca, s->cb,
+                       s->cc, k + 1, depth);
+        }
         for (int q = 0; q < NG; ++q) {
             float total = 0.0f;
             for (int x = 0; x < BLOCK; ++x) total += sums.v[q][x];

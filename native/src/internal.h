@@ -380,4 +380,58 @@ static inline void sc_tile_span(const sc_splat *s, int x0, int y0, int *j0, int 
     *i1 = d > SC_TILE - 1 ? SC_TILE : (d / SC_BLOCK + 1) * SC_BLOCK;
 }
 
+
+/* Half-row masks: bit 2j + h stands for columns 8h..8h+7 of tile row j. */
+typedef uint32_t sc_half_rows;
+
+/* The half rows of sc_tile_span's span [j0, j1] x [i0, i1). */
+static SC_ALWAYS_INLINE sc_half_rows sc_span_half_rows(int j0, int j1, int i0, int i1) {
+    if (j0 > j1) return 0;
+    const sc_half_rows rows = (j1 == SC_TILE - 1 ? 0u : 1u << 2 * (j1 + 1)) - (1u << 2 * j0);
+    const sc_half_rows columns = (i0 < SC_BLOCK ? 0x55555555u : 0u) |
+                                 (i1 > SC_BLOCK ? 0xAAAAAAAAu : 0u);
+    return rows & columns;
+}
+
+/* The half rows of the tile (origin x0, y0) that a splat can draw in, out of `span`. Exact for
+ * the ellipse, not its bounding box: a half row is kept when the smallest Q = ca dx^2 +
+ * 2 cb dx dy + cc dy^2 over its segment (a convex quadratic in dx: at the clamped minimiser
+ * -cb dy / ca) is at most the splat's k2 (>= 2 ln(255 o)), at the very float dx, dy the
+ * compositor uses. The bound is widened for the float rounding of Q here and of the power the
+ * compositor computes (each below 8 roundings of 2^-24 of the largest term over the tile:
+ * 2 x 2e-6 of it) and of exp and alpha (2e-5). A pixel left out therefore has float alpha
+ * < 1/255 and adds exactly nothing, forward or backward: skipping it changes no output bit
+ * (tests/test_render_masks.py holds it against the span). The forward (composite.c) and the
+ * backward (composite_backward.c) must skip the same pixels. */
+static SC_ALWAYS_INLINE sc_half_rows sc_footprint_half_rows(const sc_splat *s,
+                                                            const sc_columns *c, int y0,
+                                                            sc_half_rows span) {
+    const float ca = s->ca, cb = s->cb, cc = s->cc;
+    const float dx_max = fmaxf(fabsf(c->dx[0]), fabsf(c->dx[SC_TILE - 1]));
+    const float dy_top = c->y - ((float)y0 + 0.5f);
+    const float dy_max = fmaxf(fabsf(dy_top), fabsf(c->y - ((float)(y0 + SC_TILE - 1) + 0.5f)));
+    const float largest = 0.5f * ca * dx_max * dx_max + 0.5f * cc * dy_max * dy_max +
+                          fabsf(cb) * dx_max * dy_max;
+    const float q_max = s->k2 + 4e-6f * largest + 2e-5f; /* k2 >= 2 ln(255 o) */
+    /* A degenerate (underflowed) conic or an overflowing bound: keep the whole span. */
+    if (!(ca > 1e-30f && isfinite(largest) && isfinite(q_max))) return span;
+    const float neg_cb_over_ca = -cb / ca;
+    /* Each half row's segment, as its columns' dx (which decrease along the row). */
+    const float left_hi = c->dx[0], left_lo = c->dx[SC_BLOCK - 1];
+    const float right_hi = c->dx[SC_BLOCK], right_lo = c->dx[SC_TILE - 1];
+    sc_half_rows reach = 0;
+    for (int j = 0; j < SC_TILE; ++j) {
+        const float dy = c->y - ((float)(y0 + j) + 0.5f); /* as the compositor's */
+        const float centre = neg_cb_over_ca * dy, cc_dy2 = cc * dy * dy, cb_dy2 = 2.0f * cb * dy;
+        float d = centre < left_lo ? left_lo : centre;
+        d = d > left_hi ? left_hi : d;
+        const float q_left = ca * d * d + cb_dy2 * d + cc_dy2;
+        float e = centre < right_lo ? right_lo : centre;
+        e = e > right_hi ? right_hi : e;
+        const float q_right = ca * e * e + cb_dy2 * e + cc_dy2;
+        reach |= ((sc_half_rows)(q_left <= q_max) | (sc_half_rows)(q_right <= q_max) << 1) << 2 * j;
+    }
+    return reach & span;
+}
+
 #endif

@@ -51,6 +51,7 @@ typedef struct {
     float *h;                    /* (PRODUCTS * 3, H + 2 RADIUS, W) horizontal sums with zero
                                   * rows above and below, reused for the partials */
     double *row_ssim, *row_l1;   /* (H) sums over a row's pixels and channels */
+    double *row_se;              /* (H) squared errors of the image clamped to [0, 1] (PSNR) */
     int pass;                    /* the pass running (run_pass) */
 } job;
 
@@ -117,12 +118,18 @@ static SC_ALWAYS_INLINE void vertical_sums(const job *j, int maps, int c, int64_
     }
 }
 
+/* (min(max(x, 0), 1) - y)^2 in double: the error PSNR measures (of the displayable image). */
+static SC_ALWAYS_INLINE double clamped_square_error(float x, float y) {
+    const double d = (double)(x < 0.0f ? 0.0f : x > 1.0f ? 1.0f : x) - (double)y;
+    return d * d;
+}
+
 /* Pass 2: the vertical sums, the SSIM map, its partials (into the padded s planes) and the
  * row sums of SSIM and L1. */
 static SC_ALWAYS_INLINE int vertical_ssim_body(job *j, int64_t begin, int64_t end) {
     const int w = j->width;
     for (int64_t y = begin; y < end; ++y) {
-        double ssim_lanes[LANES] = {0}, l1_lanes[LANES] = {0};
+        double ssim_lanes[LANES] = {0}, l1_lanes[LANES] = {0}, se_lanes[LANES] = {0};
         for (int c = 0; c < 3; ++c)
             for (int x0 = 0; x0 < w; x0 += CHUNK) {
                 const int n = w - x0 < CHUNK ? w - x0 : CHUNK;
@@ -154,16 +161,20 @@ static SC_ALWAYS_INLINE int vertical_ssim_body(job *j, int64_t begin, int64_t en
                     for (int l = 0; l < LANES; ++l) {
                         ssim_lanes[l] += (double)s_map[i + l];
                         l1_lanes[l] += fabs((double)xr[i + l] - (double)yr[i + l]);
+                        se_lanes[l] += clamped_square_error(xr[i + l], yr[i + l]);
                     }
                 for (int l = 0; i < n; ++i, ++l) {
                     ssim_lanes[l] += (double)s_map[i];
                     l1_lanes[l] += fabs((double)xr[i] - (double)yr[i]);
+                    se_lanes[l] += clamped_square_error(xr[i], yr[i]);
                 }
             }
-        double ssim_sum = 0.0, l1_sum = 0.0;
-        for (int l = 0; l < LANES; ++l) ssim_sum += ssim_lanes[l], l1_sum += l1_lanes[l];
+        double ssim_sum = 0.0, l1_sum = 0.0, se_sum = 0.0;
+        for (int l = 0; l < LANES; ++l)
+            ssim_sum += ssim_lanes[l], l1_sum += l1_lanes[l], se_sum += se_lanes[l];
         j->row_ssim[y] = ssim_sum;
         j->row_l1[y] = l1_sum;
+        j->row_se[y] = se_sum;
     }
     return 0;
 }
@@ -225,7 +236,7 @@ static void run_pass(void *ctx, int64_t begin, int64_t end, int thread) {
 
 sc_status sc_l1_ssim(const float *image, const float *target, int width, int height,
                      double lambda, int threads, float *grad, double *loss, double *l1,
-                     double *ssim) {
+                     double *ssim, double *mse) {
     const int64_t pixels = (int64_t)width * height, stride = (int64_t)width + 2 * RADIUS;
     const double inv_count = 1.0 / (3.0 * (double)pixels);
     job j = {.image = image, .target = target, .grad = grad, .width = width, .height = height,
@@ -241,7 +252,7 @@ sc_status sc_l1_ssim(const float *image, const float *target, int width, int hei
     /* Only the padding is zeroed: every interior value is written before it is read. */
     const int64_t padded = 3 * (int64_t)height * stride, sums = (int64_t)(height + 2 * RADIUS) * width;
     float *planes = malloc(sizeof(float) * (size_t)((2 + PARTIALS) * padded + PRODUCTS * 3 * sums));
-    double *rows = malloc(sizeof(double) * 2 * (size_t)height);
+    double *rows = malloc(sizeof(double) * 3 * (size_t)height);
     if (!planes || !rows) {
         free(planes);
         free(rows);
@@ -249,7 +260,7 @@ sc_status sc_l1_ssim(const float *image, const float *target, int width, int hei
     }
     j.x = planes, j.y = planes + padded, j.s = planes + 2 * padded;
     j.h = planes + (2 + PARTIALS) * padded;
-    j.row_ssim = rows, j.row_l1 = rows + height;
+    j.row_ssim = rows, j.row_l1 = rows + height, j.row_se = rows + 2 * (int64_t)height;
     for (int64_t r = 0; r < (2 + PARTIALS) * 3 * (int64_t)height; ++r) {
         float *row = planes + r * stride;
         memset(row, 0, sizeof(float) * RADIUS);
@@ -264,13 +275,15 @@ sc_status sc_l1_ssim(const float *image, const float *target, int width, int hei
         j.pass = pass;
         sc_parallel_for(threads, height, 4, run_pass, &j);
     }
-    double ssim_sum = 0.0, l1_sum = 0.0;
+    double ssim_sum = 0.0, l1_sum = 0.0, se_sum = 0.0;
     for (int64_t r = 0; r < height; ++r) {
         ssim_sum += j.row_ssim[r];
         l1_sum += j.row_l1[r];
+        se_sum += j.row_se[r];
     }
     *ssim = ssim_sum * inv_count;
     *l1 = l1_sum * inv_count;
+    if (mse) *mse = se_sum * inv_count;
     *loss = (1.0 - lambda) * *l1 + lambda * (1.0 - *ssim);
     free(planes);
     free(rows);

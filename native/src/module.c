@@ -640,15 +640,15 @@ static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
     float *grad = NULL;
     if (grad_obj != Py_None && !(grad = (float *)get_array(&b, grad_obj, "out_grad", 'f', 3, shape, 1)))
         goto fail;
-    double loss = 0, l1 = 0, ssim = 0;
+    double loss = 0, l1 = 0, ssim = 0, mse = 0;
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
     status = sc_l1_ssim(image, target, (int)width, (int)height, lambda,
-                        threads ? threads : sc_cpu_count(), grad, &loss, &l1, &ssim);
+                        threads ? threads : sc_cpu_count(), grad, &loss, &l1, &ssim, &mse);
     Py_END_ALLOW_THREADS
     release_all(&b);
     if (status != SC_OK) return PyErr_NoMemory();
-    return Py_BuildValue("(ddd)", loss, l1, ssim);
+    return Py_BuildValue("(dddd)", loss, l1, ssim, mse);
 fail:
     release_all(&b);
     return NULL;
@@ -686,12 +686,12 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[4], *mask_obj = Py_None;
     sc_adam_options o;
-    long long step, lead = 0;
+    long long step, lead = 0, used = -1;
     double lead_lr = NAN;
     int threads;
-    if (!PyArg_ParseTuple(args, "OOOOddddLO&|OLd:adam", &objs[0], &objs[1], &objs[2], &objs[3],
+    if (!PyArg_ParseTuple(args, "OOOOddddLO&|OLdL:adam", &objs[0], &objs[1], &objs[2], &objs[3],
                           &o.lr, &o.beta1, &o.beta2, &o.eps, &step, parse_threads, &threads,
-                          &mask_obj, &lead, &lead_lr))
+                          &mask_obj, &lead, &lead_lr, &used))
         return NULL;
     o.step = step;
     if (isnan(lead_lr)) lead_lr = o.lr;
@@ -722,15 +722,55 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
         const Py_ssize_t mask_shape[] = {(Py_ssize_t)rows};
         if (!(mask = get_array(&b, mask_obj, "rows", 'B', 1, mask_shape, 0))) goto fail;
     }
-    if (lead < 0 || lead > width) {
-        PyErr_Format(PyExc_ValueError, "lead must be in 0..%lld (the values in a row), got %lld",
-                     (long long)width, lead);
+    if (used < 0) used = width;
+    if (used > width) {
+        PyErr_Format(PyExc_ValueError, "used must be in 0..%lld (the values in a row), got %lld",
+                     (long long)width, used);
         goto fail;
     }
+    if (lead < 0 || lead > used) {
+        PyErr_Format(PyExc_ValueError, "lead must be in 0..%lld (the values in a row updated), "
+                     "got %lld", (long long)used, lead);
+        goto fail;
+    }
+    /* Every value, those the update skips too: one flat pass is faster than a pass per row. */
     if (check_finite_array(grad, n, "grad") != 0) goto fail;
     Py_BEGIN_ALLOW_THREADS
-    sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, &o,
+    sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, used, &o,
                  threads ? threads : sc_cpu_count());
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    Py_RETURN_NONE;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
+/* position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads): see
+ * sc_position_noise. float32 parameters (means writable) of N rows, noise (N, 3) float64. */
+static PyObject *py_position_noise(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *objs[5];
+    double scale;
+    int threads;
+    if (!PyArg_ParseTuple(args, "OOOOOdO&:position_noise", &objs[0], &objs[1], &objs[2],
+                          &objs[3], &objs[4], &scale, parse_threads, &threads))
+        return NULL;
+    if (!isfinite(scale)) return value_error("scale must be finite, got %g", scale), NULL;
+    buffers b = {.count = 0};
+    const Py_ssize_t n3[] = {-1, 3};
+    float *means = (float *)get_array(&b, objs[0], "means", 'f', 2, n3, 1);
+    if (!means) goto fail;
+    const Py_ssize_t n = b.views[b.count - 1].shape[0];
+    const Py_ssize_t rows3[] = {n, 3}, rows4[] = {n, 4}, rows1[] = {n};
+    const float *log_scales = get_array(&b, objs[1], "log_scales", 'f', 2, rows3, 0);
+    const float *quats = log_scales ? get_array(&b, objs[2], "quats", 'f', 2, rows4, 0) : NULL;
+    const float *logits = quats ? get_array(&b, objs[3], "opacity_logits", 'f', 1, rows1, 0) : NULL;
+    const double *noise = logits ? get_array(&b, objs[4], "noise", 'd', 2, rows3, 0) : NULL;
+    if (!noise) goto fail;
+    Py_BEGIN_ALLOW_THREADS
+    sc_position_noise(means, log_scales, quats, logits, noise, n, scale,
+                      threads ? threads : sc_cpu_count());
     Py_END_ALLOW_THREADS
     release_all(&b);
     Py_RETURN_NONE;
@@ -872,15 +912,20 @@ static PyMethodDef methods[] = {
      "dL/d(depth) (H, W) or None, w.r.t. the Gaussians render_train drew (the same arrays, "
      "unchanged), into the out_* arrays (overwritten)."},
     {"l1_ssim", py_l1_ssim, METH_VARARGS,
-     "l1_ssim(image, target, lambda_dssim, threads, out_grad) -> (loss, l1, ssim)\n\n"
+     "l1_ssim(image, target, lambda_dssim, threads, out_grad) -> (loss, l1, ssim, mse)\n\n"
      "(1 - lambda) L1 + lambda (1 - SSIM) of (H, W, 3) float32 images; dL/d(image) into "
-     "out_grad when it is not None."},
+     "out_grad when it is not None; mse: of the image clamped to [0, 1] (PSNR's)."},
     {"adam", py_adam, METH_VARARGS,
      "adam(param, grad, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, step, threads, rows=None, "
-     "lead=0, lead_lr=lr)\n\n"
+     "lead=0, lead_lr=lr, used=-1)\n\n"
      "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape. rows: "
      "uint8 (shape[0],) or None: rows where it is 0 are left as they are (moments too). The "
-     "first `lead` values of each row (along the first axis) step at lead_lr."},
+     "first `lead` values of each row (along the first axis) step at lead_lr; only the first "
+     "`used` values of each row are updated (negative: all)."},
+    {"position_noise", py_position_noise, METH_VARARGS,
+     "position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads)\n\n"
+     "3DGS-MCMC's noise on the means in place (sc_position_noise): float32 parameters of N "
+     "Gaussians (means writable), noise (N, 3) float64 standard normal."},
     {"srgb_premultiplied", py_srgb_premultiplied, METH_VARARGS,
      "srgb_premultiplied(rgba, out, decode, threads)\n\n"
      "Premultiplied float32 RGBA (..., 4) scene-linear -> display sRGB (decode False) or back "

@@ -94,7 +94,7 @@ int main(int argc, char **argv) {
     float *d_rgb = zeros(pixels * 3, 4);
     double losses[3];
     if (sc_l1_ssim(image.rgb, target, width, height, 0.2, opt.threads, d_rgb, &losses[0],
-                   &losses[1], &losses[2]) != SC_OK)
+                   &losses[1], &losses[2], NULL) != SC_OK)
         fail("sc_l1_ssim failed");
     write_array(d_rgb, pixels * 3, 4);
     write_array(losses, 3, sizeof(double));
