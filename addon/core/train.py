@@ -54,6 +54,13 @@ def position_lr(config: TrainConfig, step: int, extent: float) -> float:
     return lr * extent
 
 
+def lr_scale(config: TrainConfig, step: int) -> float:
+    """The factor on every learning rate at `step`: exponential from `lr_scale_start` to
+    `lr_scale_end` over `lr_scale_steps`, then constant."""
+    t = min(max(step / max(config.lr_scale_steps, 1), 0.0), 1.0)
+    return config.lr_scale_start ** (1 - t) * config.lr_scale_end ** t
+
+
 def scene_extent(cameras: list[Camera]) -> float:
     """1.1 x the largest distance of a camera centre from their mean (3DGS's radius)."""
     centres = np.array([c.centre for c in cameras])
@@ -185,6 +192,9 @@ class Trainer:
         rates = {"means": position_lr(c, self.step, self.extent), "log_scales": c.scaling_lr,
                  "quats": c.rotation_lr, "opacity_logits": c.opacity_lr, "sh_dc": c.sh_dc_lr,
                  "sh_rest": c.sh_rest_lr}
+        scale = lr_scale(c, self.step)
+        if scale != 1.0:
+            rates = {name: rate * scale for name, rate in rates.items()}
         if self.anneal_from is not None:  # a run until done, finishing: see `run`
             t = min((self.step - self.anneal_from) / max(c.anneal_steps, 1), 1.0)
             rates = {name: rate * c.anneal_to ** t for name, rate in rates.items()}

@@ -48,6 +48,12 @@ class TrainConfig:
     scaling_lr: float = 5e-3
     rotation_lr: float = 1e-3
     sh_degree_interval: int = 1000
+    # Every learning rate (the position rate's decay included) times a factor that goes
+    # exponentially from `lr_scale_start` at step 0 to `lr_scale_end` at `lr_scale_steps`,
+    # then stays (not in the reference, whose rates are tuned for 30k steps).
+    lr_scale_start: float = 1.0
+    lr_scale_end: float = 1.0
+    lr_scale_steps: int = 2000
     # Coarse to fine (not in the reference): the first steps train on images halved
     # `coarse_levels` times (box-filtered), the resolution doubling at even intervals until full
     # at step `coarse_until` (or half of `steps`, if sooner). 0 levels: off. On by measurement
