@@ -10,6 +10,8 @@ What it does, as the reference implementation (Kerbl et al. 2023) does unless no
   mean squared distance to the 3 nearest neighbours, identity rotation, opacity 0.1;
 - Adam with the reference learning rates; the position rate decays exponentially over 30k
   steps and is scaled by the scene extent (1.1 x the largest camera distance from their mean);
+  not in the reference: every rate starts at twice that and comes down to it by step 2000
+  (`lr_scale`: a run of a few thousand steps converges sooner);
 - the SH degree grows by one every 1000 steps;
 - loss (1 - 0.2) L1 + 0.2 (1 - SSIM);
 - densification (clone, split, prune, opacity reset, the Gaussian budget `max_gaussians`) is a
