@@ -5,7 +5,8 @@ beside what the 3DGS paper reports at 7K iterations on its benchmark scenes.
 
     .venv/bin/python examples/bench_train.py [--scenes cup beer demo] \
         [--strategies auto mcmc default] [--steps 2000 | --until-done] [--eval-every 250] \
-        [--threads 1] [--plot docs/train_curves.png]
+        [--threads 1] [--cpu-limit SECONDS] [--variant "label:key=value,..."] \
+        [--plot docs/train_curves.png]
 
 Every 8th image (by name) is held out. At every --eval-every steps: training seconds so far
 (process CPU time, evaluation excluded), Gaussian count, .ply bytes, held-out PSNR/SSIM (and on
