@@ -5,7 +5,8 @@ beside what the 3DGS paper reports at 7K iterations on its benchmark scenes.
 
     .venv/bin/python examples/bench_train.py [--scenes cup beer demo] \
         [--strategies auto mcmc default] [--steps 2000 | --until-done] [--eval-every 250] \
-        [--threads 1] [--plot docs/train_curves.png]
+        [--threads 1] [--cpu-limit SECONDS] [--variant "label:key=value,..."] \
+        [--plot docs/train_curves.png]
 
 Every 8th image (by name) is held out. At every --eval-every steps: training seconds so far
 (process CPU time, evaluation excluded), Gaussian count, .ply bytes, held-out PSNR/SSIM (and on
@@ -83,9 +84,11 @@ def _point(trainer: Trainer, probe: int | None, seconds: float, step: int, wall:
             "ssim": ev.ssim, "probe_psnr": one} | extra
 
 
-def curve(dataset: ColmapDataset, scene: str, config: TrainConfig, eval_every: int) -> list[dict]:
+def curve(dataset: ColmapDataset, scene: str, config: TrainConfig, eval_every: int,
+          cpu_limit: float = 0.0) -> list[dict]:
     """Train with `config`, evaluating every `eval_every` steps (and at the end; a run until
-    done is compacted then, as a user's is); returns the points."""
+    done is compacted then, as a user's is); returns the points. `cpu_limit` > 0: cut the run
+    off at the first evaluation past that many CPU seconds (not compacted)."""
     trainer = Trainer(dataset, config)
     probe = dataset.names.index("1.jpg") if "1.jpg" in dataset.names else None
     camera = dataset.cameras[0]
@@ -121,6 +124,8 @@ def curve(dataset: ColmapDataset, scene: str, config: TrainConfig, eval_every: i
                                  sizing=stats["sizing"]))
             show(points[-1], 1000 * np.mean(window), f" {stats['sizing']}")
             window = []
+            if cpu_limit and seconds >= cpu_limit:
+                return points
     if not points or points[-1]["step"] != trainer.step:
         points.append(_point(trainer, probe, seconds, trainer.step, wall))
         show(points[-1], 1000 * np.mean(window or [0.0]))
@@ -290,6 +295,9 @@ def main() -> None:
     parser.add_argument("--until-done", action="store_true",
                         help="no step count: train until done, then compact (as a user's run)")
     parser.add_argument("--eval-every", type=int, default=250)
+    parser.add_argument("--cpu-limit", type=float, default=0.0, metavar="SECONDS",
+                        help="cut each run off at the first evaluation past this many CPU "
+                             "seconds (for comparing the start of curves)")
     parser.add_argument("--max-gaussians", type=int, default=TrainConfig.max_gaussians)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "train_curves.png")
@@ -316,7 +324,7 @@ def main() -> None:
                 config = TrainConfig(**({"steps": steps, "max_gaussians": args.max_gaussians,
                                          "threads": args.threads} | overrides))
                 results[scene, label] = curve(dataset, f"{scene} ({label})", config,
-                                              args.eval_every)
+                                              args.eval_every, args.cpu_limit)
                 save(results, args.plot.with_suffix(".json"), note)  # each run as it ends
         literature_table()
         plot(results, args.plot, note)

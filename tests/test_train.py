@@ -14,7 +14,7 @@ from addon.core.dataset import ColmapDataset
 from addon.core.jobs import TrainingJob, status_line
 from addon.core.render import project
 from addon.core.train import (Trainer, TrainConfig, compact, contribution, downscaled_view,
-                              initial_gaussians, nearest_mean_sq_distance, position_lr)
+                              initial_gaussians, lr_scale, nearest_mean_sq_distance, position_lr)
 
 DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
 
@@ -49,6 +49,22 @@ def test_initialisation_follows_the_points(rng) -> None:
     assert np.allclose(colour, rgb / 255.0, atol=1e-6)
     assert np.allclose(1 / (1 + np.exp(-g.opacity_logits)), 0.1, atol=1e-6)
     assert np.all(g.sh[:, 1:] == 0)
+
+
+def test_learning_rate_scale_schedule(dataset) -> None:
+    config = TrainConfig(lr_scale_start=4.0, lr_scale_end=0.25, lr_scale_steps=1000)
+    assert lr_scale(config, 0) == pytest.approx(4.0)
+    assert lr_scale(config, 500) == pytest.approx(1.0)  # exponential: 4 ** 0.5 * 0.25 ** 0.5
+    assert lr_scale(config, 250) == pytest.approx(2.0)
+    assert lr_scale(config, 1000) == pytest.approx(0.25)
+    assert lr_scale(config, 5000) == pytest.approx(0.25)  # then constant
+    assert lr_scale(TrainConfig(lr_scale_start=1.0, lr_scale_end=1.0), 700) == 1.0
+    plain = Trainer(dataset, short_config(lr_scale_start=1.0, lr_scale_end=1.0))
+    scaled = Trainer(dataset, short_config(lr_scale_start=4.0, lr_scale_end=0.25,
+                                           lr_scale_steps=1000))
+    plain.step = scaled.step = 250
+    for name, rate in plain.learning_rates().items():  # every rate, the position rate too
+        assert scaled.learning_rates()[name] == pytest.approx(2.0 * rate)
 
 
 def test_position_learning_rate_schedule() -> None:

@@ -22,6 +22,7 @@ from addon.core.strategies import STRATEGIES, StepInfo, Strategy
 from addon.core.strategies.auto import AutoStrategy
 from addon.core.strategies.mcmc import MCMCStrategy, relocation
 from addon.core.train_config import STRATEGY_NAMES
+from addon.core.transform import quat_to_matrix
 from addon.core.train import Trainer, TrainConfig
 
 DEMO = Path(__file__).resolve().parent.parent / "examples" / "demo_colmap"
@@ -155,6 +156,32 @@ def test_mcmc_relocation_moves_dead_gaussians(rng) -> None:
     assert params.opacities().min() > 0.005 - 1e-9
     assert not params.moments["means"][0][:10].any()  # relocated rows start with fresh moments
     assert strategy.grow(params) == 2 and len(params) == 52
+
+
+def test_mcmc_noise_is_the_gated_covariance_times_a_normal_draw(rng) -> None:
+    """R S^2 R^T z x scale x sigmoid(100 (1 - opacity - 0.995)), against float64 matrices, for
+    the Gaussians whose gate passes 1e-12 (z: the strategy's draw, one normal per moving row)."""
+    g = random_gaussians(rng, 200, 1)
+    g.opacity_logits[:] = rng.uniform(-8.0, 3.0, 200)  # some move, some do not
+    g.quats[7] = 0.0  # all zero: the identity
+    params = GaussianParameters(g)
+    before = params.params["means"].astype(np.float64)
+    opacity = params.opacities()
+    gate = 1.0 / (1.0 + np.exp(-100.0 * ((1.0 - opacity) - 0.995)))
+    moving = np.flatnonzero(gate > 1e-12)
+    assert 20 < len(moving) < 200 and 7 in moving
+    strategy = MCMCStrategy(TrainConfig(strategy="mcmc"), 1.0, np.random.default_rng(5))
+    strategy.add_noise(params, 3.0)
+    z = np.random.default_rng(5).standard_normal((3, len(moving)), np.float32).T.astype(np.float64)
+    r = quat_to_matrix(params.params["quats"][moving])
+    variance = np.exp(2.0 * params.params["log_scales"][moving].astype(np.float64))
+    sigma = np.einsum("nij,nj,nkj->nik", r, variance, r)
+    expected = np.einsum("nij,nj->ni", sigma, z * (3.0 * gate[moving])[:, None])
+    moved = params.params["means"].astype(np.float64) - before
+    assert not moved[np.setdiff1d(np.arange(200), moving)].any()
+    # float32 arithmetic on means of order 1: absolute to their resolution
+    assert np.allclose(moved[moving], expected, rtol=1e-4, atol=1e-6)
+    assert np.abs(expected).max() > 1e-3  # a test that sees the noise
 
 
 class Recording(Strategy):
