@@ -160,10 +160,10 @@ def test_mcmc_relocation_moves_dead_gaussians(rng) -> None:
 
 def test_mcmc_noise_is_the_gated_covariance_times_a_normal_draw(rng) -> None:
     """R S^2 R^T z x scale x sigmoid(100 (1 - opacity - 0.995)), against float64 matrices, for
-    the Gaussians whose gate passes 1e-12 (z: the strategy's draw, one normal per moving row)."""
+    the Gaussians whose gate passes 1e-12 (z: the strategy's draw, one normal triple per row)."""
     g = random_gaussians(rng, 200, 1)
     g.opacity_logits[:] = rng.uniform(-8.0, 3.0, 200)  # some move, some do not
-    g.quats[7] = 0.0  # all zero: the identity
+    g.quats[7], g.opacity_logits[7] = 0.0, -8.0  # all zero: the identity; nearly transparent
     params = GaussianParameters(g)
     before = params.params["means"].astype(np.float64)
     opacity = params.opacities()
@@ -172,7 +172,7 @@ def test_mcmc_noise_is_the_gated_covariance_times_a_normal_draw(rng) -> None:
     assert 20 < len(moving) < 200 and 7 in moving
     strategy = MCMCStrategy(TrainConfig(strategy="mcmc"), 1.0, np.random.default_rng(5))
     strategy.add_noise(params, 3.0)
-    z = np.random.default_rng(5).standard_normal((3, len(moving)), np.float32).T.astype(np.float64)
+    z = np.random.default_rng(5).standard_normal((200, 3))[moving]
     r = quat_to_matrix(params.params["quats"][moving])
     variance = np.exp(2.0 * params.params["log_scales"][moving].astype(np.float64))
     sigma = np.einsum("nij,nj,nkj->nik", r, variance, r)
