@@ -185,6 +185,14 @@ static inline int sc_lowest_bit(uint32_t v) { /* v != 0 */
 #define SC_PREFETCH(address) ((void)(address))
 #endif
 
+/* Keep the next loop a loop (GCC and clang): fully unrolled, a short loop over lanes is no longer
+ * vectorised as one. */
+#if defined(__GNUC__)
+#define SC_NO_UNROLL _Pragma("GCC unroll 1")
+#else
+#define SC_NO_UNROLL
+#endif
+
 /* A hint to fetch memory a loop will read soon (scattered reads the hardware cannot guess). */
 #if defined(__GNUC__)
 #define SC_PREFETCH(address) __builtin_prefetch(address)
