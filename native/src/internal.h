@@ -167,7 +167,6 @@ sc_isa sc_cpu_isa(void);
 /* Inner blocks must be inlined into the SC_MULTIVERSION kernels to be vectorised for their level. */
 #if defined(__GNUC__)
 #define SC_ALWAYS_INLINE __attribute__((always_inline)) inline
-#define SC_PREFETCH(address) __builtin_prefetch(address)
 static inline int sc_popcount(uint32_t v) { return __builtin_popcount(v); }
 static inline int sc_lowest_bit(uint32_t v) { return __builtin_ctz(v); } /* v != 0 */
 #else
@@ -182,7 +181,6 @@ static inline int sc_lowest_bit(uint32_t v) { /* v != 0 */
     return n;
 }
 #define SC_ALWAYS_INLINE inline
-#define SC_PREFETCH(address) ((void)(address))
 #endif
 
 /* Keep the next loop a loop (GCC and clang): fully unrolled, a short loop over lanes is no longer
@@ -193,11 +191,14 @@ static inline int sc_lowest_bit(uint32_t v) { /* v != 0 */
 #define SC_NO_UNROLL
 #endif
 
-/* A hint to fetch memory a loop will read soon (scattered reads the hardware cannot guess). */
+/* A hint to fetch memory a loop will read (or write) soon: scattered accesses the hardware
+ * cannot guess. */
 #if defined(__GNUC__)
 #define SC_PREFETCH(address) __builtin_prefetch(address)
+#define SC_PREFETCH_WRITE(address) __builtin_prefetch(address, 1)
 #else
 #define SC_PREFETCH(address) ((void)(address))
+#define SC_PREFETCH_WRITE(address) ((void)(address))
 #endif
 
 /* Whether every input value of Gaussian i is finite (projection forward and backward).

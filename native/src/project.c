@@ -329,20 +329,22 @@ static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int6
         const double x_cam = v[0] * m0 + v[1] * m1 + v[2] * m2 + v[3];
         const double y_cam = v[4] * m0 + v[5] * m1 + v[6] * m2 + v[7];
         const double z = v[8] * m0 + v[9] * m1 + v[10] * m2 + v[11];
-        const int in_front = z >= near && z <= FLT_MAX;
+        const int in_front = (z >= near) & (z <= FLT_MAX);
         const double rx = x_cam / z, ry = y_cam / z;
         const double tx = sc_clamp(rx, lo_x, hi_x), ty = sc_clamp(ry, lo_y, hi_y);
         const double j2 = (fx * fx * (1.0 + tx * tx) + fy * fy * (1.0 + ty * ty)) / (z * z);
-        const float largest = fmaxf(scales[3 * i], fmaxf(scales[3 * i + 1], scales[3 * i + 2]));
+        /* Not fmaxf, a library call that stops vectorisation (the inputs are finite here). */
+        const float s0 = scales[3 * i], s1 = scales[3 * i + 1], s2 = scales[3 * i + 2];
+        const float s12 = s1 > s2 ? s1 : s2, largest = s0 > s12 ? s0 : s12;
         const double radius =
             sqrt(11.1 * (j2 * (double)exp_any(2.0f * largest) + SC_DILATION)) * 1.001 + 1.0;
         const double x = fx * rx + cx, y = fy * ry + cy;
         /* NaN or inf in the bound keeps the Gaussian (the full path decides). */
-        const int outside = x + radius < 0.0 || x - radius > width || y + radius < 0.0 ||
-                            y - radius > height;
+        const int outside = (x + radius < 0.0) | (x - radius > width) | (y + radius < 0.0) |
+                            (y - radius > height);
         const int faint = logits[i] < -5.6f; /* sigmoid < 1/271 */
-        const int reach = !faint && (largest > 40.0f /* beyond exp_any */ || !outside);
-        keep[i] = (uint8_t)(in_front && (!cull || reach));
+        const int reach = (!faint) & ((largest > 40.0f) /* beyond exp_any */ | (!outside));
+        keep[i] = (uint8_t)(in_front & ((!cull) | reach)); /* & and |: no branches, vectorises */
     }
 }
 
