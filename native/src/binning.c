@@ -20,7 +20,7 @@ typedef struct {
     double x, y, k2, ry, slope, s_cond, d_right, inv_c;
 } shape;
 
-static void shape_of(const sc_splat *s, shape *sh) {
+static SC_ALWAYS_INLINE void shape_of(const sc_splat *s, shape *sh) {
     const int reaches = s->row1 >= s->row0 && s->col1 >= s->col0;
     sh->tx0 = s->col0 / SC_TILE, sh->tx1 = reaches ? s->col1 / SC_TILE + 1 : sh->tx0;
     sh->ty0 = s->row0 / SC_TILE, sh->ty1 = reaches ? s->row1 / SC_TILE + 1 : sh->ty0;
@@ -44,7 +44,8 @@ static void shape_of(const sc_splat *s, shape *sh) {
 /* Tile columns [*t0, *t1) that the splat reaches within tile row `ty` (over that row's pixel
  * centres): the x-extent of the ellipse is concave in dy, so its maximum over the row's dy
  * range is at the clamped dy of the rightmost point, its minimum likewise at the leftmost. */
-static void row_tiles(const shape *sh, int ty, int width, int32_t *t0, int32_t *t1) {
+static SC_ALWAYS_INLINE void row_tiles(const shape *sh, int ty, int width, int32_t *t0,
+                                      int32_t *t1) {
     if (!sh->exact) {
         *t0 = sh->tx0, *t1 = sh->tx1;
         return;
@@ -100,13 +101,13 @@ typedef struct {
 enum { CODE_ROWS = 4, CODE_COLUMNS = 14, CODE_TX = 32, CODE_TY = 48, CODE_NROWS = 61 };
 static const uint64_t RECOMPUTE = ~(uint64_t)0; /* a code holds at most 4 rows, never 7 */
 
-static inline void count_pass(job *j, int64_t begin, int64_t end, const int inverse) {
+static SC_ALWAYS_INLINE void count_pass(job *j, int64_t begin, int64_t end, const int inverse) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
         uint32_t *counts = j->counts + chunk * j->ntiles;
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
-            shape sh;
+            shape sh = {0}; /* (what row_tiles reads is set whenever it reads it) */
             shape_of(&j->splats[k], &sh);
             const int coded = sh.ty1 - sh.ty0 <= CODE_ROWS && sh.tx1 - sh.tx0 <= CODE_COLUMNS &&
                               sh.tx0 < (1 << (CODE_TY - CODE_TX)) && sh.ty0 < (1 << (CODE_NROWS - CODE_TY));
@@ -128,14 +129,15 @@ static inline void count_pass(job *j, int64_t begin, int64_t end, const int inve
     }
 }
 
-static inline void scatter_pass(job *j, int64_t begin, int64_t end, const int inverse) {
+static SC_ALWAYS_INLINE void scatter_pass(job *j, int64_t begin, int64_t end,
+                                         const int inverse) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
         int64_t *cursor = j->cursors + chunk * j->ntiles;
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
             const uint64_t code = j->codes[k];
-            shape sh;
+            shape sh = {0}; /* (what row_tiles reads is set whenever it reads it) */
             if (code == RECOMPUTE) {
                 shape_of(&j->splats[k], &sh);
             } else { /* only the rectangle's corner is needed */
@@ -165,15 +167,13 @@ static inline void scatter_pass(job *j, int64_t begin, int64_t end, const int in
     }
 }
 
-static void count_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    count_pass(ctx, begin, end, 0);
-}
+/* The count pass solves the ellipses (divisions, square roots, ceil and floor in double): it is
+ * compiled per instruction-set level too, for SSE4.1's rounding and AVX's encodings. */
+SC_MULTIVERSION(void, count_chunk, (void *ctx, int64_t begin, int64_t end, int thread),
+                (ctx, begin, end, thread), ((void)thread, count_pass(ctx, begin, end, 0)))
 
-static void count_chunk_inverse(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    count_pass(ctx, begin, end, 1);
-}
+SC_MULTIVERSION(void, count_chunk_inverse, (void *ctx, int64_t begin, int64_t end, int thread),
+                (ctx, begin, end, thread), ((void)thread, count_pass(ctx, begin, end, 1)))
 
 static void scatter_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
