@@ -17,34 +17,7 @@ typedef struct {
     const sc_splat *projected;
     const uint32_t *order;
     sc_splat *splats;
-    int stream; /* write past the caches (see copy_splat) */
 } gather_job;
-
-/* Large frames' sorted records are written once and read again only after all of them (more
- * than the caches hold), so they are streamed to memory: no reading of each line before it is
- * written. x86-64 (SSE2 is baseline there); elsewhere an ordinary copy. */
-#if defined(__SSE2__)
-#include <emmintrin.h>
-static inline void copy_splat(sc_splat *dst, const sc_splat *src, int stream) {
-    if (!stream) {
-        *dst = *src;
-        return;
-    }
-    const __m128i *from = (const __m128i *)(const void *)src;
-    __m128i *to = (__m128i *)(void *)dst; /* 16-byte aligned: checked by the caller */
-    for (int q = 0; q < (int)(sizeof *dst / sizeof *to); ++q)
-        _mm_stream_si128(to + q, _mm_loadu_si128(from + q));
-}
-static inline void copy_fence(int stream) {
-    if (stream) _mm_sfence(); /* streamed stores are visible before the job reports done */
-}
-#else
-static inline void copy_splat(sc_splat *dst, const sc_splat *src, int stream) {
-    (void)stream;
-    *dst = *src;
-}
-static inline void copy_fence(int stream) { (void)stream; }
-#endif
 
 static void gather_sorted(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
@@ -52,9 +25,8 @@ static void gather_sorted(void *ctx, int64_t begin, int64_t end, int thread) {
     enum { AHEAD = 16 }; /* scattered reads: fetch a few records ahead */
     for (int64_t k = begin; k < end; ++k) {
         if (k + AHEAD < end) SC_PREFETCH(&j->projected[j->order[k + AHEAD]]);
-        copy_splat(&j->splats[k], &j->projected[j->order[k]], j->stream);
+        j->splats[k] = j->projected[j->order[k]];
     }
-    copy_fence(j->stream);
 }
 
 void sc_frame_free(sc_frame *f) {
@@ -102,10 +74,7 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     keys = NULL;
     frame->splats = sc_buffer_alloc(sizeof(sc_splat) * (size_t)(drawn ? drawn : 1));
     if (!frame->splats) goto done;
-    enum { STREAM_BYTES = 32 << 20 }; /* beyond what the caches hold */
-    gather_job gather = {proj.splats, frame->order, frame->splats,
-                         (int64_t)sizeof(sc_splat) * drawn > STREAM_BYTES &&
-                             (uintptr_t)frame->splats % 16 == 0};
+    gather_job gather = {proj.splats, frame->order, frame->splats};
     sc_parallel_for(opt->threads, drawn, 8192, gather_sorted, &gather);
     const int64_t gathered = (int64_t)(sizeof(sc_splat) * (rows + (size_t)drawn) +
                                        sizeof(uint32_t) * rows);
