@@ -274,29 +274,15 @@ static SC_ALWAYS_INLINE void colour_lanes(const fast_job *fj, const int64_t *idx
         const float len = sqrtf(d0 * d0 + d1 * d1 + d2 * d2);
         const float x = len > 0.0f ? d0 / len : 0.0f, y = len > 0.0f ? d1 / len : 0.0f;
         const float z = len > 0.0f ? d2 / len : 0.0f;
-        const float xx = x * x, yy = y * y, zz = z * z;
-        basis[0][l] = (float)SC_SH_C0;
-        basis[1][l] = (float)-SC_SH_C1 * y;
-        basis[2][l] = (float)SC_SH_C1 * z;
-        basis[3][l] = (float)-SC_SH_C1 * x;
-        basis[4][l] = (float)SC_SH_C2[0] * x * y;
-        basis[5][l] = (float)SC_SH_C2[1] * y * z;
-        basis[6][l] = (float)SC_SH_C2[2] * (2.0f * zz - xx - yy);
-        basis[7][l] = (float)SC_SH_C2[3] * x * z;
-        basis[8][l] = (float)SC_SH_C2[4] * (xx - yy);
-        basis[9][l] = (float)SC_SH_C3[0] * y * (3.0f * xx - yy);
-        basis[10][l] = (float)SC_SH_C3[1] * x * y * z;
-        basis[11][l] = (float)SC_SH_C3[2] * y * (4.0f * zz - xx - yy);
-        basis[12][l] = (float)SC_SH_C3[3] * z * (2.0f * zz - 3.0f * xx - 3.0f * yy);
-        basis[13][l] = (float)SC_SH_C3[4] * x * (4.0f * zz - xx - yy);
-        basis[14][l] = (float)SC_SH_C3[5] * z * (xx - yy);
-        basis[15][l] = (float)SC_SH_C3[6] * x * (xx - 3.0f * yy);
+        float one[16];
+        sc_sh_basis_f(x, y, z, one);
+        for (int i = 0; i < 16; ++i) basis[i][l] = one[i];
     }
     float sum[3][LANES] = {{0.0f}};
     for (int i = 0; i < count; ++i)
         for (int c = 0; c < 3; ++c) {
             const float *restrict coeff = sh + 3 * i + c;
-            SC_NO_UNROLL /* a loop over lanes vectorises as gathers; unrolled, it would not */
+            SC_NO_UNROLL /* a loop over lanes vectorises (gathered loads); unrolled, it would not */
             for (int l = 0; l < LANES; ++l) sum[c][l] += basis[i][l] * coeff[row[l]];
         }
     for (int c = 0; c < 3; ++c)
