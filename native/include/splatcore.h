@@ -129,6 +129,13 @@ sc_status sc_project(const sc_gaussians *g, const sc_camera *cam, const sc_optio
 sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                     const sc_image *image, sc_stats *stats);
 
+/* The renderer's depth sort on its own (for tests): order[k] = the index of the k-th smallest of
+ * `count` (< 2^31) keys, stable (equal keys keep index order), +inf last, -0 before +0, on
+ * `threads` threads (the same result for any number). *finite: how many keys are not +inf. A NaN
+ * key gives SC_ERR_NONFINITE with stats->error_index the first; SC_ERR_MEMORY, SC_OK. */
+sc_status sc_sort_keys(const float *keys, int64_t count, int threads, int32_t *order,
+                       int64_t *finite, sc_stats *stats);
+
 /* Time `iterations` passes of the composite inner loop over one in-cache tile of `count`
  * Gaussians that all cover it (no early stop): the kernel's arithmetic limit. Returns seconds. */
 double sc_composite_microbench(int count, int iterations);

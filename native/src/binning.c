@@ -20,7 +20,7 @@ typedef struct {
     double x, y, k2, ry, slope, s_cond, d_right, inv_c;
 } shape;
 
-static void shape_of(const sc_splat *s, shape *sh) {
+static SC_ALWAYS_INLINE void shape_of(const sc_splat *s, shape *sh) {
     const int reaches = s->row1 >= s->row0 && s->col1 >= s->col0;
     sh->tx0 = s->col0 / SC_TILE, sh->tx1 = reaches ? s->col1 / SC_TILE + 1 : sh->tx0;
     sh->ty0 = s->row0 / SC_TILE, sh->ty1 = reaches ? s->row1 / SC_TILE + 1 : sh->ty0;
@@ -30,18 +30,22 @@ static void shape_of(const sc_splat *s, shape *sh) {
      * it for a conic that float made singular (the footprint is then unbounded). */
     sh->exact = sh->tx1 - sh->tx0 > 1 && sh->ty1 - sh->ty0 > 1 && det > 0.0;
     if (!sh->exact) return;
-    const double a = cc / det, b = -cb / det, c = ca / det, k2 = s->k2;
+    /* The covariance [a b; b c] = conic^-1, with three divisions rather than seven (each a long
+     * latency; the 1e-3 px margin of row_tiles dwarfs the difference in rounding). */
+    const double inv_det = 1.0 / det, inv_ca = 1.0 / ca, k2 = s->k2;
+    const double b = -cb * inv_det, c = ca * inv_det;
     /* Points of the ellipse (dx - (b/c) dy)^2 / s + dy^2 / c <= k2 with s = det(cov) / c. */
     sh->x = s->x, sh->y = s->y, sh->k2 = k2;
-    sh->ry = sqrt(k2 * c), sh->slope = b / c, sh->s_cond = 1.0 / ca, sh->inv_c = 1.0 / c;
-    /* The ellipse's rightmost point is at dy = b k / sqrt(a). */
-    sh->d_right = b * sqrt(k2 / a);
+    sh->ry = sqrt(k2 * c), sh->slope = -cb * inv_ca, sh->s_cond = inv_ca, sh->inv_c = det * inv_ca;
+    /* The ellipse's rightmost point is at dy = b k / sqrt(a), a = cc / det. */
+    sh->d_right = b * sqrt(k2 * det / cc);
 }
 
 /* Tile columns [*t0, *t1) that the splat reaches within tile row `ty` (over that row's pixel
  * centres): the x-extent of the ellipse is concave in dy, so its maximum over the row's dy
  * range is at the clamped dy of the rightmost point, its minimum likewise at the leftmost. */
-static void row_tiles(const shape *sh, int ty, int width, int32_t *t0, int32_t *t1) {
+static SC_ALWAYS_INLINE void row_tiles(const shape *sh, int ty, int width, int32_t *t0,
+                                      int32_t *t1) {
     if (!sh->exact) {
         *t0 = sh->tx0, *t1 = sh->tx1;
         return;
@@ -81,30 +85,33 @@ typedef struct {
     uint32_t *counts;  /* (chunks, ntiles): pairs, then each chunk's write cursor */
     int64_t *cursors;  /* (chunks, ntiles) during the scatter */
     uint32_t *list;
-    uint32_t *codes;       /* (count) each splat's tiles, from the count pass to the scatter */
+    int64_t pairs_total; /* entries of `list` */
+    uint64_t *codes;       /* (count) each splat's tiles, from the count pass to the scatter */
     int64_t *pair_offsets; /* optional (count + 1): each Gaussian's pairs, counted then summed */
     uint32_t *pairs;       /* optional: list positions of each Gaussian's pairs, tile order */
 } job;
 
 /* The passes are written once, with a constant `inverse` flag that the compiler folds, so the
  * plain render pays nothing for the optional Gaussian -> pairs index. */
-/* The count pass remembers each splat's tiles for the scatter pass, which then need not solve
- * the ellipse again: up to 4 tile rows of up to 14 tile columns as one code, a byte per row
- * holding [t0, t1) relative to the rectangle's first column (t0 low nibble, t1 high nibble).
- * Larger footprints (rare) are solved again. */
-enum { CODE_ROWS = 4, CODE_COLUMNS = 14 };
-static const uint32_t RECOMPUTE = 0xffffffffu; /* no byte of a code can be 0xff */
+/* The count pass remembers each splat's tiles for the scatter pass, which then reads neither
+ * the splat (64 bytes) nor solves its ellipse again: up to 4 tile rows of up to 14 tile columns
+ * as one 64-bit code, a byte per row holding [t0, t1) relative to the rectangle's first column
+ * (t0 low nibble, t1 high nibble), then the rectangle's corner and its number of rows. Larger
+ * footprints (rare) are solved again. */
+enum { CODE_ROWS = 4, CODE_COLUMNS = 14, CODE_TX = 32, CODE_TY = 48, CODE_NROWS = 61 };
+static const uint64_t RECOMPUTE = ~(uint64_t)0; /* a code holds at most 4 rows, never 7 */
 
-static inline void count_pass(job *j, int64_t begin, int64_t end, const int inverse) {
+static SC_ALWAYS_INLINE void count_pass(job *j, int64_t begin, int64_t end, const int inverse) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
         uint32_t *counts = j->counts + chunk * j->ntiles;
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
-            shape sh;
+            shape sh = {0}; /* (what row_tiles reads is set whenever it reads it) */
             shape_of(&j->splats[k], &sh);
-            const int coded = sh.ty1 - sh.ty0 <= CODE_ROWS && sh.tx1 - sh.tx0 <= CODE_COLUMNS;
-            uint32_t code = 0;
+            const int coded = sh.ty1 - sh.ty0 <= CODE_ROWS && sh.tx1 - sh.tx0 <= CODE_COLUMNS &&
+                              sh.tx0 < (1 << (CODE_TY - CODE_TX)) && sh.ty0 < (1 << (CODE_NROWS - CODE_TY));
+            uint64_t code = 0;
             int64_t pairs = 0;
             for (int ty = sh.ty0; ty < sh.ty1; ++ty) {
                 int32_t t0, t1;
@@ -112,29 +119,31 @@ static inline void count_pass(job *j, int64_t begin, int64_t end, const int inve
                 for (int tx = t0; tx < t1; ++tx) counts[(int64_t)ty * j->tiles_x + tx]++;
                 pairs += t1 - t0;
                 if (coded && t1 > t0) /* an empty row stays 0 */
-                    code |= (uint32_t)((t0 - sh.tx0) | (t1 - sh.tx0) << 4) << 8 * (ty - sh.ty0);
+                    code |= (uint64_t)((t0 - sh.tx0) | (t1 - sh.tx0) << 4) << 8 * (ty - sh.ty0);
             }
+            code |= (uint64_t)sh.tx0 << CODE_TX | (uint64_t)sh.ty0 << CODE_TY |
+                    (uint64_t)(sh.ty1 - sh.ty0) << CODE_NROWS;
             j->codes[k] = coded ? code : RECOMPUTE;
             if (inverse) j->pair_offsets[k] = pairs;
         }
     }
 }
 
-static inline void scatter_pass(job *j, int64_t begin, int64_t end, const int inverse) {
+static SC_ALWAYS_INLINE void scatter_pass(job *j, int64_t begin, int64_t end,
+                                         const int inverse) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
         int64_t *cursor = j->cursors + chunk * j->ntiles;
         int64_t lo = chunk * j->chunk_size, hi = lo + j->chunk_size;
         if (hi > j->count) hi = j->count;
         for (int64_t k = lo; k < hi; ++k) {
-            const uint32_t code = j->codes[k];
-            shape sh;
+            const uint64_t code = j->codes[k];
+            shape sh = {0}; /* (what row_tiles reads is set whenever it reads it) */
             if (code == RECOMPUTE) {
                 shape_of(&j->splats[k], &sh);
             } else { /* only the rectangle's corner is needed */
-                const sc_splat *s = &j->splats[k];
-                const int reaches = s->row1 >= s->row0 && s->col1 >= s->col0;
-                sh.tx0 = s->col0 / SC_TILE, sh.ty0 = s->row0 / SC_TILE;
-                sh.ty1 = reaches ? s->row1 / SC_TILE + 1 : sh.ty0;
+                sh.tx0 = (int32_t)(code >> CODE_TX & ((1u << (CODE_TY - CODE_TX)) - 1));
+                sh.ty0 = (int32_t)(code >> CODE_TY & ((1u << (CODE_NROWS - CODE_TY)) - 1));
+                sh.ty1 = sh.ty0 + (int32_t)(code >> CODE_NROWS);
             }
             uint32_t *mine = inverse ? j->pairs + j->pair_offsets[k] : NULL;
             for (int ty = sh.ty0; ty < sh.ty1; ++ty) {
@@ -142,11 +151,14 @@ static inline void scatter_pass(job *j, int64_t begin, int64_t end, const int in
                 if (code == RECOMPUTE) {
                     row_tiles(&sh, ty, j->cam->width, &t0, &t1);
                 } else {
-                    const uint32_t row = code >> 8 * (ty - sh.ty0);
+                    const uint32_t row = (uint32_t)(code >> 8 * (ty - sh.ty0));
                     t0 = sh.tx0 + (int32_t)(row & 15), t1 = sh.tx0 + (int32_t)(row >> 4 & 15);
                 }
                 for (int tx = t0; tx < t1; ++tx) {
                     const int64_t at = cursor[(int64_t)ty * j->tiles_x + tx]++;
+                    /* Thousands of tiles fill their lists at once, too many streams for the
+                     * hardware prefetcher: ask for each tile's next cache line ahead of time. */
+                    if (at + 16 < j->pairs_total) SC_PREFETCH_WRITE(&j->list[at + 16]);
                     j->list[at] = (uint32_t)k;
                     if (inverse) *mine++ = (uint32_t)at;
                 }
@@ -155,15 +167,13 @@ static inline void scatter_pass(job *j, int64_t begin, int64_t end, const int in
     }
 }
 
-static void count_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    count_pass(ctx, begin, end, 0);
-}
+/* The count pass solves the ellipses (divisions, square roots, ceil and floor in double): it is
+ * compiled per instruction-set level too, for SSE4.1's rounding and AVX's encodings. */
+SC_MULTIVERSION(void, count_chunk, (void *ctx, int64_t begin, int64_t end, int thread),
+                (ctx, begin, end, thread), ((void)thread, count_pass(ctx, begin, end, 0)))
 
-static void count_chunk_inverse(void *ctx, int64_t begin, int64_t end, int thread) {
-    (void)thread;
-    count_pass(ctx, begin, end, 1);
-}
+SC_MULTIVERSION(void, count_chunk_inverse, (void *ctx, int64_t begin, int64_t end, int thread),
+                (ctx, begin, end, thread), ((void)thread, count_pass(ctx, begin, end, 1)))
 
 static void scatter_chunk(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
@@ -197,7 +207,7 @@ sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, in
     j.counts = sc_buffer_alloc(sizeof(uint32_t) * (size_t)(chunks * j.ntiles));
     if (j.counts) memset(j.counts, 0, sizeof(uint32_t) * (size_t)(chunks * j.ntiles));
     j.cursors = sc_buffer_alloc(sizeof(int64_t) * (size_t)(chunks * j.ntiles));
-    j.codes = sc_buffer_alloc(sizeof(uint32_t) * (size_t)(count ? count : 1));
+    j.codes = sc_buffer_alloc(sizeof(uint64_t) * (size_t)(count ? count : 1));
     if (inverse) j.pair_offsets = sc_buffer_alloc(sizeof(int64_t) * (size_t)(count + 1));
     if (!offsets || !j.counts || !j.cursors || !j.codes || (inverse && !j.pair_offsets))
         goto out_of_memory;
@@ -212,6 +222,7 @@ sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, in
         }
     }
     offsets[j.ntiles] = total;
+    j.pairs_total = total;
     sc_buffer_free(j.counts);
     j.counts = NULL;
     if (total > MAX_PAIRS) {
@@ -236,11 +247,12 @@ sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, in
     if (!j.list) goto out_of_memory;
     /* The most held at once: during the scatter (the counts are gone, the cursors not yet). */
     *peak_bytes = (int64_t)(sizeof(int64_t) * (size_t)(j.ntiles + 1 + chunks * j.ntiles) +
-                            sizeof(uint32_t) * ((size_t)total * (inverse ? 2 : 1) + (size_t)count) +
+                            sizeof(uint32_t) * (size_t)total * (inverse ? 2 : 1) +
+                            sizeof(uint64_t) * (size_t)count +
                             (inverse ? sizeof(int64_t) * (size_t)(count + 1) : 0));
     const int64_t counting =
         (int64_t)((sizeof(int64_t) + sizeof(uint32_t)) * (size_t)(chunks * j.ntiles) +
-                  sizeof(int64_t) * (size_t)(j.ntiles + 1) + sizeof(uint32_t) * (size_t)count);
+                  sizeof(int64_t) * (size_t)(j.ntiles + 1) + sizeof(uint64_t) * (size_t)count);
     if (counting > *peak_bytes) *peak_bytes = counting;
     sc_parallel_for(threads, chunks, 1, inverse ? scatter_chunk_inverse : scatter_chunk, &j);
     sc_buffer_free(j.cursors);

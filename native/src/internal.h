@@ -40,12 +40,14 @@ void sc_buffer_free(void *p);
 sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                           int cull, sc_projection *out, sc_stats *stats);
 
-/* Stable ascending sort of `count` float keys, carrying a payload: on entry order[i] is the
- * payload of keys[i], on return the payloads are in key order. Keys of +inf (Gaussians not
- * drawn) go last; returns how many keys are finite. `scratch` holds 3 * count + SC_SORT_EXTRA
- * values. */
-enum { SC_SORT_BITS = 13, SC_SORT_EXTRA = 3 << SC_SORT_BITS /* the histograms */ };
-int64_t sc_sort_by_depth(const float *keys, int64_t count, uint32_t *order, uint32_t *scratch);
+/* Stable ascending sort of `count` float keys (sort.c), on `threads` threads, carrying a payload:
+ * on return order[k] is the payload of the k-th smallest key, payload[i] that of keys[i] (NULL:
+ * i; it may be `order` itself). Keys of +inf (Gaussians not drawn) go last; -0 sorts before +0;
+ * no NaN. Returns how many keys are not +inf, or -1 when out of memory. *bytes: the working memory
+ * it held (8 per key for up to two passes, plus the histograms). The result is the same for any
+ * thread count. */
+int64_t sc_sort_by_depth(const float *keys, int64_t count, const uint32_t *payload, int threads,
+                         uint32_t *order, int64_t *bytes);
 
 /* Tile lists for `count` splats already in front-to-back order: for each tile t,
  * list[offsets[t] .. offsets[t+1]) are indices into `splats`, ascending (so front to back).
@@ -165,7 +167,6 @@ sc_isa sc_cpu_isa(void);
 /* Inner blocks must be inlined into the SC_MULTIVERSION kernels to be vectorised for their level. */
 #if defined(__GNUC__)
 #define SC_ALWAYS_INLINE __attribute__((always_inline)) inline
-#define SC_PREFETCH(address) __builtin_prefetch(address)
 static inline int sc_popcount(uint32_t v) { return __builtin_popcount(v); }
 static inline int sc_lowest_bit(uint32_t v) { return __builtin_ctz(v); } /* v != 0 */
 #else
@@ -180,14 +181,24 @@ static inline int sc_lowest_bit(uint32_t v) { /* v != 0 */
     return n;
 }
 #define SC_ALWAYS_INLINE inline
-#define SC_PREFETCH(address) ((void)(address))
 #endif
 
-/* A hint to fetch memory a loop will read soon (scattered reads the hardware cannot guess). */
+/* Keep the next loop a loop (GCC and clang): fully unrolled, a short loop over lanes is no longer
+ * vectorised as one. */
+#if defined(__GNUC__)
+#define SC_NO_UNROLL _Pragma("GCC unroll 1")
+#else
+#define SC_NO_UNROLL
+#endif
+
+/* A hint to fetch memory a loop will read (or write) soon: scattered accesses the hardware
+ * cannot guess. */
 #if defined(__GNUC__)
 #define SC_PREFETCH(address) __builtin_prefetch(address)
+#define SC_PREFETCH_WRITE(address) __builtin_prefetch(address, 1)
 #else
 #define SC_PREFETCH(address) ((void)(address))
+#define SC_PREFETCH_WRITE(address) ((void)(address))
 #endif
 
 /* Whether every input value of Gaussian i is finite (projection forward and backward).

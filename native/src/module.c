@@ -869,6 +869,47 @@ static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(seconds);
 }
 
+/* sort_keys(keys, threads, out_order) -> count of keys not +inf: see sc_sort_keys. keys float32 (N,),
+ * out_order int32 (N,) writable. */
+static PyObject *py_sort_keys(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *keys_obj, *order_obj;
+    int threads;
+    if (!PyArg_ParseTuple(args, "OO&O:sort_keys", &keys_obj, parse_threads, &threads, &order_obj))
+        return NULL;
+    buffers b = {.count = 0};
+    const Py_ssize_t any[1] = {-1};
+    const float *keys = get_array(&b, keys_obj, "keys", 'f', 1, any, 0);
+    if (!keys) goto fail;
+    const Py_ssize_t n = b.views[0].shape[0];
+    if (n > MAX_GAUSSIANS) {
+        PyErr_Format(PyExc_ValueError, "at most %lld keys, got %zd", MAX_GAUSSIANS, n);
+        goto fail;
+    }
+    const Py_ssize_t shape[1] = {n};
+    int32_t *order = (int32_t *)get_array(&b, order_obj, "out_order", 'i', 1, shape, 1);
+    if (!order) goto fail;
+    sc_stats stats = {0};
+    int64_t finite = 0;
+    sc_status status;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_sort_keys(keys, n, threads ? threads : sc_cpu_count(), order, &finite, &stats);
+    Py_END_ALLOW_THREADS
+    if (status == SC_ERR_NONFINITE) {
+        PyErr_Format(PyExc_ValueError, "key %lld is NaN", (long long)stats.error_index);
+        goto fail;
+    }
+    if (status != SC_OK) {
+        PyErr_NoMemory();
+        goto fail;
+    }
+    release_all(&b);
+    return PyLong_FromLongLong(finite);
+fail:
+    release_all(&b);
+    return NULL;
+}
+
 static PyObject *py_release_buffers(PyObject *self, PyObject *args) {
     (void)self, (void)args;
     sc_release_buffers();
@@ -891,6 +932,10 @@ static PyMethodDef methods[] = {
      "out_rgb, out_alpha, out_depth[, exhaustive]) -> stats\n\nRender into the out_* arrays; "
      "returns timings (ms) and counts. exhaustive: evaluate each Gaussian over its tiles' whole "
      "bounding spans (the same image, for tests)."},
+    {"sort_keys", py_sort_keys, METH_VARARGS,
+     "sort_keys(keys, threads, out_order) -> int\n\nThe renderer's depth sort on its own (for "
+     "tests): out_order (int32, N) gets the stable ascending order of keys (float32, N; +inf "
+     "last, -0 before +0, no NaN); returns how many keys are not +inf."},
     {"release_buffers", py_release_buffers, METH_NOARGS,
      "release_buffers()\n\nFree the working buffers renders keep for the next frame."},
     {"render_train", py_render_train, METH_VARARGS,

@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "internal.h"
+#include "sh_basis.h"
 
 typedef struct {
     const sc_gaussians *g;
@@ -150,6 +151,7 @@ typedef struct {
 typedef struct {
     float dir[3][LANES], depth[LANES];
     float x[LANES], y[LANES], ca[LANES], cb[LANES], cc[LANES], opacity[LANES], k2[LANES];
+    float rgb[3][LANES]; /* clamped colour */
     int32_t row0[LANES], row1[LANES], col0[LANES], col1[LANES], ok[LANES];
 } batch;
 
@@ -254,8 +256,44 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
     }
 }
 
+/* The colour, as sc_sh_colour_f computes it for each lane (the same expressions, summed in the
+ * same order), but LANES Gaussians at a time: one Gaussian's sums are chains of 16 dependent
+ * additions, which a lane-parallel loop overlaps. The lanes' Gaussians lie within one CHUNK, so
+ * their coefficient rows are at 32-bit offsets from the first. */
+static SC_ALWAYS_INLINE void colour_lanes(const fast_job *fj, const int64_t *idx, batch *o) {
+    const sc_gaussians *g = fj->base.g;
+    const int degree = fj->base.opt->sh_degree;
+    const int count = (degree + 1) * (degree + 1);
+    const int64_t stride = (int64_t)3 * g->sh_coeffs;
+    const float *restrict sh = g->sh + idx[0] * stride;
+    int32_t row[LANES];
+    for (int l = 0; l < LANES; ++l) row[l] = (int32_t)((idx[l] - idx[0]) * stride);
+    float basis[16][LANES];
+    for (int l = 0; l < LANES; ++l) {
+        const float d0 = o->dir[0][l], d1 = o->dir[1][l], d2 = o->dir[2][l];
+        const float len = sqrtf(d0 * d0 + d1 * d1 + d2 * d2);
+        const float x = len > 0.0f ? d0 / len : 0.0f, y = len > 0.0f ? d1 / len : 0.0f;
+        const float z = len > 0.0f ? d2 / len : 0.0f;
+        float one[16];
+        sc_sh_basis_f(x, y, z, one);
+        for (int i = 0; i < 16; ++i) basis[i][l] = one[i];
+    }
+    float sum[3][LANES] = {{0.0f}};
+    for (int i = 0; i < count; ++i)
+        for (int c = 0; c < 3; ++c) {
+            const float *restrict coeff = sh + 3 * i + c;
+            SC_NO_UNROLL /* a loop over lanes vectorises (gathered loads); unrolled, it would not */
+            for (int l = 0; l < LANES; ++l) sum[c][l] += basis[i][l] * coeff[row[l]];
+        }
+    for (int c = 0; c < 3; ++c)
+        for (int l = 0; l < LANES; ++l) {
+            const float v = sum[c][l] + 0.5f;
+            o->rgb[c][l] = v > 0.0f ? v : 0.0f; /* as fmaxf(v, 0): NaN gives 0 */
+        }
+}
+
 SC_MULTIVERSION(void, project_lanes, (const fast_job *fj, const int64_t *idx, batch *o),
-                (fj, idx, o), project_lanes_body(fj, idx, o))
+                (fj, idx, o), (project_lanes_body(fj, idx, o), colour_lanes(fj, idx, o)))
 
 /* keep[i - begin] for Gaussians [begin, end): in front of the near plane (and a depth float32
  * can hold, as sc_ewa_project), and with `cull` possibly reaching the image (see above). */
@@ -277,20 +315,22 @@ static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int6
         const double x_cam = v[0] * m0 + v[1] * m1 + v[2] * m2 + v[3];
         const double y_cam = v[4] * m0 + v[5] * m1 + v[6] * m2 + v[7];
         const double z = v[8] * m0 + v[9] * m1 + v[10] * m2 + v[11];
-        const int in_front = z >= near && z <= FLT_MAX;
+        const int in_front = (z >= near) & (z <= FLT_MAX);
         const double rx = x_cam / z, ry = y_cam / z;
         const double tx = sc_clamp(rx, lo_x, hi_x), ty = sc_clamp(ry, lo_y, hi_y);
         const double j2 = (fx * fx * (1.0 + tx * tx) + fy * fy * (1.0 + ty * ty)) / (z * z);
-        const float largest = fmaxf(scales[3 * i], fmaxf(scales[3 * i + 1], scales[3 * i + 2]));
+        /* Not fmaxf, a library call that stops vectorisation (the inputs are finite here). */
+        const float s0 = scales[3 * i], s1 = scales[3 * i + 1], s2 = scales[3 * i + 2];
+        const float s12 = s1 > s2 ? s1 : s2, largest = s0 > s12 ? s0 : s12;
         const double radius =
             sqrt(11.1 * (j2 * (double)exp_any(2.0f * largest) + SC_DILATION)) * 1.001 + 1.0;
         const double x = fx * rx + cx, y = fy * ry + cy;
         /* NaN or inf in the bound keeps the Gaussian (the full path decides). */
-        const int outside = x + radius < 0.0 || x - radius > width || y + radius < 0.0 ||
-                            y - radius > height;
+        const int outside = (x + radius < 0.0) | (x - radius > width) | (y + radius < 0.0) |
+                            (y - radius > height);
         const int faint = logits[i] < -5.6f; /* sigmoid < 1/271 */
-        const int reach = !faint && (largest > 40.0f /* beyond exp_any */ || !outside);
-        keep[i] = (uint8_t)(in_front && (!cull || reach));
+        const int reach = (!faint) & ((largest > 40.0f) /* beyond exp_any */ | (!outside));
+        keep[i] = (uint8_t)(in_front & ((!cull) | reach)); /* & and |: no branches, vectorises */
     }
 }
 
@@ -305,17 +345,11 @@ static void set_key(const sc_projection *out, int64_t i) {
 
 /* The float values of lane l into the splat of Gaussian i. */
 static void finish_lane(const fast_job *fj, const batch *o, int l, int64_t i) {
-    const sc_gaussians *g = fj->base.g;
     sc_splat *s = &fj->base.out->splats[i];
-    float dir[3] = {o->dir[0][l], o->dir[1][l], o->dir[2][l]}, rgb[3];
-    const float len = sqrtf(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
-    for (int k = 0; k < 3; ++k) dir[k] = len > 0.0f ? dir[k] / len : 0.0f;
-    sc_sh_colour_f(fj->base.opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir, rgb);
     *s = (sc_splat){.x = o->x[l], .y = o->y[l], .ca = o->ca[l], .cb = o->cb[l], .cc = o->cc[l],
-                    .opacity = o->opacity[l], .r = fmaxf(rgb[0] + 0.5f, 0.0f),
-                    .g = fmaxf(rgb[1] + 0.5f, 0.0f), .b = fmaxf(rgb[2] + 0.5f, 0.0f),
-                    .depth = o->depth[l], .row0 = o->row0[l], .row1 = o->row1[l],
-                    .col0 = o->col0[l], .col1 = o->col1[l], .k2 = o->k2[l]};
+                    .opacity = o->opacity[l], .r = o->rgb[0][l], .g = o->rgb[1][l],
+                    .b = o->rgb[2][l], .depth = o->depth[l], .row0 = o->row0[l],
+                    .row1 = o->row1[l], .col0 = o->col0[l], .col1 = o->col1[l], .k2 = o->k2[l]};
     fj->base.out->valid[i] = 1;
     set_key(fj->base.out, i);
 }
@@ -328,20 +362,22 @@ static void clear(const fast_job *fj, int64_t i) {
 }
 
 /* Whether every input value of Gaussians [begin, end) is finite: one pass over each array,
- * testing the exponent bits (an integer OR, which vectorises; a float sum would not). */
-static int all_finite(const sc_gaussians *g, int64_t begin, int64_t end) {
+ * testing the exponent bits (an integer compare and OR, which vectorise; a float sum would not).
+ * At 1M SH3 Gaussians that is 236 MB a frame, so it is compiled per instruction-set level. */
+static SC_ALWAYS_INLINE int all_finite_body(const sc_gaussians *g, int64_t begin, int64_t end) {
     const float *rows[5] = {g->means, g->log_scales, g->quats, g->opacity_logits, g->sh};
     const int64_t widths[5] = {3, 3, 4, 1, (int64_t)3 * g->sh_coeffs};
-    uint32_t worst = 0;
-    for (int r = 0; r < 5; ++r)
-        for (int64_t k = begin * widths[r]; k < end * widths[r]; ++k) {
-            uint32_t bits;
-            memcpy(&bits, &rows[r][k], sizeof bits);
-            bits &= 0x7f800000u;
-            worst = bits > worst ? bits : worst;
-        }
-    return worst != 0x7f800000u; /* an all-ones exponent: inf or NaN */
+    uint32_t bad = 0;
+    for (int r = 0; r < 5; ++r) {
+        const uint32_t *restrict bits = (const uint32_t *)(const void *)rows[r];
+        for (int64_t k = begin * widths[r]; k < end * widths[r]; ++k)
+            bad |= (bits[k] & 0x7f800000u) == 0x7f800000u; /* an all-ones exponent: inf or NaN */
+    }
+    return !bad;
 }
+
+SC_MULTIVERSION(int, all_finite, (const sc_gaussians *g, int64_t begin, int64_t end),
+                (g, begin, end), all_finite_body(g, begin, end))
 
 /* Gaussians [begin, end), at most CHUNK of them. */
 static void project_fast_chunk(fast_job *fj, int64_t begin, int64_t end) {

@@ -22,7 +22,11 @@ typedef struct {
 static void gather_sorted(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     gather_job *j = ctx;
-    for (int64_t k = begin; k < end; ++k) j->splats[k] = j->projected[j->order[k]];
+    enum { AHEAD = 16 }; /* scattered reads: fetch a few records ahead */
+    for (int64_t k = begin; k < end; ++k) {
+        if (k + AHEAD < end) SC_PREFETCH(&j->projected[j->order[k + AHEAD]]);
+        j->splats[k] = j->projected[j->order[k]];
+    }
 }
 
 void sc_frame_free(sc_frame *f) {
@@ -43,7 +47,6 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     const int64_t n = g->count;
     const size_t rows = (size_t)(n ? n : 1);
     sc_status status = SC_ERR_MEMORY;
-    uint32_t *scratch = NULL;
     float *keys = NULL;
     *frame = (sc_frame){0};
     frame->tiles_x = (cam->width + SC_TILE - 1) / SC_TILE;
@@ -61,15 +64,14 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
      * sort last), front to back. */
     status = SC_ERR_MEMORY;
     frame->order = sc_buffer_alloc(sizeof(uint32_t) * rows);
-    scratch = sc_buffer_alloc(sizeof(uint32_t) * (3 * rows + SC_SORT_EXTRA));
-    if (!frame->order || !scratch) goto done;
-    for (int64_t i = 0; i < n; ++i) frame->order[i] = (uint32_t)i;
-    const int64_t drawn = sc_sort_by_depth(keys, n, frame->order, scratch);
-    int64_t peak = (int64_t)((sizeof(sc_splat) + sizeof(uint32_t) + sizeof(float)) * rows +
-                             sizeof(uint32_t) * (3 * rows + SC_SORT_EXTRA));
+    if (!frame->order) goto done;
+    int64_t sort_bytes;
+    const int64_t drawn = sc_sort_by_depth(keys, n, NULL, opt->threads, frame->order, &sort_bytes);
+    if (drawn < 0) goto done;
+    int64_t peak = (int64_t)((sizeof(sc_splat) + sizeof(uint32_t) + sizeof(float)) * rows) +
+                   sort_bytes;
     sc_buffer_free(keys);
-    sc_buffer_free(scratch);
-    keys = NULL, scratch = NULL;
+    keys = NULL;
     frame->splats = sc_buffer_alloc(sizeof(sc_splat) * (size_t)(drawn ? drawn : 1));
     if (!frame->splats) goto done;
     gather_job gather = {proj.splats, frame->order, frame->splats};
@@ -100,7 +102,6 @@ done:
     sc_buffer_free(proj.splats);
     sc_buffer_free(proj.valid);
     sc_buffer_free(keys);
-    sc_buffer_free(scratch);
     if (status != SC_OK) sc_frame_free(frame);
     return status;
 }

@@ -15,6 +15,28 @@ static const double SC_SH_C3[7] = {-0.5900435899266435, 2.890611442640554, -0.45
                                    0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
                                    -0.5900435899266435};
 
+/* The 16 basis values of degree 3 at the unit direction (x, y, z), in float (the constants
+ * rounded): what sc_sh_colour_f and the projection's 16-lane colour (project.c) sum with. */
+static SC_ALWAYS_INLINE void sc_sh_basis_f(float x, float y, float z, float basis[16]) {
+    const float xx = x * x, yy = y * y, zz = z * z;
+    basis[0] = (float)SC_SH_C0;
+    basis[1] = (float)-SC_SH_C1 * y;
+    basis[2] = (float)SC_SH_C1 * z;
+    basis[3] = (float)-SC_SH_C1 * x;
+    basis[4] = (float)SC_SH_C2[0] * x * y;
+    basis[5] = (float)SC_SH_C2[1] * y * z;
+    basis[6] = (float)SC_SH_C2[2] * (2.0f * zz - xx - yy);
+    basis[7] = (float)SC_SH_C2[3] * x * z;
+    basis[8] = (float)SC_SH_C2[4] * (xx - yy);
+    basis[9] = (float)SC_SH_C3[0] * y * (3.0f * xx - yy);
+    basis[10] = (float)SC_SH_C3[1] * x * y * z;
+    basis[11] = (float)SC_SH_C3[2] * y * (4.0f * zz - xx - yy);
+    basis[12] = (float)SC_SH_C3[3] * z * (2.0f * zz - 3.0f * xx - 3.0f * yy);
+    basis[13] = (float)SC_SH_C3[4] * x * (4.0f * zz - xx - yy);
+    basis[14] = (float)SC_SH_C3[5] * z * (xx - yy);
+    basis[15] = (float)SC_SH_C3[6] * x * (xx - 3.0f * yy);
+}
+
 /* Backward of sc_sh_colour_f: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
  * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
  * free vector; the caller applies the normalisation).
