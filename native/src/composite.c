@@ -5,7 +5,7 @@
  *
  * Speed comes from these, none of which changes a result:
  *  - only the 8-pixel half rows that a Gaussian's alpha >= 1/255 ellipse reaches are evaluated
- *    (footprint_half_rows), and none whose pixels have all stopped (live_half_rows);
+ *    (sc_footprint_half_rows, internal.h), and none whose pixels have all stopped (live_half_rows);
  *  - each half row is branch-free, so the compiler vectorises it (AVX2/AVX-512 builds
  *    where the CPU has them, chosen once at run time by cpu.c; SSE2 otherwise; NEON on arm64);
  *  - exp() is a polynomial (sc_fast_exp, internal.h) with relative error below 4e-7, far
@@ -60,68 +60,15 @@ static SC_ALWAYS_INLINE void blend_block(tile_state *st, int first, float power_
     }
 }
 
-/* Half-row masks: bit 2j + h stands for columns 8h..8h+7 of tile row j. */
-typedef uint32_t half_rows;
-
 /* The half rows that still have a pixel taking Gaussians. */
-static SC_ALWAYS_INLINE half_rows live_half_rows(const tile_state *st) {
-    half_rows alive = 0;
+static SC_ALWAYS_INLINE sc_half_rows live_half_rows(const tile_state *st) {
+    sc_half_rows alive = 0;
     for (int q = 0; q < PIXELS / BLOCK; ++q) {
         float sum = 0.0f;
         for (int x = 0; x < BLOCK; ++x) sum += st->live[q * BLOCK + x];
-        alive |= (half_rows)(sum != 0.0f) << q;
+        alive |= (sc_half_rows)(sum != 0.0f) << q;
     }
     return alive;
-}
-
-/* The half rows of sc_tile_span's span [j0, j1] x [i0, i1). */
-static SC_ALWAYS_INLINE half_rows span_half_rows(int j0, int j1, int i0, int i1) {
-    if (j0 > j1) return 0;
-    const half_rows rows = (j1 == SC_TILE - 1 ? 0u : 1u << 2 * (j1 + 1)) - (1u << 2 * j0);
-    const half_rows columns = (i0 < BLOCK ? 0x55555555u : 0u) | (i1 > BLOCK ? 0xAAAAAAAAu : 0u);
-    return rows & columns;
-}
-
-/* The half rows of the tile (origin x0, y0) that a splat can draw in, out of `span`. Exact for
- * the ellipse, not its bounding box: a half row is kept when the smallest Q = ca dx^2 +
- * 2 cb dx dy + cc dy^2 over its segment (a convex quadratic in dx: at the clamped minimiser
- * -cb dy / ca) is at most the splat's k2 (>= 2 ln(255 o)), at the very float dx, dy the
- * compositor uses. The bound is widened for the float rounding of Q here and of the power in
- * blend_block (each below 8 roundings of 2^-24 of the largest term over the tile: 2 x 2e-6 of
- * it) and of exp and alpha (2e-5). A pixel left out therefore has float alpha < 1/255 and
- * would add exactly nothing: skipping it changes no output bit (tests/test_render_masks.py
- * holds it against the span). */
-static SC_ALWAYS_INLINE half_rows footprint_half_rows(const sc_splat *s, const sc_columns *c,
-                                                      int y0, half_rows span) {
-    const float ca = s->ca, cb = s->cb, cc = s->cc;
-    /* Larger of two finite magnitudes; not fmaxf, a library call here (its NaN rule). */
-    const float dx_a = fabsf(c->dx[0]), dx_b = fabsf(c->dx[SC_TILE - 1]);
-    const float dx_max = dx_a > dx_b ? dx_a : dx_b;
-    const float dy_a = fabsf(c->y - ((float)y0 + 0.5f));
-    const float dy_b = fabsf(c->y - ((float)(y0 + SC_TILE - 1) + 0.5f));
-    const float dy_max = dy_a > dy_b ? dy_a : dy_b;
-    const float largest = 0.5f * ca * dx_max * dx_max + 0.5f * cc * dy_max * dy_max +
-                          fabsf(cb) * dx_max * dy_max;
-    const float q_max = s->k2 + 4e-6f * largest + 2e-5f; /* k2 >= 2 ln(255 o) */
-    /* A degenerate (underflowed) conic or an overflowing bound: keep the whole span. */
-    if (!(ca > 1e-30f && isfinite(largest) && isfinite(q_max))) return span;
-    const float neg_cb_over_ca = -cb / ca;
-    /* Each half row's segment, as its columns' dx (which decrease along the row). */
-    const float left_hi = c->dx[0], left_lo = c->dx[BLOCK - 1];
-    const float right_hi = c->dx[BLOCK], right_lo = c->dx[SC_TILE - 1];
-    half_rows reach = 0;
-    for (int j = 0; j < SC_TILE; ++j) {
-        const float dy = c->y - ((float)(y0 + j) + 0.5f); /* as composite() */
-        const float centre = neg_cb_over_ca * dy, cc_dy2 = cc * dy * dy, cb_dy2 = 2.0f * cb * dy;
-        float d = centre < left_lo ? left_lo : centre;
-        d = d > left_hi ? left_hi : d;
-        const float q_left = ca * d * d + cb_dy2 * d + cc_dy2;
-        float e = centre < right_lo ? right_lo : centre;
-        e = e > right_hi ? right_hi : e;
-        const float q_right = ca * e * e + cb_dy2 * e + cc_dy2;
-        reach |= ((half_rows)(q_left <= q_max) | (half_rows)(q_right <= q_max) << 1) << 2 * j;
-    }
-    return reach & span;
 }
 
 /* Blend the mesh layer into pixel p with the transmittance left. */
@@ -172,7 +119,7 @@ static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
     const int has_mesh = im->mesh_rgba != NULL;
     const float px0 = (float)ms->x0 + 0.5f;
     int64_t evaluations = 0;
-    half_rows alive = live_half_rows(st);
+    sc_half_rows alive = live_half_rows(st);
     for (int64_t k = 0; k < count; ++k) {
         /* Now and then, which half rows still take Gaussians: the others are skipped (their
          * pixels would add exactly 0), and a tile whose pixels have all stopped is finished. */
@@ -182,12 +129,13 @@ static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
         if (has_mesh && s->depth >= ms->next_mesh_z) flush_mesh(st, ms, cam, im, s->depth);
         int j0, j1, i0, i1;
         sc_tile_span(s, ms->x0, ms->y0, &j0, &j1, &i0, &i1);
-        half_rows todo = span_half_rows(j0, j1, i0, i1);
+        sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1);
         if (!todo) continue;
         sc_columns c;
         sc_prepare_columns(&c, s, px0);
         /* A span of a few half rows has little to skip: not worth the masks' set-up. */
-        if (!exhaustive && sc_popcount(todo) > 3) todo = footprint_half_rows(s, &c, ms->y0, todo);
+        if (!exhaustive && sc_popcount(todo) > 3)
+            todo = sc_footprint_half_rows(s, &c, ms->y0, todo);
         if (!exhaustive) todo &= alive;
         evaluations += BLOCK * (int64_t)sc_popcount(todo);
         /* Each row's terms, for all 16 rows at once (vectorised; the same bits as one by one). */

@@ -418,9 +418,12 @@ static SC_ALWAYS_INLINE sc_half_rows sc_footprint_half_rows(const sc_splat *s,
                                                             const sc_columns *c, int y0,
                                                             sc_half_rows span) {
     const float ca = s->ca, cb = s->cb, cc = s->cc;
-    const float dx_max = fmaxf(fabsf(c->dx[0]), fabsf(c->dx[SC_TILE - 1]));
-    const float dy_top = c->y - ((float)y0 + 0.5f);
-    const float dy_max = fmaxf(fabsf(dy_top), fabsf(c->y - ((float)(y0 + SC_TILE - 1) + 0.5f)));
+    /* Larger of two finite magnitudes; not fmaxf, a library call here (its NaN rule). */
+    const float dx_a = fabsf(c->dx[0]), dx_b = fabsf(c->dx[SC_TILE - 1]);
+    const float dx_max = dx_a > dx_b ? dx_a : dx_b;
+    const float dy_a = fabsf(c->y - ((float)y0 + 0.5f));
+    const float dy_b = fabsf(c->y - ((float)(y0 + SC_TILE - 1) + 0.5f));
+    const float dy_max = dy_a > dy_b ? dy_a : dy_b;
     const float largest = 0.5f * ca * dx_max * dx_max + 0.5f * cc * dy_max * dy_max +
                           fabsf(cb) * dx_max * dy_max;
     const float q_max = s->k2 + 4e-6f * largest + 2e-5f; /* k2 >= 2 ln(255 o) */
