@@ -108,9 +108,9 @@ def cache_file_path(scene) -> str:
 
 def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     """The colour (H, W, 4 premultiplied scene-linear) and planar depth (H, W) the scene's
-    engine rendered for view layer `layer`, rows top to bottom, read while the render runs;
-    and timings (ms), with "layer": the view layer read (another one if `layer` was not
-    rendered)."""
+    engine rendered for view layer `layer`, rows top to bottom, read while the render runs
+    (read-only views of the file's rows: no copy); and timings (ms), with "layer": the view
+    layer read (another one if `layer` was not rendered)."""
     timings = {}
     start = time.perf_counter()
     image = render_result_image()
@@ -129,7 +129,9 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     timings["save_ms"] = 1000 * (time.perf_counter() - start)
     start = time.perf_counter()
     try:
-        channels = exr_scanlines.read_channels(path)  # no OpenImageIO: Blender's Python may lack it
+        # No OpenImageIO (Blender's Python may lack it). Our own file is mapped, not read: no
+        # one rewrites it, and it goes at once (POSIX keeps a deleted file's mapped pages).
+        channels = exr_scanlines.read_channels(path, mapped=own_file and os.name == "posix")
     finally:
         if own_file:
             # Our own copy, read into memory: /dev/shm is RAM, so it goes now, not at exit
@@ -158,7 +160,7 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     # Cycles' "Shadow Catcher" pass (on when the scene has shadow catchers, e.g. splat proxies:
     # `compositor_bridge.ensure_bridge`): the factor the composite is darkened by.
     timings["shadow"] = exr_layers.find_pass(channels, layer, "Shadow Catcher", "RGB")
-    return np.ascontiguousarray(rgba), np.ascontiguousarray(depth), timings
+    return rgba, depth, timings
 
 
 def world_colour(scene) -> np.ndarray:
@@ -189,17 +191,24 @@ def frame_target(size: tuple[int, int], full: tuple[int, int], region: Region) -
                        f"{full[0]}x{full[1]} frame (border {region})")
 
 
+def pass_image(height: int, width: int) -> np.ndarray:
+    """A new (H, W, 4) float32 image, rows top to bottom, stored bottom to top as a render pass
+    holds them: `write_result` fills a pass from it as it is, with no flipped copy."""
+    return np.empty((height, width, 4), np.float32)[::-1]
+
+
 def _set_pass(render_pass, pixels: np.ndarray) -> None:
     """Fill a RenderPass from (H, W[, C]) float32 rows top to bottom (a pass stores them bottom
-    to top). `foreach_set` copies the buffer in one go: about 2 ms for 1280x720 RGBA, where
-    assigning `rect` a nested sequence takes a second."""
+    to top: flipped here unless stored that way, see `pass_image`). `foreach_set` copies the
+    buffer in one go: about 1 ms for 1280x720 RGBA, where assigning `rect` a nested sequence
+    takes a second."""
     render_pass.rect.foreach_set(np.ascontiguousarray(pixels[::-1], np.float32).reshape(-1))
 
 
-def write_result(engine, rgba: np.ndarray, depth: np.ndarray, origin: Region,
+def write_result(engine, rgba: np.ndarray, depth: np.ndarray | None, origin: Region,
                   full: tuple[int, int], region: Region) -> None:
     """Fill the engine's render result from `rgba`, `depth` (rows top to bottom) that cover
-    `origin` of the full frame.
+    `origin` of the full frame (depth None: the Depth pass stays empty).
 
     The pixels go straight into the render's own result (`get_result`): a full-frame
     `begin_result`/`end_result` pair allocates a second result and copies it over (8 of the
@@ -211,11 +220,12 @@ def write_result(engine, rgba: np.ndarray, depth: np.ndarray, origin: Region,
     if target != origin:  # a full-frame image for a border render: keep the border part
         rows = slice(target.y - origin.y, target.y - origin.y + target.height)
         cols = slice(target.x - origin.x, target.x - origin.x + target.width)
-        rgba, depth = rgba[rows, cols], depth[rows, cols]
+        rgba = rgba[rows, cols]
+        depth = None if depth is None else depth[rows, cols]
     layer = result.layers[0]
     _set_pass(layer.passes["Combined"], rgba)
     depth_pass = layer.passes.get("Depth")
-    if depth_pass is not None:
+    if depth_pass is not None and depth is not None:
         _set_pass(depth_pass, depth)
 
 

@@ -111,10 +111,22 @@ def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads:
     splatcore().srgb_premultiplied(rgba, out, bool(decode), thread_count(threads))
 
 
+def srgb_view(rgba: np.ndarray, out: np.ndarray, decode: bool, zero_non_finite: bool,
+              threads: int) -> None:
+    """srgb_premultiplied for float32 (H, W, 4) arrays with any strides (views of an EXR's
+    planar channels, a row-reversed buffer); `out` is `rgba` itself or does not overlap it.
+    With `zero_non_finite`, non-finite results (alpha too) become 0."""
+    splatcore().srgb_view(rgba, out, bool(decode), bool(zero_non_finite), thread_count(threads))
+
+
 def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, layer: np.ndarray,
-                        threads: int) -> None:
-    """compose's way back to scene-linear, in place in `layer` (the (H, W, 4) display layer the
-    composite was made over): the composite (rgb (H, W, 3), alpha (H, W), display sRGB) decoded
-    where its colour bits or its alpha (by more than 1e-6) differ from `layer`; `mesh`'s
-    scene-linear pixel, bit for bit, elsewhere. All float32, C-contiguous."""
-    splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))
+                        threads: int, out: np.ndarray | None = None) -> None:
+    """compose's way back to scene-linear, into `out` (default: `layer` itself, the (H, W, 4)
+    display layer the composite was made over): the composite (rgb (H, W, 3), alpha (H, W),
+    display sRGB) decoded where its colour bits or its alpha (by more than 1e-6) differ from
+    `layer`; `mesh`'s scene-linear pixel, bit for bit, elsewhere. All float32; rgb, alpha and
+    layer C-contiguous, mesh and out (H, W, 4) with any strides."""
+    if out is None:
+        splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))
+    else:
+        splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads), out)
