@@ -11,9 +11,19 @@ path. Writing: the engine's render result, and the splat layer for multilayer EX
 Why a file: Python has no other way to the render's pixels while it runs. The Render Result
 image has no pixels in Python (`Image.pixels` is empty, `foreach_get` gives nothing: measured in
 bpy 5.0.1), and a RenderEngine reaches only its own result's passes, not the scene's engine's.
-The EXR goes to /dev/shm where there is one (memory, no disk), uncompressed float (the fastest
-for Blender to write and for `exr_scanlines` to read: the file's rows are viewed, not decoded).
-Writing back needs no file: `RenderPass.rect.foreach_set` copies the composite in one go.
+The EXR goes to /dev/shm where there is one (memory, no disk), uncompressed float and
+interleaved (one part holding every channel: Blender 5.0 writes the 1280x720 Combined and Depth
+in 18 ms so, 23 ms as one part per pass; Blender's `Image.save_render` is most of what reading
+costs, and nothing in it can be left out: it writes only the passes there are, and no
+"Composite" layer while the frame renders). Our own file is mapped, not read, and the colour is
+a read-only strided view of its planar rows (`exr_layers.find_pass`), which the colour
+conversion reads where it lies: no copy of the frame is made to read it.
+
+Writing back needs no file. The composite goes straight into the helper render's own result
+(`get_result`; a full-frame `begin_result`/`end_result` would allocate a second result and merge
+it: 8 of the 11 ms writing took at 1280x720), from a buffer whose rows run bottom to top as a
+pass's do (`pass_image`: `compose` decodes into it), with one `RenderPass.rect.foreach_set`.
+The Depth pass is filled only when the compositor reads it (`compositor_bridge.uses_depth`).
 """
 
 from __future__ import annotations
@@ -57,29 +67,23 @@ _FORMAT_KEYS = ("media_type", "file_format", "color_mode", "color_depth", "exr_c
 
 @contextlib.contextmanager
 def _float_exr_output(scene):
-    """Switch the scene's output format to uncompressed float multilayer EXR, then back.
-    Interleaved (one part holding every channel, as Blender 4.x writes them): Blender 5.0 writes
-    it in 18 ms at 1280x720 with Combined and Depth, 23 ms as one part per pass."""
+    """Switch the scene's output format to uncompressed float multilayer EXR, interleaved (one
+    part, as Blender 4.x always writes it), then back."""
     settings = scene.render.image_settings
     saved = [(key, getattr(settings, key)) for key in _FORMAT_KEYS if hasattr(settings, key)]
-    # Blender 5.0 cannot write a multi-part EXR for non-square pixels (its parts disagree on
-    # 'pixelAspectRatio'); the pixels are the same either way.
-    aspect = (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y)
     try:
-        scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
         if hasattr(settings, "media_type"):
             settings.media_type = "MULTI_LAYER_IMAGE"
         else:  # Blender 4.x
             settings.file_format = "OPEN_EXR_MULTILAYER"
         settings.color_depth = "32"
         settings.exr_codec = "NONE"
-        if hasattr(settings, "use_exr_interleave"):  # Blender 5.0+; 4.x writes one part anyway
+        if hasattr(settings, "use_exr_interleave"):  # Blender 5.0+
             settings.use_exr_interleave = True
         if hasattr(settings, "color_management"):
             settings.color_management = "FOLLOW_SCENE"
         yield
     finally:
-        scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = aspect
         for key, value in saved:
             with contextlib.suppress(TypeError, AttributeError, ValueError):
                 setattr(settings, key, value)
@@ -208,12 +212,9 @@ def _set_pass(render_pass, pixels: np.ndarray) -> None:
 def write_result(engine, rgba: np.ndarray, depth: np.ndarray | None, origin: Region,
                   full: tuple[int, int], region: Region) -> None:
     """Fill the engine's render result from `rgba`, `depth` (rows top to bottom) that cover
-    `origin` of the full frame (depth None: the Depth pass stays empty).
-
-    The pixels go straight into the render's own result (`get_result`): a full-frame
-    `begin_result`/`end_result` pair allocates a second result and copies it over (8 of the
-    11 ms this took at 1280x720). Blender allocates a result's passes on the first merge, so a
-    1x1 result is merged first."""
+    `origin` of the full frame (depth None: the Depth pass stays empty), straight into the
+    render's own result (see the module docstring). Blender allocates a result's passes on the
+    first merge, so a 1x1 result is merged first."""
     engine.end_result(engine.begin_result(0, 0, 1, 1))
     result = engine.get_result()
     target = frame_target((result.resolution_x, result.resolution_y), full, region)
