@@ -174,7 +174,9 @@ def test_views_with_any_strides_convert_like_contiguous_pixels(rng):
     neighbour that neighbour's result (runs of a flat background), and zeroes non-finite
     results when asked; the same bits as the contiguous conversion, on any thread count."""
     h, w = 53, 301
-    rgba = _pixels(rng, _hard_values(rng)[: h * w * 3]).reshape(h, w, 4)
+    rgba = np.empty((h, w, 4), np.float32)
+    rgba[..., :3] = _hard_values(rng)[: h * w * 3].reshape(h, w, 3)
+    rgba[..., 3] = rng.choice(np.array([1.0, 0.0, 0.5, 1e-30, np.nan, -1.0], np.float32), (h, w))
     rgba[5:9] = rgba[5, 0]                       # runs, across rows
     rgba[20, 10:200] = [np.nan, 0.5, 0.25, 1.0]  # a run of NaN
     rgba[30:40, :, 3] = 1.0

@@ -100,21 +100,11 @@ def rgb_image(name: str, value) -> np.ndarray:
     return array
 
 
-def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads: int) -> None:
-    """Premultiplied float32 RGBA (..., 4) through the extended sRGB transfer into `out`
-    (`rgba` itself, or a C-contiguous float32 array of its shape not overlapping it):
-    scene-linear -> display, or back with `decode` (see `addon.core.colour`)."""
-    if rgba.dtype != np.float32 or not rgba.flags.c_contiguous:
-        raise ValueError(f"rgba must be a C-contiguous float32 array, got {rgba.dtype}")
-    if rgba.ndim < 1 or rgba.shape[-1] != 4:
-        raise ValueError(f"rgba must have shape (..., 4), got {rgba.shape}")
-    splatcore().srgb_premultiplied(rgba, out, bool(decode), thread_count(threads))
-
-
 def srgb_view(rgba: np.ndarray, out: np.ndarray, decode: bool, zero_non_finite: bool,
               threads: int) -> None:
-    """srgb_premultiplied for float32 (H, W, 4) arrays with any strides (views of an EXR's
-    planar channels, a row-reversed buffer); `out` is `rgba` itself or does not overlap it.
+    """Premultiplied float32 RGBA (H, W, 4), any strides (views of an EXR's planar channels, a
+    row-reversed buffer), through the extended sRGB transfer into `out` (`rgba` itself, or not
+    overlapping it): scene-linear -> display, or back with `decode` (see `addon.core.colour`).
     With `zero_non_finite`, non-finite results (alpha too) become 0."""
     splatcore().srgb_view(rgba, out, bool(decode), bool(zero_non_finite), thread_count(threads))
 
