@@ -15,9 +15,9 @@ and prints medians (ms) of where the difference goes:
     gather    splats from the render's depsgraph (world space; cached per object, so this is
               the cost of a frame whose splats did not change: "first" is the first render's)
     read      the meshes' colour and depth: Render Result -> float EXR in a RAM folder
-              (Blender's Image.save_render) -> numpy (addon.core.exr_scanlines)
+              (Blender's Image.save_render) -> numpy views of its rows (addon.core.exr_scanlines)
     colour    scene-linear <-> display sRGB of the mesh layer and of the pixels the splats
-              changed (addon.core.colour, blocks on every core)
+              changed (addon.core.colour, native, on every core)
     native    the native compositor (projection, sort, binning, per-pixel composite)
     write     the composite -> the helper scene's render result (RenderPass.rect.foreach_set)
     other     the rest of the difference: the helper scene's render and Blender's compositor

@@ -166,3 +166,68 @@ def test_decode_changed_is_the_decode_where_the_composite_differs(rng):
         native.srgb_decode_changed(rgb, alpha, layer, layer, 1)
     with pytest.raises(ValueError, match="shape"):
         native.srgb_decode_changed(rgb, alpha[:-1], mesh, layer.copy(), 1)
+
+
+def test_views_with_any_strides_convert_like_contiguous_pixels(rng):
+    """srgb_view reads and writes (H, W, 4) views with any strides (an EXR's planar channels,
+    in reverse channel order; a row-reversed buffer), gives pixels bit-identical to their left
+    neighbour that neighbour's result (runs of a flat background), and zeroes non-finite
+    results when asked; the same bits as the contiguous conversion, on any thread count."""
+    h, w = 53, 301
+    rgba = np.empty((h, w, 4), np.float32)
+    rgba[..., :3] = _hard_values(rng)[: h * w * 3].reshape(h, w, 3)
+    rgba[..., 3] = rng.choice(np.array([1.0, 0.0, 0.5, 1e-30, np.nan, -1.0], np.float32), (h, w))
+    rgba[5:9] = rgba[5, 0]                       # runs, across rows
+    rgba[20, 10:200] = [np.nan, 0.5, 0.25, 1.0]  # a run of NaN
+    rgba[30:40, :, 3] = 1.0
+    for decode in (False, True):
+        convert = colour.linear_from_display if decode else colour.display_from_linear
+        expected = convert(np.ascontiguousarray(rgba), threads=1)
+        assert np.array_equal(expected.view(np.uint32),
+                              convert(rgba.reshape(-1, 4), threads=1).reshape(h, w, 4)
+                              .view(np.uint32))
+        planar = np.ascontiguousarray(rgba[..., ::-1].transpose(0, 2, 1))  # rows of A, B, G, R
+        view = np.lib.stride_tricks.as_strided(planar[:, 3], (h, w, 4), (planar.strides[0], 4,
+                                               -planar.strides[1]), writeable=False)
+        assert np.array_equal(view.view(np.uint32), rgba.view(np.uint32))
+        for threads in (1, 3):
+            flipped = np.full((h, w, 4), 7.0, np.float32)
+            native.srgb_view(view, flipped[::-1], decode, False, threads)
+            assert np.array_equal(flipped[::-1].view(np.uint32), expected.view(np.uint32))
+            finite = np.empty((h, w, 4), np.float32)
+            native.srgb_view(view, finite, decode, True, threads)
+            want = np.nan_to_num(expected, nan=0.0, posinf=0.0, neginf=0.0)
+            assert np.array_equal(finite.view(np.uint32), want.view(np.uint32))
+    with pytest.raises(ValueError, match="shape"):
+        native.srgb_view(view, np.empty((h, w - 1, 4), np.float32), False, False, 1)
+    with pytest.raises(ValueError, match="overlap"):
+        buffer = np.zeros((h + 1, w, 4), np.float32)
+        native.srgb_view(buffer[1:], buffer[:-1], False, False, 1)
+    with pytest.raises(ValueError, match="writable"):
+        native.srgb_view(rgba, view, False, False, 1)
+
+
+def test_decode_changed_writes_any_view_and_reads_the_mesh_through_one(rng):
+    """The way back can write a separate (here row-reversed) image and read the mesh layer as a
+    strided view: the same bits as in place over contiguous arrays."""
+    h, w = 31, 67
+    mesh = rng.random((h, w, 4)).astype(np.float32)
+    layer = colour.display_from_linear(mesh)
+    rgb = layer[..., :3].copy()
+    alpha = layer[..., 3].copy()
+    touched = rng.random((h, w)) < 0.3
+    rgb[touched] = rng.random((int(touched.sum()), 3)).astype(np.float32)
+    expected = layer.copy()
+    native.srgb_decode_changed(rgb, alpha, mesh, expected, 1)
+    planar = np.ascontiguousarray(mesh.transpose(0, 2, 1))
+    view = np.lib.stride_tricks.as_strided(planar, (h, w, 4), (planar.strides[0], 4, 4 * w),
+                                           writeable=False)
+    for threads in (1, 2):
+        out = np.empty((h, w, 4), np.float32)
+        native.srgb_decode_changed(rgb, alpha, view, layer, threads, out[::-1])
+        assert np.array_equal(out[::-1].view(np.uint32), expected.view(np.uint32))
+    with pytest.raises(ValueError, match="overlap"):
+        native.srgb_decode_changed(rgb, alpha, mesh, layer, 1, mesh)
+    with pytest.raises(ValueError, match="overlap"):
+        both = np.zeros((h + 1, w, 4), np.float32)
+        native.srgb_decode_changed(rgb, alpha, mesh, both[1:], 1, both[:-1])

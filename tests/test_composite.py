@@ -115,6 +115,27 @@ def test_compose_of_a_large_image_is_the_same_on_any_thread_count(rng):
     assert np.array_equal(one.rgba[untouched], mesh_rgba[untouched])
 
 
+def test_compose_reads_strided_layers_and_writes_where_asked(rng):
+    """A mesh layer given as a read-only strided view (as F12 reads it from the EXR's planar
+    channels) and an `out` with reversed rows (a render pass's order) give the same bits."""
+    gaussians, camera = random_scene(rng, 80, 64, 48, 1)
+    mesh_rgba, mesh_depth = random_mesh_layer(rng, 64, 48)
+    mesh_rgba[..., 0][::5] = np.nan
+    expected = compose(gaussians, camera, mesh_rgba, mesh_depth)
+    planar = np.ascontiguousarray(mesh_rgba.transpose(0, 2, 1))
+    view = np.lib.stride_tricks.as_strided(planar, mesh_rgba.shape,
+                                           (planar.strides[0], 4, planar.strides[1]),
+                                           writeable=False)
+    for space in ("SRGB", "LINEAR"):
+        want = expected if space == "SRGB" else compose(gaussians, camera, mesh_rgba,
+                                                        mesh_depth, color_space=space)
+        buffer = np.empty(mesh_rgba.shape, np.float32)
+        got = compose(gaussians, camera, view, mesh_depth, color_space=space, out=buffer[::-1])
+        assert np.shares_memory(got.rgba, buffer)
+        assert np.array_equal(buffer[::-1].view(np.uint32), want.rgba.view(np.uint32))
+        assert np.array_equal(got.depth, want.depth)
+
+
 def test_compose_is_the_native_composite_in_display_space(rng):
     gaussians, camera = random_scene(rng, 60, 40, 30, 2)
     mesh_rgba, mesh_depth = random_mesh_layer(rng, 40, 30)

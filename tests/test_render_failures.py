@@ -169,6 +169,14 @@ def test_exr_reader_matches_openimageio(rng, tmp_path):
             want = pixels.astype(np.float16).astype(np.float32) if fmt == "half" else pixels
             for i, name in enumerate(names):
                 assert np.array_equal(got[name], want[..., i]), (compression, fmt, name)
+            if compression == "none" and fmt == "float":
+                # mapped, not read: the same channels; a pass is a read-only view of them
+                from addon.core.exr_layers import find_pass
+                mapped = exr_scanlines.read_channels(path, mapped=True)
+                assert all(np.array_equal(mapped[name], got[name]) for name in names)
+                rgba = find_pass(mapped, "ViewLayer", "Combined", "RGBA")
+                assert not rgba.flags.writeable and not rgba.flags.owndata
+                assert np.array_equal(rgba, pixels[..., [3, 2, 1, 0]])
     # Blender's own multilayer file (multi-part on 5.0) reads the same as OpenImageIO reads it.
     scene = _scene(rng, tmp_path)
     scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"

@@ -22,6 +22,7 @@ import pytest
 from addon.blender import (camera_adapter, compositor_bridge, render_hooks, render_state,
                            splat_object)
 from addon.core import exr_layers, exr_scanlines
+from addon.core.composite import compose
 from addon.core.render import render
 from real_blender import scene_kit
 from scenes import random_gaussians
@@ -205,7 +206,7 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
                         lambda *args: frames.append(capture(*args)) or frames[-1])
     read_channels = exr_scanlines.read_channels
     monkeypatch.setattr(exr_scanlines, "read_channels",
-                        lambda path: read.append(path) or read_channels(path))
+                        lambda path, **options: read.append(path) or read_channels(path, **options))
 
     def rendered(name):
         render_still(scene, tmp_path / name)
@@ -375,6 +376,31 @@ def test_bridge_keeps_and_restores_a_users_compositor(rng):
     assert blur.inputs[0].links[0].from_node == layers
     assert scene.compositing_node_group == tree and len(tree.nodes) == 3
     assert compositor_bridge.helper_scene(create=False) is None
+
+
+def test_a_compositor_reading_the_depth_gets_the_composites(rng, tmp_path):
+    """The helper render fills its Depth pass only when the compositor reads it (the bridge
+    node's Depth output linked, e.g. by a user's compositor): then that is the composite's."""
+    scene, _, _, _, camera = build_scene(rng, "BLENDER_WORKBENCH")
+    render_hooks.set_up_bridge_later(scene.name)
+    assert not compositor_bridge.uses_depth(scene)
+    tree = scene.compositing_node_group
+    output = next(n for n in tree.nodes if n.bl_idname == "NodeGroupOutput")
+    tree.links.new(compositor_bridge.bridge_node(scene).outputs["Depth"], output.inputs[0])
+    assert compositor_bridge.uses_depth(scene)
+    settings = scene.render.image_settings
+    settings.media_type, settings.file_format = "IMAGE", "OPEN_EXR"
+    settings.color_depth, settings.exr_codec = "32", "NONE"
+    scene.render.filepath = str(tmp_path / "depth")
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    written = exr_layers.read_channels(tmp_path / "depth.exr")["R"]
+    mesh_rgba, mesh_depth, _ = mesh_layers(render_still(scene, tmp_path / "layers",
+                                                        multilayer=True))
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    expected = compose(bs.gather.gather(depsgraph).gaussians, bs.camera_of(camera, depsgraph),
+                       mesh_rgba, mesh_depth).depth
+    assert (np.abs(expected - mesh_depth) > 0.01).sum() > 20  # the splats are in it
+    assert np.allclose(written, expected, rtol=1e-6)
 
 
 class _Layout:

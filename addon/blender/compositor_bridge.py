@@ -175,6 +175,14 @@ def bridge_node(scene):
     return next((n for n in tree.nodes if n.get(BRIDGE_FLAG) is not None), None)
 
 
+def uses_depth(scene) -> bool:
+    """Whether the scene's compositor reads the bridge node's Depth output (the helper render
+    fills its Depth pass only then: 1 ms at 1280x720)."""
+    node = bridge_node(scene)
+    depth = None if node is None else node.outputs.get("Depth")
+    return depth is not None and depth.is_linked
+
+
 def bridge_view_layer(scene) -> str | None:
     """The view layer the bridge composes the splats with (None when there is no bridge)."""
     node = bridge_node(scene)

@@ -46,8 +46,9 @@ from .compositor_bridge import ENGINE_ID
 from .registration import module_registration
 from .render_failures import (fail_render, remove_failed_file, render_blockers, report_in_window,
                               set_aside_outputs, settle_outputs)
-from .render_layers import (frame_target, read_render_layer, render_result_image, splat_passes,
-                            wants_splat_passes, world_colour, write_result, written_file)
+from .render_layers import (frame_target, pass_image, read_render_layer, render_result_image,
+                            splat_passes, wants_splat_passes, world_colour, write_result,
+                            written_file)
 from .render_state import capture_frame, render_border, settings_of
 
 last_stats: dict[str, float] = {}       # the last composed frame: timings (ms) and counts
@@ -126,7 +127,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             if origin != Region(0, 0, *full):  # a cropped border: compose the whole frame
                 mesh_rgba, mesh_depth = embed(mesh_rgba, mesh_depth, origin, *full)
             composed = compose(frame.gaussians, frame.camera, mesh_rgba, mesh_depth,
-                               **frame.render_options())
+                               out=pass_image(full[1], full[0]), **frame.render_options())
             mesh_rgba = mesh_depth = None  # not needed any more: a lower peak while writing
             rgba, depth = composed.rgba[origin.slices()], composed.depth[origin.slices()]
             stats.update(gaussians=len(frame.gaussians), reused=frame.reused,
@@ -141,7 +142,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             # the composite, splats included (README, "Splats to meshes").
             rgba = apply_shadow_catcher(rgba, shadow)
         before_write = time.perf_counter()
-        write_result(self, rgba, depth, origin, full, region)
+        write_result(self, rgba, depth if bridge.uses_depth(main) else None, origin, full, region)
         stats["result_ms"] = 1000 * (time.perf_counter() - before_write)
         stats["total_ms"] = 1000 * (time.perf_counter() - start)
         last_stats.clear()

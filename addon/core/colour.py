@@ -163,10 +163,10 @@ def _runs(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return first, np.diff(first, append=len(pixels))
 
 
-def _premultiplied(rgba: np.ndarray, block, out: np.ndarray | None, threads: int) -> np.ndarray:
+def _premultiplied(rgba: np.ndarray, block, out: np.ndarray | None, threads: int,
+                   zero_non_finite: bool = False) -> np.ndarray:
     rgba = np.asarray(rgba)
     dtype = np.dtype(np.float64 if rgba.dtype == np.float64 else np.float32)
-    source = np.ascontiguousarray(rgba, dtype=dtype)
     if out is None:
         out = np.empty(rgba.shape, dtype)
     if out.shape != rgba.shape or out.dtype != dtype or not out.flags.c_contiguous:
@@ -175,13 +175,17 @@ def _premultiplied(rgba: np.ndarray, block, out: np.ndarray | None, threads: int
         raise ValueError(f"rgba must have shape (..., 4), got {rgba.shape}")
     if dtype == np.float32:
         # Native, on the thread pool: each value in double, rounded once (within about half a
-        # float32 ulp of the float64 transfer).
+        # float32 ulp of the float64 transfer). An image is read with its own strides (views
+        # of a file's planar channels: no copy).
+        source = rgba.astype(dtype, copy=False)
         if out is not source and np.shares_memory(out, source):
             source = source.copy()
-        native.srgb_premultiplied(source, out, block is _decode_block, threads)
+        image = source if source.ndim == 3 else source.reshape(1, -1, 4)
+        native.srgb_view(image, out.reshape(image.shape), block is _decode_block,
+                         zero_non_finite, threads)
         return out
     result, out = out, out.reshape(-1, 4)
-    source = source.reshape(-1, 4)
+    source = np.ascontiguousarray(rgba, dtype=dtype).reshape(-1, 4)
     pixels = _BLOCK // 4
     scratch = _Scratch(dtype, _BLOCK)
     for start in range(0, len(source), pixels):
@@ -194,16 +198,19 @@ def _premultiplied(rgba: np.ndarray, block, out: np.ndarray | None, threads: int
             distinct = src[first]
             _convert_pixels(distinct, distinct, block, scratch)
             dst[...] = np.repeat(distinct, lengths, axis=0)
+    if zero_non_finite:
+        np.nan_to_num(result, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
     return result
 
 
 def display_from_linear(rgba: np.ndarray, out: np.ndarray | None = None, *,
-                        threads: int = 0) -> np.ndarray:
+                        threads: int = 0, zero_non_finite: bool = False) -> np.ndarray:
     """Premultiplied scene-linear RGBA (..., 4) -> premultiplied display sRGB RGBA (a copy, or
     written into `out`: C-contiguous, rgba's shape, float32 or float64 for float64 input).
     Float32 converts natively on `threads` threads (0: every core; the same bits on any
-    count), float64 in NumPy."""
-    return _premultiplied(rgba, _encode_block, out, threads)
+    count), float64 in NumPy. With `zero_non_finite`, non-finite results (alpha too) are 0 (a
+    mesh layer for the compositor)."""
+    return _premultiplied(rgba, _encode_block, out, threads, zero_non_finite)
 
 
 def linear_from_display(rgba: np.ndarray, out: np.ndarray | None = None, *,

@@ -22,7 +22,6 @@ band that depends on the image's extent.
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +30,6 @@ from . import colour
 from .cameras import Camera
 from .gaussians import Gaussians
 from . import native
-from .native import cpu_count
 from .render import render
 
 # Blender's "nothing here" depth (Cycles, Workbench and EEVEE write 1e10 where no surface is).
@@ -65,37 +63,20 @@ def _finite_depth(depth: np.ndarray) -> np.ndarray:
     return np.nan_to_num(depth, nan=FAR, posinf=FAR, neginf=0.0)
 
 
-# Pixels per block of the colour conversions: a block's data and temporaries stay in the CPU's
-# cache, and blocks run on several threads (NumPy releases the GIL in its loops).
-_BLOCK_PIXELS = 1 << 15
-
-
-def _row_blocks(height: int, width: int) -> list[slice]:
-    rows = max(1, _BLOCK_PIXELS // max(width, 1))
-    return [slice(y, min(y + rows, height)) for y in range(0, height, rows)]
-
-
-def _in_parallel(work, blocks: list, threads: int) -> None:
-    """`work(block)` for every block, on `threads` threads (0: every core)."""
-    threads = min(len(blocks), threads or cpu_count())
-    if threads <= 1:
-        for block in blocks:
-            work(block)
-        return
-    with ThreadPoolExecutor(threads) as pool:
-        for _ in pool.map(work, blocks):  # re-raises the first error
-            pass
-
-
 def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_depth: np.ndarray,
             *, color_space: str = "SRGB", antialiased: bool = False, near: float = 0.01,
-            sh_degree: int | None = None, threads: int = 0) -> CompositeResult:
+            sh_degree: int | None = None, threads: int = 0,
+            out: np.ndarray | None = None) -> CompositeResult:
     """The exact composite of `gaussians` with a mesh render seen by `camera`.
 
-    mesh_rgba: (H, W, 4) premultiplied scene-linear colour, rows top to bottom.
+    mesh_rgba: (H, W, 4) premultiplied scene-linear colour, rows top to bottom (float32 with
+        any strides is read as it is: views of a file's planar channels need no copy).
     mesh_depth: (H, W) planar camera depth (Blender's Depth pass); non-finite values mean
         "nothing here" and become FAR.
-    Returns premultiplied scene-linear RGBA and the composite's expected depth.
+    out: where the composite goes, (H, W, 4) float32 with any strides, overlapping none of the
+        inputs (e.g. a row-reversed view of the buffer a Blender render pass is filled from,
+        reused from frame to frame); by default a new array.
+    Returns premultiplied scene-linear RGBA (`out`) and the composite's expected depth.
     """
     _check_space(color_space)
     start = time.perf_counter()
@@ -104,18 +85,11 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     if mesh_rgba.shape != (height, width, 4):
         raise ValueError(f"mesh_rgba must have shape {(height, width, 4)}, "
                          f"got {mesh_rgba.shape}")
-    blocks = _row_blocks(height, width)
     if color_space == "SRGB":
-        layer = colour.display_from_linear(np.ascontiguousarray(mesh_rgba), threads=threads)
-
-        def keep_finite(rows: slice) -> None:
-            block = layer[rows]
-            if not np.isfinite(block).all():
-                np.nan_to_num(block, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-
-        _in_parallel(keep_finite, blocks, threads)
+        # Non-finite values become 0 in the same pass (the compositor wants finite colour).
+        layer = colour.display_from_linear(mesh_rgba, threads=threads, zero_non_finite=True)
     else:
-        layer = mesh_rgba
+        layer = np.ascontiguousarray(mesh_rgba)
         if not np.isfinite(layer).all():
             layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
     convert_in = time.perf_counter() - start
@@ -124,13 +98,14 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     start = time.perf_counter()
     if color_space == "SRGB":
         # Only pixels the splats changed go back through the conversion; the others keep the
-        # mesh layer's own values, bit for bit. The result replaces the display layer (one
-        # frame-sized buffer fewer), natively on the thread pool.
-        out = layer
-        native.srgb_decode_changed(result.rgb, result.alpha, np.ascontiguousarray(mesh_rgba),
-                                   out, threads)
+        # mesh layer's own values, bit for bit. Natively on the thread pool; by default the
+        # result replaces the display layer (one frame-sized buffer fewer).
+        if out is None:
+            out = layer
+        native.srgb_decode_changed(result.rgb, result.alpha, mesh_rgba, layer, threads, out)
     else:
-        out = np.empty((height, width, 4), np.float32)
+        if out is None:
+            out = np.empty((height, width, 4), np.float32)
         out[..., :3] = result.rgb
         out[..., 3] = result.alpha
     depth = result.depth

@@ -1,8 +1,9 @@
 """Blender's multilayer OpenEXR files: their channel naming, read and extended (no bpy).
 
-Blender writes a multilayer EXR as one part per render pass, named `<layer>.<pass>`, with
-channels `<layer>.<pass>.<channel>` (e.g. `ViewLayer.Combined.R`, `ViewLayer.Depth.Z`). Rows in
-the file run top to bottom, as in every image here. Reading is OpenImageIO's, imported on first
+Blender writes a multilayer EXR as one part per render pass, named `<layer>.<pass>` (or, as
+Blender 4.x does and 5.0 does when asked, one part holding them all), with channels
+`<layer>.<pass>.<channel>` (e.g. `ViewLayer.Combined.R`, `ViewLayer.Depth.Z`). Rows in the file
+run top to bottom, as in every image here. Reading is OpenImageIO's, imported on first
 use; writing goes through `image_io.write_subimages` (atomic).
 """
 
@@ -50,11 +51,37 @@ def read_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 def find_pass(channels: dict[str, np.ndarray], layer: str, name: str,
               components: str) -> np.ndarray | None:
-    """The pass `<layer>.<name>` as (H, W, len(components)), or None if any channel is missing."""
+    """The pass `<layer>.<name>` as (H, W, len(components)), or None if any channel is missing.
+    Read-only channels spaced evenly in one buffer (an uncompressed file's rows, viewed by
+    `exr_scanlines`) give a read-only view of them, no copy; others a stacked copy."""
     planes = [channels.get(f"{layer}.{name}.{c}") for c in components]
     if any(p is None for p in planes):
         return None
-    return np.stack(planes, axis=-1)
+    view = _interleaved_view(planes)
+    return view if view is not None else np.stack(planes, axis=-1)
+
+
+def _root(array: np.ndarray) -> object:
+    while isinstance(array.base, np.ndarray):
+        array = array.base
+    return array.base
+
+
+def _interleaved_view(planes: list[np.ndarray]) -> np.ndarray | None:
+    """The planes as one read-only (H, W, C) view when they are read-only views of one buffer
+    with one layout, each the same distance from the one before: every element of the view is
+    an element of a plane, and the buffer lives as long as the view."""
+    first = planes[0]
+    root = _root(first)
+    if root is None or any(p.flags.writeable or p.dtype != first.dtype or p.shape != first.shape
+                           or p.strides != first.strides or _root(p) is not root for p in planes):
+        return None
+    addresses = [p.__array_interface__["data"][0] for p in planes]
+    step = addresses[1] - addresses[0] if len(planes) > 1 else first.itemsize
+    if any(b - a != step for a, b in zip(addresses, addresses[1:])):
+        return None
+    return np.lib.stride_tricks.as_strided(first, (*first.shape, len(planes)),
+                                           (*first.strides, step), writeable=False)
 
 
 def append_layers(path: str | os.PathLike, parts: dict[str, tuple[str, np.ndarray]]) -> None:

@@ -8,11 +8,15 @@ channels, compression NONE, ZIPS or ZIP (zlib is in Python's standard library). 
 
 `read_channels(path)` returns every channel of every part, full channel name -> (H, W) float32,
 rows top to bottom, as `exr.read_channels` (OpenImageIO) does (uncompressed FLOAT channels as
-read-only views of the file's bytes, with row strides: copy them to write).
+read-only views of the file's bytes, with row strides: copy them to write). `mapped=True` maps
+the file instead of reading it: the views then read the file itself (1 ms less for 18 MB in
+/dev/shm), so it must be a private file that nothing rewrites while they live (delete it once
+read: on POSIX the mapping keeps its pages).
 """
 
 from __future__ import annotations
 
+import mmap
 import os
 import struct
 import zlib
@@ -27,7 +31,9 @@ _COMPRESSION_NAMES = {0: "NONE", 1: "RLE", 2: "ZIPS", 3: "ZIP", 4: "PIZ", 5: "PX
 
 
 def _cstring(data: bytes, pos: int) -> tuple[str, int]:
-    end = data.index(b"\0", pos)
+    end = data.find(b"\0", pos)
+    if end < 0:
+        raise ValueError("an EXR header string runs past the end of the file")
     return data[pos:end].decode("latin-1"), end + 1
 
 
@@ -91,10 +97,11 @@ def _uncompressed_view(data: bytes, multipart: bool, offsets: np.ndarray, y0: in
     return chunks["row"]
 
 
-def read_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
+def read_channels(path: str | os.PathLike, *, mapped: bool = False) -> dict[str, np.ndarray]:
     """Every channel of every part: full channel name -> (H, W) float32, rows top to bottom."""
     with open(path, "rb") as f:
-        data = f.read()
+        size = os.fstat(f.fileno()).st_size
+        data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if mapped and size else f.read()
     if len(data) < 8 or struct.unpack_from("<i", data, 0)[0] != _MAGIC:
         raise ValueError(f"{path}: not an OpenEXR file")
     flags = struct.unpack_from("<I", data, 4)[0] >> 8

@@ -100,21 +100,23 @@ def rgb_image(name: str, value) -> np.ndarray:
     return array
 
 
-def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads: int) -> None:
-    """Premultiplied float32 RGBA (..., 4) through the extended sRGB transfer into `out`
-    (`rgba` itself, or a C-contiguous float32 array of its shape not overlapping it):
-    scene-linear -> display, or back with `decode` (see `addon.core.colour`)."""
-    if rgba.dtype != np.float32 or not rgba.flags.c_contiguous:
-        raise ValueError(f"rgba must be a C-contiguous float32 array, got {rgba.dtype}")
-    if rgba.ndim < 1 or rgba.shape[-1] != 4:
-        raise ValueError(f"rgba must have shape (..., 4), got {rgba.shape}")
-    splatcore().srgb_premultiplied(rgba, out, bool(decode), thread_count(threads))
+def srgb_view(rgba: np.ndarray, out: np.ndarray, decode: bool, zero_non_finite: bool,
+              threads: int) -> None:
+    """Premultiplied float32 RGBA (H, W, 4), any strides (views of an EXR's planar channels, a
+    row-reversed buffer), through the extended sRGB transfer into `out` (`rgba` itself, or not
+    overlapping it): scene-linear -> display, or back with `decode` (see `addon.core.colour`).
+    With `zero_non_finite`, non-finite results (alpha too) become 0."""
+    splatcore().srgb_view(rgba, out, bool(decode), bool(zero_non_finite), thread_count(threads))
 
 
 def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, layer: np.ndarray,
-                        threads: int) -> None:
-    """compose's way back to scene-linear, in place in `layer` (the (H, W, 4) display layer the
-    composite was made over): the composite (rgb (H, W, 3), alpha (H, W), display sRGB) decoded
-    where its colour bits or its alpha (by more than 1e-6) differ from `layer`; `mesh`'s
-    scene-linear pixel, bit for bit, elsewhere. All float32, C-contiguous."""
-    splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))
+                        threads: int, out: np.ndarray | None = None) -> None:
+    """compose's way back to scene-linear, into `out` (default: `layer` itself, the (H, W, 4)
+    display layer the composite was made over): the composite (rgb (H, W, 3), alpha (H, W),
+    display sRGB) decoded where its colour bits or its alpha (by more than 1e-6) differ from
+    `layer`; `mesh`'s scene-linear pixel, bit for bit, elsewhere. All float32; rgb, alpha and
+    layer C-contiguous, mesh and out (H, W, 4) with any strides."""
+    if out is None:
+        splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))
+    else:
+        splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads), out)

@@ -281,20 +281,34 @@ void sc_position_noise(float *means, const float *log_scales, const float *quats
                        const float *opacity_logits, const double *noise, int64_t count,
                        double scale, int threads);
 
-/* Premultiplied float32 RGBA pixels (4 floats each) from scene-linear to display sRGB
- * (decode 0) or back (decode 1), the extended sRGB transfer of addon/core/colour.py on
- * rgb / alpha (alpha not > 0: as if 1), alpha passed through. dst may be src itself (not
- * otherwise overlapping). Identical for any thread count. */
+/* An (height, width, 4) float32 image anywhere in memory: the byte strides of a row, a pixel
+ * and a channel, of any sign (NumPy views: an EXR's planar channels, a row-reversed buffer). */
+typedef struct {
+    const char *data;
+    int64_t height, width;
+    int64_t row, pixel, channel;
+} sc_rgba_view;
+
+/* Premultiplied float32 RGBA from scene-linear to display sRGB (decode 0) or back (decode 1),
+ * the extended sRGB transfer of addon/core/colour.py on rgb / alpha (alpha not > 0: as if 1),
+ * alpha passed through; with zero_non_finite, non-finite results (alpha too) become 0. src and
+ * dst have one shape; dst is written, and may be src itself (not otherwise overlapping).
+ * Identical for any thread count. */
+void sc_srgb_view(const sc_rgba_view *src, const sc_rgba_view *dst, int decode,
+                  int zero_non_finite, int threads);
+
+/* sc_srgb_view over `pixels` C-contiguous RGBA pixels (4 floats each). */
 void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
                            int threads);
 
 /* The composite back to scene-linear where it differs from the display layer it was composed
- * over: rgb (pixels, 3) and alpha (pixels) in display sRGB; layer (pixels, 4) the display layer
- * on input, the result on output: per pixel, where rgb's bits or alpha (by more than 1e-6)
- * differ from layer's, rgb/alpha decoded as sc_srgb_premultiplied does; elsewhere mesh's pixel
- * (pixels, 4, scene-linear) bit for bit. Identical for any thread count. */
-void sc_srgb_decode_changed(const float *rgb, const float *alpha, const float *mesh, float *layer,
-                            int64_t pixels, int threads);
+ * over: rgb (H, W, 3) and alpha (H, W) in display sRGB; layer (H, W, 4) the display layer. Per
+ * pixel of out (H, W, 4, written; may be layer itself, not otherwise overlapping the others):
+ * where rgb's bits or alpha (by more than 1e-6) differ from layer's, rgb/alpha decoded as
+ * sc_srgb_view does; elsewhere mesh's pixel (scene-linear) bit for bit. rgb, alpha and layer
+ * C-contiguous. Identical for any thread count. */
+void sc_srgb_decode_changed(const float *rgb, const float *alpha, const sc_rgba_view *mesh,
+                            const float *layer, const sc_rgba_view *out, int threads);
 
 #ifdef __cplusplus
 }

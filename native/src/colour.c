@@ -1,6 +1,11 @@
 /* Premultiplied RGBA between scene-linear and display sRGB: addon/core/colour.py's
  * display_from_linear and linear_from_display for float32 pixels, on the thread pool.
  *
+ * Images are views with any strides (sc_rgba_view), so that F12 converts the render where it
+ * lies: the channels of the EXR Blender wrote, read in place (planar, one row of each channel
+ * after the other), and the composite written straight into the bottom-to-top rows a render
+ * pass is filled from; no interleaving or flipping copies.
+ *
  * The transfer is the extended sRGB of colour.py (mirrored for negatives, the linear segment at
  * and below the cut, HDR above 1), applied to the straight colour `rgb / a` and multiplied back
  * by `a` (a pixel whose alpha is not > 0, NaN included, converts as if its alpha were 1; alpha
@@ -32,9 +37,8 @@ typedef struct {
 } power_table;
 
 typedef struct {
-    const float *src;
-    float *dst;
-    int decode;
+    sc_rgba_view src, dst;
+    int decode, zero_non_finite;
     power_table table;
 } job;
 
@@ -124,6 +128,19 @@ static SC_ALWAYS_INLINE void transfer_values(const power_table *t, const double 
         }
 }
 
+/* A pixel of a view, and its channel c (views may have any strides, even unaligned ones). */
+static SC_ALWAYS_INLINE const char *pixel_at(const sc_rgba_view *v, int64_t y, int64_t x) {
+    return v->data + y * v->row + x * v->pixel;
+}
+static SC_ALWAYS_INLINE float load(const char *pixel, int64_t channel_stride, int c) {
+    float value;
+    memcpy(&value, pixel + c * channel_stride, sizeof value);
+    return value;
+}
+static SC_ALWAYS_INLINE void store(char *pixel, int64_t channel_stride, int c, float value) {
+    memcpy(pixel + c * channel_stride, &value, sizeof value);
+}
+
 /* The straight colour of one premultiplied pixel, and its scale, into slot `k` (3 values). */
 static SC_ALWAYS_INLINE void straighten(const float *rgb, float alpha, double *straight,
                                         double *scale, int64_t k) {
@@ -134,65 +151,103 @@ static SC_ALWAYS_INLINE void straighten(const float *rgb, float alpha, double *s
     }
 }
 
-/* Pixels [begin, end) in chunks: the straight colour values (alpha apart) through the
- * transfer, then written back premultiplied, alpha as it was. */
+/* Pixels [begin, end) (row-major over the view) in chunks within a row: the straight colour
+ * values (alpha apart) through the transfer, then written back premultiplied, alpha as it was.
+ * A pixel bit-identical to the one before it (a flat world or a transparent film is one colour
+ * over most of a frame) takes that pixel's result instead of converting again: the same bits. */
 static SC_ALWAYS_INLINE int convert_body(const job *j, int64_t begin, int64_t end,
                                          const int decode) {
     const power_table *t = &j->table;
+    /* Locals, not j's fields: stores through the views' char pointers could alias j. */
+    const sc_rgba_view src = j->src, dst = j->dst;
+    const int zero_non_finite = j->zero_non_finite;
     double straight[CHUNK * 3], scale[CHUNK * 3], converted[CHUNK * 3];
-    for (int64_t first = begin; first < end; first += CHUNK) {
-        const int64_t count = end - first < CHUNK ? end - first : CHUNK;
-        const float *in = j->src + 4 * first;
-        float *out = j->dst + 4 * first;
-        for (int64_t p = 0; p < count; ++p) straighten(in + 4 * p, in[4 * p + 3], straight, scale, p);
-        transfer_values(t, straight, scale, converted, 3 * count, decode);
-        /* out may be the input itself: each pixel is read (its alpha) before it is written. */
-        for (int64_t p = 0; p < count; ++p) {
-            const float alpha = in[4 * p + 3];
-            for (int c = 0; c < 3; ++c) out[4 * p + c] = (float)converted[3 * p + c];
-            out[4 * p + 3] = alpha;
+    int32_t slot[CHUNK]; /* the distinct pixel whose result each pixel takes (-1: `last`) */
+    float pixel[CHUNK][4], last[4] = {0}, last_rgb[3] = {0};
+    int have_last = 0;
+    for (int64_t first = begin; first < end;) {
+        const int64_t y = first / src.width, x0 = first % src.width;
+        int64_t count = end - first < CHUNK ? end - first : CHUNK;
+        if (count > src.width - x0) count = src.width - x0;
+        const char *in = pixel_at(&src, y, x0);
+        int32_t n = 0;
+        for (int64_t p = 0; p < count; ++p, in += src.pixel) {
+            for (int c = 0; c < 4; ++c) pixel[p][c] = load(in, src.channel, c);
+            if (have_last && memcmp(pixel[p], last, sizeof last) == 0) {
+                slot[p] = n - 1;
+                continue;
+            }
+            straighten(pixel[p], pixel[p][3], straight, scale, n);
+            slot[p] = n++;
+            memcpy(last, pixel[p], sizeof last);
+            have_last = 1;
         }
+        transfer_values(t, straight, scale, converted, 3 * (int64_t)n, decode);
+        /* dst may be src itself: every pixel of the chunk was read above. */
+        char *out = (char *)pixel_at(&dst, y, x0);
+        for (int64_t p = 0; p < count; ++p, out += dst.pixel) {
+            float value[4];
+            for (int c = 0; c < 3; ++c)
+                value[c] = slot[p] < 0 ? last_rgb[c] : (float)converted[3 * slot[p] + c];
+            value[3] = pixel[p][3];
+            for (int c = 0; c < 4; ++c) {
+                if (zero_non_finite && !isfinite(value[c])) value[c] = 0.0f;
+                store(out, dst.channel, c, value[c]);
+            }
+        }
+        if (n > 0)
+            for (int c = 0; c < 3; ++c) last_rgb[c] = (float)converted[3 * (n - 1) + c];
+        first += count;
     }
     return 0;
 }
 
 /* compose's way back: per pixel, the composite (rgb, alpha) in display sRGB against the display
- * layer it was composed over (`layer`, overwritten with the result): where the colour's bits or
- * the alpha (by more than 1e-6, the compositor's 1 - (1 - a) rounding) differ, the composite
- * decoded to scene-linear; elsewhere the scene-linear mesh pixel itself, bit for bit. */
+ * layer it was composed over (`layer`): where the colour's bits or the alpha (by more than 1e-6,
+ * the compositor's 1 - (1 - a) rounding) differ, the composite decoded to scene-linear; elsewhere
+ * the scene-linear mesh pixel itself, bit for bit; into `out` (which may be `layer`). */
 typedef struct {
-    const float *rgb, *alpha, *mesh;
-    float *layer;
+    const float *rgb, *alpha, *layer;
+    sc_rgba_view mesh, out;
     power_table table;
 } changed_job;
 
 static SC_ALWAYS_INLINE int changed_body(const changed_job *j, int64_t begin, int64_t end) {
     double straight[CHUNK * 3], scale[CHUNK * 3], converted[CHUNK * 3];
     int64_t index[CHUNK];
-    for (int64_t first = begin; first < end; first += CHUNK) {
-        const int64_t count = end - first < CHUNK ? end - first : CHUNK;
+    /* Locals, not j's fields: stores through the views' char pointers could alias j. */
+    const float *const rgb = j->rgb, *const alpha = j->alpha, *const layer = j->layer;
+    const sc_rgba_view mesh = j->mesh, out = j->out;
+    const int64_t width = out.width;
+    for (int64_t first = begin; first < end;) {
+        const int64_t y = first / width, x0 = first % width;
+        int64_t count = end - first < CHUNK ? end - first : CHUNK;
+        if (count > width - x0) count = width - x0;
         int64_t n = 0;
-        for (int64_t p = first; p < first + count; ++p) {
-            const float *rgb = j->rgb + 3 * p;
-            float *layer = j->layer + 4 * p;
+        for (int64_t x = x0; x < x0 + count; ++x) {
+            const int64_t p = y * width + x;
             uint32_t a[3], b[3];
-            memcpy(a, rgb, sizeof a);
-            memcpy(b, layer, sizeof b);
+            memcpy(a, rgb + 3 * p, sizeof a);
+            memcpy(b, layer + 4 * p, sizeof b);
             const int changed = a[0] != b[0] || a[1] != b[1] || a[2] != b[2] ||
-                                fabsf(j->alpha[p] - layer[3]) > 1e-6f;
+                                fabsf(alpha[p] - layer[4 * p + 3]) > 1e-6f;
             if (changed) {
-                straighten(rgb, j->alpha[p], straight, scale, n);
-                index[n++] = p;
+                straighten(rgb + 3 * p, alpha[p], straight, scale, n);
+                index[n++] = x;
             } else {
-                memcpy(layer, j->mesh + 4 * p, 4 * sizeof *layer);
+                /* layer (when it is out) is read above, before this pixel is written */
+                const char *from = pixel_at(&mesh, y, x);
+                char *to = (char *)pixel_at(&out, y, x);
+                for (int c = 0; c < 4; ++c) store(to, out.channel, c, load(from, mesh.channel, c));
             }
         }
         transfer_values(&j->table, straight, scale, converted, 3 * n, 1);
         for (int64_t i = 0; i < n; ++i) {
-            float *layer = j->layer + 4 * index[i];
-            for (int c = 0; c < 3; ++c) layer[c] = (float)converted[3 * i + c];
-            layer[3] = j->alpha[index[i]];
+            char *to = (char *)pixel_at(&out, y, index[i]);
+            for (int c = 0; c < 3; ++c) store(to, out.channel, c, (float)converted[3 * i + c]);
+            store(to, out.channel, 3, alpha[y * width + index[i]]);
         }
+        first += count;
     }
     return 0;
 }
@@ -220,16 +275,23 @@ static void convert_pixels(void *ctx, int64_t begin, int64_t end, int thread) {
         encode_isa(j, begin, end);
 }
 
-void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
-                           int threads) {
-    job j = {.src = src, .dst = dst, .decode = decode};
+void sc_srgb_view(const sc_rgba_view *src, const sc_rgba_view *dst, int decode,
+                  int zero_non_finite, int threads) {
+    job j = {.src = *src, .dst = *dst, .decode = decode, .zero_non_finite = zero_non_finite};
     power_table_init(&j.table, decode ? 2.4 : 1.0 / 2.4);
-    sc_parallel_for(threads, pixels, 1 << 14, convert_pixels, &j);
+    sc_parallel_for(threads, src->height * src->width, 1 << 14, convert_pixels, &j);
 }
 
-void sc_srgb_decode_changed(const float *rgb, const float *alpha, const float *mesh, float *layer,
-                            int64_t pixels, int threads) {
-    changed_job j = {.rgb = rgb, .alpha = alpha, .mesh = mesh, .layer = layer};
+void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int decode,
+                           int threads) {
+    const sc_rgba_view in = {(const char *)src, 1, pixels, 0, 16, 4};
+    const sc_rgba_view out = {(const char *)dst, 1, pixels, 0, 16, 4};
+    sc_srgb_view(&in, &out, decode, 0, threads);
+}
+
+void sc_srgb_decode_changed(const float *rgb, const float *alpha, const sc_rgba_view *mesh,
+                            const float *layer, const sc_rgba_view *out, int threads) {
+    changed_job j = {.rgb = rgb, .alpha = alpha, .layer = layer, .mesh = *mesh, .out = *out};
     power_table_init(&j.table, 2.4);
-    sc_parallel_for(threads, pixels, 1 << 14, changed_pixels, &j);
+    sc_parallel_for(threads, out->height * out->width, 1 << 14, changed_pixels, &j);
 }

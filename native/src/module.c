@@ -815,37 +815,137 @@ fail:
     return NULL;
 }
 
-/* srgb_decode_changed(rgb, alpha, mesh, layer, threads): see sc_srgb_decode_changed. float32
- * C-contiguous (H, W, 3), (H, W), (H, W, 4), (H, W, 4) writable, layer overlapping none of them. */
+/* An (H, W, 4) float32 array with any strides (h, w < 0: any size) as an sc_rgba_view. */
+static int get_rgba_view(buffers *b, PyObject *obj, const char *name, int writable, Py_ssize_t h,
+                         Py_ssize_t w, sc_rgba_view *out) {
+    Py_buffer *view = &b->views[b->count];
+    if (PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES | (writable ? PyBUF_WRITABLE : 0))
+        != 0) {
+        PyErr_Clear();
+        if (writable && PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES) == 0) {
+            PyBuffer_Release(view);
+            PyErr_Format(PyExc_ValueError, "%s must be a writable array", name);
+        } else {
+            PyErr_Clear();
+            PyErr_Format(PyExc_TypeError, "%s must be a float32 array (buffer protocol)", name);
+        }
+        return -1;
+    }
+    b->count++;
+    if (!format_is(view->format, 'f') || view->itemsize != 4) {
+        PyErr_Format(PyExc_TypeError, "%s must have dtype float32, got format '%s'", name,
+                     view->format ? view->format : "B");
+        return -1;
+    }
+    if (view->ndim != 3 || view->shape[2] != 4 || (h >= 0 && view->shape[0] != h) ||
+        (w >= 0 && view->shape[1] != w)) {
+        char want[48] = "(H, W, 4)", got[96] = "(";
+        if (h >= 0) snprintf(want, sizeof want, "(%zd, %zd, 4)", h, w);
+        for (int i = 0; i < view->ndim && i < 6; ++i) {
+            const size_t at = strlen(got);
+            snprintf(got + at, sizeof got - at, "%s%zd", i ? ", " : "", view->shape[i]);
+        }
+        strncat(got, ")", sizeof got - strlen(got) - 1);
+        PyErr_Format(PyExc_ValueError, "%s must have shape %s, got shape %s", name, want, got);
+        return -1;
+    }
+    *out = (sc_rgba_view){(const char *)view->buf, view->shape[0], view->shape[1],
+                          view->strides[0], view->strides[1], view->strides[2]};
+    return 0;
+}
+
+/* The bytes a view spans, [*low, *high). */
+static void view_extent(const Py_buffer *v, const char **low, const char **high) {
+    const char *lo = v->buf, *hi = (const char *)v->buf + v->itemsize;
+    for (int i = 0; i < v->ndim; ++i) {
+        const Py_ssize_t reach = (v->shape[i] - 1) * (v->strides ? v->strides[i] : 0);
+        if (v->shape[i] == 0) return (void)(*low = *high = v->buf);
+        if (reach < 0) lo += reach;
+        else hi += reach;
+    }
+    *low = lo, *high = hi;
+}
+
+static int overlap(const Py_buffer *a, const Py_buffer *b) {
+    const char *a0, *a1, *b0, *b1;
+    view_extent(a, &a0, &a1);
+    view_extent(b, &b0, &b1);
+    return a0 < b1 && b0 < a1;
+}
+
+static int same_view(const Py_buffer *a, const Py_buffer *b) {
+    if (a->buf != b->buf || a->ndim != b->ndim) return 0;
+    for (int i = 0; i < a->ndim; ++i)
+        if (a->shape[i] != b->shape[i] || a->strides[i] != b->strides[i]) return 0;
+    return 1;
+}
+
+/* srgb_view(rgba, out, decode, zero_non_finite, threads): see sc_srgb_view. (H, W, 4) float32
+ * arrays of one shape with any strides; out writable, rgba itself or not overlapping it. */
+static PyObject *py_srgb_view(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *src_obj, *dst_obj;
+    int decode, zero_non_finite, threads;
+    if (!PyArg_ParseTuple(args, "OOppO&:srgb_view", &src_obj, &dst_obj, &decode, &zero_non_finite,
+                          parse_threads, &threads))
+        return NULL;
+    buffers b = {.count = 0};
+    sc_rgba_view src, dst;
+    if (get_rgba_view(&b, src_obj, "rgba", 0, -1, -1, &src) != 0 ||
+        get_rgba_view(&b, dst_obj, "out", 1, src.height, src.width, &dst) != 0)
+        goto fail;
+    if (!same_view(&b.views[0], &b.views[1]) && overlap(&b.views[0], &b.views[1])) {
+        PyErr_SetString(PyExc_ValueError, "out must be rgba itself or not overlap it");
+        goto fail;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    sc_srgb_view(&src, &dst, decode, zero_non_finite, threads ? threads : sc_cpu_count());
+    Py_END_ALLOW_THREADS
+    release_all(&b);
+    Py_RETURN_NONE;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
+/* srgb_decode_changed(rgb, alpha, mesh, layer, threads, out=layer): see sc_srgb_decode_changed.
+ * float32 (H, W, 3), (H, W), (H, W, 4), (H, W, 4) C-contiguous but mesh (any strides); out
+ * (H, W, 4) writable, any strides, layer itself or not overlapping it, overlapping none of the
+ * others. */
 static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *objs[4];
+    PyObject *objs[4], *out_obj = Py_None;
     int threads;
-    if (!PyArg_ParseTuple(args, "OOOOO&:srgb_decode_changed", &objs[0], &objs[1], &objs[2],
-                          &objs[3], parse_threads, &threads))
+    if (!PyArg_ParseTuple(args, "OOOOO&|O:srgb_decode_changed", &objs[0], &objs[1], &objs[2],
+                          &objs[3], parse_threads, &threads, &out_obj))
         return NULL;
     buffers b = {.count = 0};
     const Py_ssize_t any3[] = {-1, -1, 3};
+    sc_rgba_view mesh, out;
     const float *rgb = get_array(&b, objs[0], "rgb", 'f', 3, any3, 0);
     if (!rgb) goto fail;
     const Py_ssize_t h = b.views[0].shape[0], w = b.views[0].shape[1];
     const Py_ssize_t plane[] = {h, w}, rgba[] = {h, w, 4};
     const float *alpha = get_array(&b, objs[1], "alpha", 'f', 2, plane, 0);
-    const float *mesh = alpha ? get_array(&b, objs[2], "mesh", 'f', 3, rgba, 0) : NULL;
-    float *layer = mesh ? (float *)get_array(&b, objs[3], "layer", 'f', 3, rgba, 1) : NULL;
-    if (!layer) goto fail;
-    const char *l = (const char *)layer;
-    const Py_ssize_t layer_len = b.views[3].len;
-    for (int i = 0; i < 3; ++i) {
-        const char *o = (const char *)b.views[i].buf;
-        if (o < l + layer_len && l < o + b.views[i].len) {
-            PyErr_SetString(PyExc_ValueError, "layer must not overlap rgb, alpha or mesh");
+    if (!alpha || get_rgba_view(&b, objs[2], "mesh", 0, h, w, &mesh) != 0) goto fail;
+    const int in_place = out_obj == Py_None;
+    const float *layer = get_array(&b, objs[3], "layer", 'f', 3, rgba, in_place);
+    if (!layer || get_rgba_view(&b, in_place ? objs[3] : out_obj, in_place ? "layer" : "out", 1, h,
+                                w, &out) != 0)
+        goto fail;
+    const Py_buffer *out_view = &b.views[4];
+    for (int i = 0; i < 3; ++i)
+        if (overlap(out_view, &b.views[i])) {
+            PyErr_Format(PyExc_ValueError, "%s must not overlap rgb, alpha or mesh",
+                         in_place ? "layer" : "out");
             goto fail;
         }
+    if (!same_view(out_view, &b.views[3]) && overlap(out_view, &b.views[3])) {
+        PyErr_SetString(PyExc_ValueError, "out must be layer itself or not overlap it");
+        goto fail;
     }
     Py_BEGIN_ALLOW_THREADS
-    sc_srgb_decode_changed(rgb, alpha, mesh, layer, (int64_t)h * w,
-                           threads ? threads : sc_cpu_count());
+    sc_srgb_decode_changed(rgb, alpha, &mesh, layer, &out, threads ? threads : sc_cpu_count());
     Py_END_ALLOW_THREADS
     release_all(&b);
     Py_RETURN_NONE;
@@ -975,10 +1075,15 @@ static PyMethodDef methods[] = {
      "srgb_premultiplied(rgba, out, decode, threads)\n\n"
      "Premultiplied float32 RGBA (..., 4) scene-linear -> display sRGB (decode False) or back "
      "(True), into out (rgba itself, or a C-contiguous float32 array of its shape)."},
+    {"srgb_view", py_srgb_view, METH_VARARGS,
+     "srgb_view(rgba, out, decode, zero_non_finite, threads)\n\n"
+     "srgb_premultiplied for (H, W, 4) float32 arrays with any strides; with zero_non_finite, "
+     "non-finite results become 0."},
     {"srgb_decode_changed", py_srgb_decode_changed, METH_VARARGS,
-     "srgb_decode_changed(rgb, alpha, mesh, layer, threads)\n\n"
-     "compose's way back: layer (H, W, 4), the display layer, becomes the scene-linear result: "
-     "the composite (rgb, alpha) decoded where it differs from layer, mesh's pixel elsewhere."},
+     "srgb_decode_changed(rgb, alpha, mesh, layer, threads, out=layer)\n\n"
+     "compose's way back: out (H, W, 4; by default layer, the display layer) gets the "
+     "scene-linear result: the composite (rgb, alpha) decoded where it differs from layer, "
+     "mesh's pixel (any strides) elsewhere."},
     {"composite_microbench", py_composite_microbench, METH_VARARGS,
      "composite_microbench(count, iterations) -> seconds for the compositor's inner loop over "
      "one in-cache tile covered by `count` Gaussians."},
