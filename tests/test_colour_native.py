@@ -46,9 +46,10 @@ def _hard_values(rng) -> np.ndarray:
 
 def _pixels(rng, values: np.ndarray) -> np.ndarray:
     n = -(-len(values) // 3)
+    rgb = np.full(3 * n, 0.25, np.float32)
+    rgb[:len(values)] = values
     rgba = np.empty((n, 4), np.float32)
-    rgba[:, :3].reshape(-1)[:len(values)] = values
-    rgba[:, :3].reshape(-1)[len(values):] = 0.25
+    rgba[:, :3] = rgb.reshape(n, 3)
     rgba[:, 3] = rng.choice(np.array([1.0, 0.0, 0.5, 1e-3, 1e-30, np.nan, -1.0], np.float32), n)
     rgba[: n // 2, 3] = rng.random(n // 2)
     return rgba
@@ -77,13 +78,20 @@ def test_native_conversion_is_within_an_ulp_of_the_float64_transfer(rng, decode)
 
 def test_native_round_trip_bound(rng):
     """linear -> display -> linear (mesh-only pixels, were they converted both ways) returns
-    every finite value within 2 float32 ulps; compose does not convert them back at all."""
+    every finite value within 2 float32 ulps of what the float64 transfer's own round trip
+    returns; compose does not convert them back at all. (The two are not the same: the sRGB
+    pieces do not meet exactly at the cuts, so values just above 0.0031308 come back up to
+    ~9 float32 ulps off in float64 too.) The bound: the display value is stored in float32
+    (half an ulp, relative 2^-24 to 2^-25, which the decode's power 2.4 multiplies by up to 2.4,
+    up to 2.4 ulps of the result) plus each conversion's own half ulp: 3.5 ulps."""
     rgba = _pixels(rng, _hard_values(rng))
     rgba = rgba[np.isfinite(rgba).all(axis=1) & (np.abs(rgba).max(axis=1) < 1e30)]
+    assert len(rgba) > 60_000  # the hard values are in there
     back = colour.linear_from_display(colour.display_from_linear(rgba))
+    expected = _premultiplied64(_premultiplied64(rgba, False), True)
     ulp = np.spacing(np.abs(rgba)).astype(np.float64)
-    error = np.abs(back.astype(np.float64) - rgba)
-    assert np.all(error <= 2 * ulp + 1e-44), float((error / np.maximum(ulp, 1e-45)).max())
+    error = np.abs(back.astype(np.float64) - expected)
+    assert np.all(error <= 3.5 * ulp + 1e-44), float((error / np.maximum(ulp, 1e-45)).max())
 
 
 @pytest.mark.parametrize("decode", [False, True])
