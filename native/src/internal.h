@@ -283,9 +283,10 @@ static inline double sc_quat_rotation(const float *q, double unit[4], double r[9
 
 /* The EWA projection of Gaussian i up to its dilated 2D covariance. Returns 1 when it projects,
  * 0 when it is culled (view z below `near`, or a degenerate covariance). The caller checks
- * finiteness first (sc_gaussian_finite). */
-static inline int sc_ewa_project(const sc_gaussians *g, int64_t i, const sc_camera *cam,
-                                 double near, sc_ewa *e) {
+ * finiteness first (sc_gaussian_finite). Always inlined: the projection backward, compiled per
+ * instruction-set level, then computes it at its level too (FMA, 32 registers). */
+static SC_ALWAYS_INLINE int sc_ewa_project(const sc_gaussians *g, int64_t i, const sc_camera *cam,
+                                          double near, sc_ewa *e) {
     const float *mean = g->means + 3 * i, *ls = g->log_scales + 3 * i;
     const double *v = cam->world_to_camera;
     sc_to_camera(v, mean, e->p);

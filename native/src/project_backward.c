@@ -53,16 +53,17 @@ static SC_ALWAYS_INLINE int backward_body(const sc_gaussians *g, const sc_camera
     const double len = sc_view_dir(g->means + 3 * i, campos, dir);
     const double half_trace = 0.5 * (a + c), spread = 0.5 * (a - c);
     const double largest = half_trace + sqrt(spread * spread + b * b);
-    const double kappa = largest * largest / det; /* largest / smallest eigenvalue */
+    const double inv_det = 1.0 / det;
+    const double kappa = largest * largest * inv_det; /* largest / smallest eigenvalue */
     if (!same(sc_pixel_x(cam, &e), s->x) || !same(sc_pixel_y(cam, &e), s->y) ||
-        !same(z, s->depth) || !same_conic(c / det, s->ca, kappa) ||
-        !same_conic(a / det, s->cc, kappa))
+        !same(z, s->depth) || !same_conic(c * inv_det, s->ca, kappa) ||
+        !same_conic(a * inv_det, s->cc, kappa))
         return -2;
 
     /* ---- backward */
     /* Conic (c, -b, a) / det -> dilated covariance a, b, c. */
     const double d_ca = d[SC_DG_CA], d_cb = d[SC_DG_CB], d_cc = d[SC_DG_CC];
-    const double inv_det2 = 1.0 / (det * det);
+    const double inv_det2 = inv_det * inv_det;
     double da0 = (-c * c * d_ca + b * c * d_cb - b * b * d_cc) * inv_det2;
     double db0 = (2.0 * b * c * d_ca - (det + 2.0 * b * b) * d_cb + 2.0 * a * b * d_cc) * inv_det2;
     double dc0 = (-b * b * d_ca + a * b * d_cb - a * a * d_cc) * inv_det2;
@@ -71,12 +72,12 @@ static SC_ALWAYS_INLINE int backward_body(const sc_gaussians *g, const sc_camera
     double d_logit;
     const double d_opacity = d[SC_DG_OPACITY];
     if (opt->antialiased) {
-        const double det_raw = a0 * c0 - b0 * b0, ratio = det_raw / det;
+        const double det_raw = a0 * c0 - b0 * b0, ratio = det_raw * inv_det;
         const double comp = sqrt(ratio > 0.0 ? ratio : 0.0);
         d_logit = d_opacity * comp * sig * (1.0 - sig);
         if (ratio > 0.0) {
             const double d_ratio = d_opacity * sig * 0.5 / (comp > 1e-6 ? comp : 1e-6);
-            const double d_det_raw = d_ratio / det, d_det = -d_ratio * ratio / det;
+            const double d_det_raw = d_ratio * inv_det, d_det = -d_ratio * ratio * inv_det;
             da0 += d_det_raw * c0 + d_det * c;
             dc0 += d_det_raw * a0 + d_det * a;
             db0 += -2.0 * b0 * (d_det_raw + d_det);
@@ -108,26 +109,28 @@ static SC_ALWAYS_INLINE int backward_body(const sc_gaussians *g, const sc_camera
     const double dj02 = dM[0][0] * v[8] + dM[0][1] * v[9] + dM[0][2] * v[10];
     const double dj11 = dM[1][0] * v[4] + dM[1][1] * v[5] + dM[1][2] * v[6];
     const double dj12 = dM[1][0] * v[8] + dM[1][1] * v[9] + dM[1][2] * v[10];
-    const double z2 = z * z;
+    /* Reciprocals once: divisions are the slowest operations of this latency-bound chain. */
+    const double inv_z = 1.0 / z, inv_z2 = inv_z * inv_z, inv_z3 = inv_z2 * inv_z;
+    const double fx_z2 = fx * inv_z2, fy_z2 = fy * inv_z2;
     double dp[3] = {0.0, 0.0, 0.0};
-    dp[2] -= dj00 * fx / z2 + dj11 * fy / z2;
+    dp[2] -= dj00 * fx_z2 + dj11 * fy_z2;
     if (e.clamped_x) {
-        dp[2] += dj02 * fx * tx / z2; /* j02 = -fx tx / z with tx constant */
+        dp[2] += dj02 * fx_z2 * tx; /* j02 = -fx tx / z with tx constant */
     } else {
-        dp[0] -= dj02 * fx / z2; /* j02 = -fx x / z^2 */
-        dp[2] += dj02 * 2.0 * fx * p[0] / (z2 * z);
+        dp[0] -= dj02 * fx_z2; /* j02 = -fx x / z^2 */
+        dp[2] += dj02 * 2.0 * fx * p[0] * inv_z3;
     }
     if (e.clamped_y) {
-        dp[2] += dj12 * fy * ty / z2;
+        dp[2] += dj12 * fy_z2 * ty;
     } else {
-        dp[1] -= dj12 * fy / z2;
-        dp[2] += dj12 * 2.0 * fy * p[1] / (z2 * z);
+        dp[1] -= dj12 * fy_z2;
+        dp[2] += dj12 * 2.0 * fy * p[1] * inv_z3;
     }
     /* Projected mean and depth. */
     const double d_x = d[SC_DG_X], d_y = d[SC_DG_Y];
-    dp[0] += d_x * fx / z;
-    dp[1] += d_y * fy / z;
-    dp[2] += -(d_x * fx * p[0] + d_y * fy * p[1]) / z2 + d[SC_DG_DEPTH];
+    dp[0] += d_x * fx * inv_z;
+    dp[1] += d_y * fy * inv_z;
+    dp[2] += -(d_x * fx * p[0] + d_y * fy * p[1]) * inv_z2 + d[SC_DG_DEPTH];
     double d_mean[3];
     for (int k = 0; k < 3; ++k) d_mean[k] = v[k] * dp[0] + v[4 + k] * dp[1] + v[8 + k] * dp[2];
 
@@ -139,7 +142,8 @@ static SC_ALWAYS_INLINE int backward_body(const sc_gaussians *g, const sc_camera
     sc_sh_backward(opt->sh_degree, sh, dir, d_rgb, d_sh, d_dir);
     if (len > 0.0) {
         const double along = d_dir[0] * dir[0] + d_dir[1] * dir[1] + d_dir[2] * dir[2];
-        for (int k = 0; k < 3; ++k) d_mean[k] += (d_dir[k] - along * dir[k]) / len;
+        const double inv_len = 1.0 / len;
+        for (int k = 0; k < 3; ++k) d_mean[k] += (d_dir[k] - along * dir[k]) * inv_len;
     }
 
     /* Rotation -> normalised quaternion -> quaternion. */
@@ -155,10 +159,11 @@ static SC_ALWAYS_INLINE int backward_body(const sc_gaussians *g, const sc_camera
         const double dqz = 2.0 * (-2.0 * zq * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] -
                                   2.0 * zq * dR[4] + y * dR[5] + x * dR[6] + y * dR[7]);
         const double along = dqw * w + dqx * x + dqy * y + dqz * zq;
-        dq[0] = (dqw - along * w) / qnorm;
-        dq[1] = (dqx - along * x) / qnorm;
-        dq[2] = (dqy - along * y) / qnorm;
-        dq[3] = (dqz - along * zq) / qnorm;
+        const double inv_qnorm = 1.0 / qnorm;
+        dq[0] = (dqw - along * w) * inv_qnorm;
+        dq[1] = (dqx - along * x) * inv_qnorm;
+        dq[2] = (dqy - along * y) * inv_qnorm;
+        dq[3] = (dqz - along * zq) * inv_qnorm;
     }
 
     /* ---- write */
