@@ -135,6 +135,21 @@ def test_compaction_shrinks_and_reports(dataset) -> None:
     assert len(trainer) == report.after["gaussians"]
 
 
+def test_compaction_prunes_no_more_than_the_psnr_allows(dataset) -> None:
+    """Half the blending weight is far too much to prune: compaction backs off to a smaller
+    fraction within max_psnr_loss_db on the views it measures (the SH step may cost as much
+    again); with no limit it prunes that half."""
+    trained = Trainer(dataset, short_config(steps=80))
+    list(trained.run())
+    checkpoint = trained.gaussians
+    guarded = compact(trained, weight_fraction=0.5, max_psnr_loss_db=0.05, views=4)
+    assert guarded.before["psnr"] - guarded.after["psnr"] <= 2 * 0.05 + 1e-9
+    trained.set_gaussians(checkpoint)
+    unguarded = compact(trained, weight_fraction=0.5, max_psnr_loss_db=1e9, views=4)
+    assert unguarded.after["gaussians"] < guarded.after["gaussians"]
+    assert unguarded.before["psnr"] - unguarded.after["psnr"] > 2 * 0.05
+
+
 def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
     # With no step count (0: until done), any real gain is below 1e9 dB a minute: the third
     # check (step 30) stops the run (with no annealing steps after it).

@@ -406,11 +406,18 @@ def contribution(gaussians: Gaussians, cameras: list[Camera], *, background=None
     return total
 
 
+# The fractions of `weight_fraction` compaction tries, largest first; the last, 0, prunes only
+# the Gaussians with no weight at all on the views measured.
+_PRUNE_STEPS = (1.0, 0.5, 0.2, 0.1, 0.0)
+
+
 def compact(trainer: Trainer, *, weight_fraction: float = 0.002, max_psnr_loss_db: float = 0.05,
             views: int = 12, progress: Callable[[str], None] | None = None) -> CompactionReport:
     """Prune Gaussians that carry the smallest `weight_fraction` of the total blending weight on
-    the training views, then keep the lowest SH degree within `max_psnr_loss_db` of the full
-    one (measured on up to `views` training views). Replaces the trainer's Gaussians."""
+    the training views (a smaller fraction, down to the weightless ones alone, where that costs
+    more than `max_psnr_loss_db`), then keep the lowest SH degree within `max_psnr_loss_db` of
+    the pruned model (each measured on up to `views` training views). Replaces the trainer's
+    Gaussians."""
     train = trainer.dataset.train_indices
     sample = [train[i] for i in np.linspace(0, len(train) - 1, min(views, len(train))).astype(int)]
     cameras = [trainer.dataset.cameras[i] for i in sample]
@@ -421,11 +428,16 @@ def compact(trainer: Trainer, *, weight_fraction: float = 0.002, max_psnr_loss_d
     weight = contribution(g, cameras, background=trainer.background,
                           antialiased=trainer.config.antialiased, threads=trainer.config.threads)
     order = np.argsort(weight, kind="stable")
-    cut = np.searchsorted(np.cumsum(weight[order]), weight_fraction * weight.sum(), side="right")
-    keep = np.ones(len(g), bool)
-    keep[order[:cut]] = False
-    pruned = g.subset(keep)
-    full = trainer.evaluate(sample, gaussians=pruned).psnr
+    cumulative = np.cumsum(weight[order])
+    # The fixed fraction alone cost cup (until done, 23,391 Gaussians) 0.20 dB on the training
+    # views and 0.14 held out (7,715 kept); a fifth of it, chosen so, 0.03 held out (8,470).
+    for fraction in (weight_fraction * f for f in _PRUNE_STEPS):
+        keep = np.ones(len(g), bool)
+        keep[order[:np.searchsorted(cumulative, fraction * weight.sum(), side="right")]] = False
+        pruned = g.subset(keep)
+        full = trainer.evaluate(sample, gaussians=pruned).psnr
+        if before.psnr - full <= max_psnr_loss_db:
+            break
     degree = pruned.degree
     for d in range(pruned.degree):
         if full - trainer.evaluate(sample, gaussians=pruned, sh_degree=d).psnr <= max_psnr_loss_db:
