@@ -14,7 +14,7 @@ cup the PSNR of 1.jpg, the view OpenSplat's CPU trainer is compared on), and the
 beside (what a user waits; with several threads CPU seconds add the threads' up).
 --until-done trains as a user's run with no step count does (until the held-out PSNR gains
 less than 0.1 dB a minute), then compacts (the last point; compaction's CPU time included).
-The curves go to a PNG (matplotlib, if installed): per scene PSNR against CPU seconds and
+With --plot, the curves go to that PNG (matplotlib, if installed): per scene PSNR against CPU seconds and
 against Gaussians (MB on the top axis), and a last panel with the end of each run beside the
 3DGS paper's 7K and 30K numbers (Kerbl et al. 2023, Table 1: other scenes, at their full
 resolution, on a GPU; for scale only). Their numbers go to a JSON beside the PNG. Then (unless --skip-step-times) a
@@ -300,7 +300,9 @@ def main() -> None:
                              "seconds (for comparing the start of curves)")
     parser.add_argument("--max-gaussians", type=int, default=TrainConfig.max_gaussians)
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "train_curves.png")
+    # No default: a partial run (one scene, a few variants) must not overwrite docs/.
+    parser.add_argument("--plot", type=Path, default=None, metavar="PNG",
+                        help="write the chart here and the curves' numbers beside it (.json)")
     parser.add_argument("--replot", nargs="+", type=Path, metavar="JSON",
                         help="no training: chart the curves saved in these JSON files (a later "
                              "file's curve replaces an earlier one's of the same name)")
@@ -308,7 +310,7 @@ def main() -> None:
     parser.add_argument("--skip-step-times", action="store_true")
     args = parser.parse_args()
     if args.replot:
-        replot(args.replot, args.plot)
+        replot(args.replot, args.plot or ROOT / "docs" / "train_curves.png")
         return
     if not args.skip_curve:
         results = {}
@@ -325,9 +327,11 @@ def main() -> None:
                                          "threads": args.threads} | overrides))
                 results[scene, label] = curve(dataset, f"{scene} ({label})", config,
                                               args.eval_every, args.cpu_limit)
-                save(results, args.plot.with_suffix(".json"), note)  # each run as it ends
+                if args.plot:
+                    save(results, args.plot.with_suffix(".json"), note)  # each run as it ends
         literature_table()
-        plot(results, args.plot, note)
+        if args.plot:
+            plot(results, args.plot, note)
     if not args.skip_step_times:
         step_times(load("cup"), (10_000, 50_000, 100_000))
 
