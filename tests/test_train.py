@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from addon.core import train as train_module
 from addon.core.colmap import read_colmap
 from addon.core.dataset import ColmapDataset
 from addon.core.jobs import TrainingJob, status_line
@@ -189,6 +190,24 @@ def test_coarse_to_fine_schedule_and_views(dataset, rng) -> None:
     seen = full.valid & coarse.valid
     assert seen.sum() > 50
     assert np.allclose(coarse.xy[seen], full.xy[seen] / 4, rtol=1e-5, atol=1e-4)
+
+
+def test_coarse_views_are_kept_while_they_fit(dataset, monkeypatch) -> None:
+    """The halved photos of the coarse steps are made once and kept (within a byte bound),
+    equal to a fresh `downscaled_view`, and let go once the steps reach full size."""
+    trainer = Trainer(dataset, short_config(steps=4000, coarse_levels=2, coarse_until=1000))
+    camera, small = trainer.training_view(3, 1)
+    assert trainer.training_view(3, 1)[1] is small
+    fresh_camera, fresh = downscaled_view(dataset.cameras[3], dataset.image(3), 2)
+    assert np.array_equal(small, fresh) and (camera.fx, camera.width) == (fresh_camera.fx, fresh_camera.width)
+    assert trainer.coarse_view_bytes == small.nbytes
+    trainer.training_view(0, 0)
+    assert trainer.coarse_view_bytes == 0
+    monkeypatch.setattr(train_module, "COARSE_CACHE_BYTES", small.nbytes)
+    trainer.training_view(3, 1)
+    again = trainer.training_view(4, 1)[1]  # does not fit: made, used, not kept
+    assert trainer.training_view(4, 1)[1] is not again
+    assert trainer.coarse_view_bytes == small.nbytes
 
 
 def test_coarse_to_fine_training_learns(dataset) -> None:
