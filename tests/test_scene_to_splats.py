@@ -17,6 +17,7 @@ from addon.blender.job_runner import RUNNING, JobOperator
 from addon.blender.scene_to_splats import (SavedSettings, prepare_scene_to_splats,
                                            rgba_to_target, scene_to_splats_job)
 from addon.core import colour, splat_io
+from addon.core.train import Trainer, TrainConfig, downscaled_view
 from addon.core.scene_to_splats import (ImageDataset, Points, RandomBackground, orbit_cameras,
                                         sample_surface, sphere_directions)
 from tests import bpy_support
@@ -83,6 +84,22 @@ def test_image_dataset_composites_over_the_background(rng) -> None:
     assert np.allclose(data.image(0), rgba[..., :3] + (1 - rgba[..., 3:]) * data.background)
     backgrounds.finish(trainer)
     assert not trainer.background.any() and not data.background.any()
+
+
+def test_coarse_training_targets_follow_the_background(rng) -> None:
+    """A bake draws a new background every step: the halved targets of the coarse steps are
+    made from the photo over the background of that step, never kept from an earlier one."""
+    camera = orbit_cameras((0, 0, 0), 1.0, 1, 128, 96)[0]
+    rgba = rng.random((96, 128, 4)).astype(np.float32)
+    rgba[..., :3] *= rgba[..., 3:]
+    data = ImageDataset([camera], [rgba], Points(rng.normal(size=(20, 3)), np.full((20, 3), 0.5)))
+    trainer = Trainer(data, TrainConfig(steps=100, coarse_levels=1, threads=1))
+    backgrounds = RandomBackground(data, seed=1)
+    for _ in range(2):
+        backgrounds(trainer)
+        small_camera, small = trainer.training_view(0, 1)
+        want = downscaled_view(camera, data.image(0), 2)[1]
+        assert np.array_equal(small, want)
 
 
 def test_render_targets_are_display_srgb(rng) -> None:

@@ -99,6 +99,9 @@ class Views:
     cameras: list[Camera]
     train_indices: list[int]
     test_indices: list[int]
+    # Whether image(i) gives the same pixels every time: the trainer then keeps the halved
+    # photos of its coarse steps instead of making them again each step.
+    fixed_images: bool = True
 
     def __len__(self) -> int:
         return len(self.cameras)

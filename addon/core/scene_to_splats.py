@@ -97,6 +97,8 @@ def sample_surface(vertices: np.ndarray, triangles: np.ndarray, colours: np.ndar
 class ImageDataset(Views):
     """Training views held in memory: cameras and premultiplied display-sRGB RGBA targets."""
 
+    fixed_images = False  # composited over `background`, which a bake draws anew each step
+
     def __init__(self, cameras: list[Camera], rgba: list[np.ndarray], points: Points, *,
                  test_every: int = 0, names: list[str] | None = None) -> None:
         if len(cameras) != len(rgba) or not cameras:
