@@ -200,18 +200,26 @@ def adhoc_signature_ok(binary: Path) -> bool:
     return False
 
 
-# The compositor's kernels compiled once per x86-64 level (SC_MULTIVERSION in composite.c and
-# composite_backward.c): the forward (render, record for training, the exhaustive twin) and
-# the backward per tile (with and without the depth terms).
-COMPOSITOR_KERNELS = {"composite_render", "composite_record", "composite_exhaustive",
-                      "back_tile", "back_tile_depth"}
+# The compositor's kernels compiled once per x86-64 level: every SC_MULTIVERSION in these
+# sources (the forward's render, record for training and exhaustive twins; the backward per
+# tile with and without the depth terms, and its twin), read from the sources so that a kernel
+# added there is checked too.
+COMPOSITOR_SOURCES = ("composite.c", "composite_backward.c")
+
+
+def compositor_kernels() -> set[str]:
+    names = set()
+    for source in COMPOSITOR_SOURCES:
+        text = (ROOT / "native" / "src" / source).read_text()
+        names.update(re.findall(r"^SC_MULTIVERSION\(\s*[^,]+,\s*(\w+)", text, re.MULTILINE))
+    return names
 
 
 def check_vectorised(platform: str, build_dir: Path) -> str:
     """That each instruction-set copy of the compositor kernels really uses its instructions
     (a target attribute the compiler ignored would leave SSE2 code behind every label)."""
     functions: dict[str, str] = {}
-    for obj in ("composite.o", "composite_backward.o"):
+    for obj in (Path(source).with_suffix(".o").name for source in COMPOSITOR_SOURCES):
         text = objdump("-d", "--no-show-raw-insn", str(build_dir / obj))
         for chunk in re.split(r"\n(?=[0-9a-f]+ <)", text):
             name = re.match(r"[0-9a-f]+ <_?([^>]+)>:", chunk)
@@ -224,7 +232,7 @@ def check_vectorised(platform: str, build_dir: Path) -> str:
     notes = []
     for level, register in (("v3", "ymm"), ("v4", "zmm")):
         copies = {n: b for n, b in functions.items() if n.endswith("_" + level)}
-        ok = {n[:-len(level) - 1] for n in copies} == COMPOSITOR_KERNELS and all(
+        ok = {n[:-len(level) - 1] for n in copies} == compositor_kernels() and all(
             register in b and re.search(r"vfn?m(add|sub)", b) for b in copies.values())
         check(ok, f"{platform}: {level} kernels {sorted(copies)} lack {register} or FMA code")
         notes.append(f"{len(copies)} {level} kernels with {register}+FMA")
