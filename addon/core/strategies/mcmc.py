@@ -72,15 +72,23 @@ class MCMCStrategy(Strategy):
                          np.full(len(gaussians), logit(c.mcmc_initial_opacity)), gaussians.sh)
 
     def after_backward(self, params: GaussianParameters, info: StepInfo) -> None:
+        # In float32, in place, as the gradients they join (in float64 they took 0.7 ms of a
+        # step at 17k Gaussians, now 0.08).
         c, n = self.config, len(params)
         if n == 0:
             return
         if c.mcmc_opacity_reg:  # d/d(logit) of reg * mean(sigmoid(logit))
-            o = params.opacities()
-            info.grads.opacity_logits += (c.mcmc_opacity_reg / n * o * (1.0 - o)).astype(np.float32)
+            # sigmoid'(x) = e / (1 + e)^2 with e = exp(-|x|): no overflow, no cancellation
+            e = np.exp(-np.abs(params.params["opacity_logits"]))
+            d = e + np.float32(1.0)
+            d *= d
+            np.divide(e, d, out=e)
+            e *= np.float32(c.mcmc_opacity_reg / n)
+            info.grads.opacity_logits += e
         if c.mcmc_scale_reg:  # d/d(log s) of reg * mean(exp(log s)) over all 3N scales
-            s = np.exp(params.params["log_scales"].astype(np.float64))
-            info.grads.log_scales += (c.mcmc_scale_reg / (3 * n) * s).astype(np.float32)
+            s = np.exp(params.params["log_scales"])
+            s *= np.float32(c.mcmc_scale_reg / (3 * n))
+            info.grads.log_scales += s
 
     def densifies_from(self) -> int:
         """The first step after which it relocates and grows."""
