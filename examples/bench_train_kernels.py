@@ -6,6 +6,8 @@ trainer's Python adds around them).
     .venv/bin/python examples/bench_train_kernels.py           # playbot 1280x720 and 50k at 200x150
     .venv/bin/python examples/bench_train_kernels.py --quick   # the 200x150 case only
     .venv/bin/python examples/bench_train_kernels.py --quick --cup 1500   # also cup, trained 1500 steps
+    .venv/bin/python examples/bench_train_kernels.py --levels 300   # cup after 300 steps, per
+                                                # coarse-to-fine level, one thread (nothing else)
 
 Prints median wall-clock ms (and the best run's stages) for 1 and 2 threads, and single-thread
 CPU ms, which is steadier on a shared machine. The 50k scene: random Gaussians (SH degree 3)
@@ -142,13 +144,64 @@ def trained_cup(steps: int):
     return trainer.gaussians.copy(), views
 
 
+def level_profile(steps: int, repeats: int) -> None:
+    """The default trainer's Gaussians after `steps` on cup (two threads, seed 0), rendered and
+    differentiated on one thread at each coarse-to-fine level of one training view (the images
+    halved twice, once, not at all), at the degree the trainer renders at that step: each
+    stage's native timer (ms), the fastest and the median of `repeats`."""
+    from addon.core.colmap import read_colmap
+    from addon.core.dataset import ColmapDataset
+    from addon.core.train import Trainer, TrainConfig
+
+    dataset = ColmapDataset(read_colmap(ROOT.parent / "shared" / "data" / "cup",
+                                        image_folder="images_4"))
+    dataset.preload()
+    trainer = Trainer(dataset, TrainConfig(steps=0, threads=2, seed=0))
+    runs = trainer.run()
+    for _ in range(steps):
+        next(runs)
+    c = trainer.config
+    degree = min(c.sh_degree, (trainer.step - 1) // c.sh_degree_interval)
+    g = trainer.gaussians.copy()
+    rows = []
+    for level in (2, 1, 0):
+        camera, target = trainer.training_view(dataset.train_indices[3], level)
+        result, state = tk.render_train(g, camera, sh_degree=degree, threads=1,
+                                        background=trainer.background)
+        d_rgb = tk.l1_ssim_loss(result.rgb, target, threads=1).grad
+        grads = tk.backward(state, g, d_rgb, threads=1)
+        samples: dict[str, list[float]] = {}
+        for _ in range(repeats):
+            result, state = tk.render_train(g, camera, sh_degree=degree, threads=1,
+                                            background=trainer.background)
+            tk.backward(state, g, d_rgb, threads=1, out=grads)
+            s, b = result.stats, grads.stats
+            for key, value in (("project", s["ms_project"]), ("sort", s["ms_sort"]),
+                               ("bin", s["ms_bin"]), ("composite", s["ms_composite"]),
+                               ("render_train", s["ms_total"]), ("bw composite", b["ms_composite"]),
+                               ("bw per-Gaussian", b["ms_project"]), ("backward", b["ms_total"])):
+                samples.setdefault(key, []).append(value)
+        rows.append([f"{camera.width}x{camera.height}", f"{state.tile_pairs}",
+                     f"{result.stats['evaluations'] / 1e3:.0f}k"] +
+                    [f"{min(v):.2f} / {statistics.median(v):.2f}" for v in samples.values()])
+        header = list(samples)
+    print(f"cup after {steps} steps: {len(g)} Gaussians, SH degree {degree}, one thread, ms "
+          f"(fastest / median of {repeats}; native timers)")
+    table(rows, ["size", "tile pairs", "evaluations"] + header)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="the 200x150 case only")
     parser.add_argument("--cup", type=int, default=0, metavar="STEPS",
                         help="also profile cup's Gaussians after this many training steps")
     parser.add_argument("--skip-backward-table", action="store_true")
+    parser.add_argument("--levels", type=int, default=0, metavar="STEPS",
+                        help="only this: cup after STEPS steps at each coarse-to-fine level")
     args = parser.parse_args()
+    if args.levels:
+        level_profile(args.levels, 40)
+        return
     rng = np.random.default_rng(0)
     small = (fast_random_gaussians(rng, 50_000, degree=3), random_camera(rng, 200, 150))
     scenes = {"50k sh3 200x150": small}

@@ -129,11 +129,15 @@ class LossResult:
 
 def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | None = None,
                  antialiased: bool = False, near: float = 0.01, sh_degree: int | None = None,
-                 threads: int = 0, out: RenderResult | None = None) -> tuple[RenderResult, TrainState]:
+                 threads: int = 0, out: RenderResult | None = None,
+                 exhaustive: bool = False) -> tuple[RenderResult, TrainState]:
     """The training forward: `render()` without a mesh layer, plus the state `backward` needs.
 
     background: RGB (3,) behind the Gaussians (part of `rgb` and of the gradient), or None.
     out: a RenderResult of the right size to render into (its arrays are reused), or None.
+    exhaustive: this forward and the `backward` of its state run their slow twins (for tests:
+        each Gaussian over its tiles' whole bounding spans, as `render(exhaustive=True)`, and
+        the projection backward one Gaussian at a time instead of eight side by side).
     Returns (images, state); the images are bit-identical to `render()`'s.
     """
     viewmat, intrinsics, width, height = native.camera_args(camera)
@@ -149,7 +153,7 @@ def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray
     stats, handle = native.splatcore().render_train(
         *native.gaussian_args(gaussians), degree, viewmat, intrinsics, width, height, float(near),
         bool(antialiased), native.thread_count(threads), background, out.rgb, out.alpha,
-        out.depth, final_t, n_contrib, visible)
+        out.depth, final_t, n_contrib, visible, bool(exhaustive))
     out.stats = dict(stats)
     info = native.splatcore().train_state_info(handle)
     state = TrainState(handle, width, height, info["count"], info["sh_coeffs"], degree,

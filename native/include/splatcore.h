@@ -76,7 +76,9 @@ typedef struct {
     int threads;     /* worker threads, >= 1 */
     int exhaustive;  /* evaluate each Gaussian over its tile's whole bounding span instead of the
                         half rows its alpha >= 1/255 ellipse reaches: the slow twin of those
-                        masks, for tests; the image is the same bit for bit */
+                        masks, for tests; the image is the same bit for bit. In training, also
+                        the backward's slow twins (its compositor likewise, its projection
+                        backward one Gaussian at a time) */
 } sc_options;
 
 /* A projected Gaussian as binning and the compositor read it: one 64-byte record (a cache line). */

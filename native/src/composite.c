@@ -171,6 +171,12 @@ SC_MULTIVERSION(int64_t, composite_record,
                 (st, ms, splats, list, count, cam, im, last),
                 composite(st, ms, splats, list, count, cam, im, 1, last, 0))
 
+SC_MULTIVERSION(int64_t, composite_record_exhaustive,
+                (tile_state *st, mesh_state *ms, const sc_splat *splats, const uint32_t *list,
+                 int64_t count, const sc_camera *cam, const sc_image *im, int32_t *last),
+                (st, ms, splats, list, count, cam, im, last),
+                composite(st, ms, splats, list, count, cam, im, 1, last, 1))
+
 /* One tile: set up, composite, write out; with `final_t` and `n_contrib` the training record. */
 static int64_t composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
                               int tile_x, int tile_y, const sc_camera *cam, const sc_image *im,
@@ -201,7 +207,8 @@ static int64_t composite_tile(const sc_splat *splats, const uint32_t *list, int6
     }
 
     const int64_t evaluations =
-        final_t      ? composite_record(&st, &ms, splats, list, count, cam, im, last)
+        final_t ? (exhaustive ? composite_record_exhaustive(&st, &ms, splats, list, count, cam, im, last)
+                              : composite_record(&st, &ms, splats, list, count, cam, im, last))
         : exhaustive ? composite_exhaustive(&st, &ms, splats, list, count, cam, im)
                      : composite_render(&st, &ms, splats, list, count, cam, im);
     if (im->mesh_rgba) flush_mesh(&st, &ms, cam, im, INFINITY);
@@ -236,10 +243,11 @@ int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t 
  * Training renders have no mesh layer; the images are bit-identical to sc_composite_tile's. */
 int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, int64_t count,
                                 int tile_x, int tile_y, const sc_camera *cam, const sc_image *im,
-                                float *final_t, int32_t *n_contrib) {
+                                float *final_t, int32_t *n_contrib, int exhaustive) {
     sc_image plain = *im;
     plain.mesh_rgba = NULL, plain.mesh_depth = NULL;
-    return composite_tile(splats, list, count, tile_x, tile_y, cam, &plain, final_t, n_contrib, 0);
+    return composite_tile(splats, list, count, tile_x, tile_y, cam, &plain, final_t, n_contrib,
+                          exhaustive);
 }
 
 double sc_composite_microbench(int count, int iterations) {

@@ -114,7 +114,7 @@ static SC_ALWAYS_INLINE sc_half_rows live_half_rows(const int32_t *block_last, i
 static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *block_last, int x0,
                                               int y0, int32_t kmax, const sc_splat *splats,
                                               const uint32_t *list, float *records,
-                                              const int depth) {
+                                              const int depth, const int exhaustive) {
     const float px0 = (float)x0 + 0.5f;
     int64_t evaluations = 0;
     for (int32_t k = kmax - 1; k >= 0; --k) {
@@ -127,11 +127,12 @@ static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *bl
         /* Only the half rows the forward could have added this Gaussian to: inside its
          * alpha >= 1/255 ellipse (the forward's footprint masks) and with a pixel that had not
          * stopped before it. Every pixel left out adds exactly 0 to the record. */
-        sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1) & live_half_rows(block_last, k);
+        sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1);
+        if (!exhaustive) todo &= live_half_rows(block_last, k);
         sc_columns c;
         if (todo) {
             sc_prepare_columns(&c, s, px0);
-            if (sc_popcount(todo) > 3) todo = sc_footprint_half_rows(s, &c, y0, todo);
+            if (!exhaustive && sc_popcount(todo) > 3) todo = sc_footprint_half_rows(s, &c, y0, todo);
         }
         if (!todo) {
             memset(rec, 0, sizeof(float) * NG);
@@ -167,17 +168,26 @@ SC_MULTIVERSION(int64_t, back_tile,
                 (back_state *st, const int32_t *block_last, int x0, int y0, int32_t kmax,
                  const sc_splat *splats, const uint32_t *list, float *records),
                 (st, block_last, x0, y0, kmax, splats, list, records),
-                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 0))
+                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 0, 0))
 
 SC_MULTIVERSION(int64_t, back_tile_depth,
                 (back_state *st, const int32_t *block_last, int x0, int y0, int32_t kmax,
                  const sc_splat *splats, const uint32_t *list, float *records),
                 (st, block_last, x0, y0, kmax, splats, list, records),
-                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 1))
+                back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 1, 0))
+
+/* The slow twin: every Gaussian over its whole span, at the same instruction-set level (so the
+ * same roundings) as the fast builds. */
+SC_MULTIVERSION(int64_t, back_tile_exhaustive,
+                (back_state *st, const int32_t *block_last, int x0, int y0, int32_t kmax,
+                 const sc_splat *splats, const uint32_t *list, float *records, int depth),
+                (st, block_last, x0, y0, kmax, splats, list, records, depth),
+                depth ? back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 1, 1)
+                      : back_tile_body(st, block_last, x0, y0, kmax, splats, list, records, 0, 1))
 
 int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list, int64_t count,
                                    int tile_x, int tile_y, const sc_camera *cam,
-                                   const sc_image_grads *im, float *records) {
+                                   const sc_image_grads *im, float *records, int exhaustive) {
     back_state st;
     const int x0 = tile_x * SC_TILE, y0 = tile_y * SC_TILE;
     const int w = cam->width - x0 < SC_TILE ? cam->width - x0 : SC_TILE;
@@ -210,6 +220,9 @@ int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list,
     }
     if (kmax > count) kmax = (int32_t)count; /* cannot happen with a matching state */
     memset(records + (int64_t)kmax * NG, 0, sizeof(float) * (size_t)((count - kmax) * NG));
+    if (exhaustive)
+        return back_tile_exhaustive(&st, block_last, x0, y0, kmax, splats, list, records,
+                                    im->d_depth != NULL);
     return im->d_depth ? back_tile_depth(&st, block_last, x0, y0, kmax, splats, list, records)
                        : back_tile(&st, block_last, x0, y0, kmax, splats, list, records);
 }

@@ -72,7 +72,7 @@ int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t 
  * none), as the reference CUDA rasterizer's n_contrib. */
 int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, int64_t count,
                                 int tile_x, int tile_y, const sc_camera *cam, const sc_image *image,
-                                float *final_t, int32_t *n_contrib);
+                                float *final_t, int32_t *n_contrib, int exhaustive);
 
 /* Thread pool: run fn(ctx, begin, end, thread) over [0, n) in chunks of `grain` on `threads`
  * threads (the caller is thread 0). Which thread runs a chunk must not change results. */
@@ -116,10 +116,11 @@ typedef struct {
 
 /* Backward of sc_composite_tile_train for one tile, back to front: writes `count` records
  * (count, SC_DG_COUNT), one per tile-list entry (zero for entries no pixel used). Returns the
- * number of Gaussian/pixel evaluations made. */
+ * number of Gaussian/pixel evaluations made. `exhaustive`: each Gaussian over its whole span
+ * (the slow twin of the masks; the same records bit for bit). */
 int64_t sc_composite_tile_backward(const sc_splat *splats, const uint32_t *list, int64_t count,
                                    int tile_x, int tile_y, const sc_camera *cam,
-                                   const sc_image_grads *grads, float *records);
+                                   const sc_image_grads *grads, float *records, int exhaustive);
 
 /* Backward of the projection of Gaussian i (drawn as `s` by the forward): from its summed
  * splat gradient `d` (SC_DG_COUNT) to its rows of `out` (xy and xy_abs copied from d). campos
@@ -132,6 +133,18 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
                                  const sc_splat *s, const double *d, sc_gaussian_grads *out,
                                  int64_t *flushed);
 
+/* The same for `n` (1..SC_BW_LANES) drawn Gaussians index[l] at once, each drawn as *splats[l]
+ * with summed gradient d[l] (SC_DG_COUNT floats); results[l] as sc_project_backward_gaussian's
+ * return. Vectorised across the Gaussians, in double (project_backward.c); a Gaussian it cannot
+ * take (a non-finite input, stale, out of its exp's range) goes to sc_project_backward_gaussian,
+ * which decides. Every Gaussian goes through the same code whatever its batch (a short batch
+ * is padded), so the results do not depend on how Gaussians are batched. Returns the number of
+ * nonzero results. */
+enum { SC_BW_LANES = 8 };
+int sc_project_backward_lanes(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                              const double campos[3], int n, const int64_t *index,
+                              const sc_splat *const *splats, const float *const *d,
+                              sc_gaussian_grads *out, int64_t *flushed, int *results);
 
 /* ---------------------------------------------------------------- CPU dispatch
  * The compositor kernels are compiled once per instruction-set level and the best one for this
@@ -187,8 +200,10 @@ static inline int sc_lowest_bit(uint32_t v) { /* v != 0 */
  * vectorised as one. */
 #if defined(__GNUC__)
 #define SC_NO_UNROLL _Pragma("GCC unroll 1")
+#define SC_UNROLL_ALL _Pragma("GCC unroll 64")
 #else
 #define SC_NO_UNROLL
+#define SC_UNROLL_ALL
 #endif
 
 /* A hint to fetch memory a loop will read (or write) soon: scattered accesses the hardware

@@ -441,12 +441,12 @@ static sc_train_state *get_state(PyObject *obj) {
 static PyObject *py_render_train(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[7], *background, *outs[6];
-    int sh_degree, width, height, antialiased, threads;
+    int sh_degree, width, height, antialiased, threads, exhaustive = 0;
     double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOOO:render_train", &objs[0], &objs[1],
+    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOOO|p:render_train", &objs[0], &objs[1],
                           &objs[2], &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width,
                           &height, &near, &antialiased, parse_threads, &threads, &background, &outs[0],
-                          &outs[1], &outs[2], &outs[3], &outs[4], &outs[5]))
+                          &outs[1], &outs[2], &outs[3], &outs[4], &outs[5], &exhaustive))
         return NULL;
     buffers b = {.count = 0};
     sc_gaussians g;
@@ -459,6 +459,7 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
     if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
                      &opt) != 0)
         goto fail;
+    opt.exhaustive = exhaustive;
     if (parse_image(&b, background, outs, width, height, &image) != 0) goto fail;
     const Py_ssize_t img1[] = {height, width};
     if (outs[3] != Py_None &&
@@ -1041,12 +1042,13 @@ static PyMethodDef methods[] = {
     {"render_train", py_render_train, METH_VARARGS,
      "render_train(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
      "intrinsics, width, height, near, antialiased, threads, background, out_rgb, out_alpha, "
-     "out_depth, out_final_t, out_n_contrib, out_visible) -> (stats, state)\n\nThe training "
-     "forward: render (no mesh layer) into the out_* arrays, bit-identical to render(); "
-     "out_final_t (float32) and out_n_contrib (int32), (H, W) or None, get the per-pixel final "
-     "transmittance and n_contrib; out_visible (uint8, (N,) or None) 1 for each Gaussian drawn "
-     "(its footprint reaches a pixel). `state` is an opaque handle holding what backward() "
-     "needs."},
+     "out_depth, out_final_t, out_n_contrib, out_visible[, exhaustive]) -> (stats, state)\n\n"
+     "The training forward: render (no mesh layer) into the out_* arrays, bit-identical to "
+     "render(); out_final_t (float32) and out_n_contrib (int32), (H, W) or None, get the "
+     "per-pixel final transmittance and n_contrib; out_visible (uint8, (N,) or None) 1 for each "
+     "Gaussian drawn (its footprint reaches a pixel). `state` is an opaque handle holding what "
+     "backward() needs. exhaustive: this forward and its backward run their slow twins (each "
+     "Gaussian over its tiles' whole spans; the projection backward one Gaussian at a time)."},
     {"train_state_info", py_train_state_info, METH_O,
      "train_state_info(state) -> dict: the image size, Gaussian count, options and counts of a "
      "training state."},

@@ -36,6 +36,7 @@ typedef struct {
     const sc_image *image;
     float *final_t;
     int32_t *n_contrib;
+    int exhaustive;
     int64_t evaluations[MAX_THREADS * PAD];
 } forward_job;
 
@@ -46,7 +47,7 @@ static void forward_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
         const int64_t first = f->offsets[t], count = f->offsets[t + 1] - first;
         j->evaluations[thread * PAD] += sc_composite_tile_train(
             f->splats, f->list + first, count, (int)(t % f->tiles_x), (int)(t / f->tiles_x),
-            j->cam, j->image, j->final_t, j->n_contrib);
+            j->cam, j->image, j->final_t, j->n_contrib, j->exhaustive);
     }
 }
 
@@ -76,7 +77,8 @@ sc_status sc_render_train(const sc_gaussians *g, const sc_camera *cam, const sc_
     const double binned = sc_now_ms();
 
     forward_job job = {.frame = &state->frame, .cam = cam, .image = image,
-                       .final_t = state->final_t, .n_contrib = state->n_contrib};
+                       .final_t = state->final_t, .n_contrib = state->n_contrib,
+                       .exhaustive = opt->exhaustive};
     sc_parallel_for(clamp_threads(opt->threads), state->frame.ntiles, 1, forward_tiles, &job);
     memcpy(state->depth, image->depth, sizeof(float) * pixels);
     const double composited = sc_now_ms();
@@ -116,7 +118,8 @@ static void backward_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
         const int64_t first = f->offsets[t], count = f->offsets[t + 1] - first;
         j->evaluations[thread * PAD] += sc_composite_tile_backward(
             f->splats, f->list + first, count, (int)(t % f->tiles_x), (int)(t / f->tiles_x),
-            &j->state->camera, j->grads, j->records + first * SC_DG_COUNT);
+            &j->state->camera, j->grads, j->records + first * SC_DG_COUNT,
+            j->state->options.exhaustive);
     }
 }
 
@@ -172,9 +175,40 @@ static int row_finite(const float *v, int64_t n) {
     return 1;
 }
 
+/* Drawn Gaussians index[0 .. n) through the projection backward, SC_BW_LANES at a time (or
+ * one by one, the slow twin, when the state was rendered `exhaustive`). */
+static void project_back(backward_job *j, const int64_t *index, int n, int thread) {
+    int64_t *flushed = &j->flushed[thread * PAD];
+    if (j->state->options.exhaustive) {
+        for (int l = 0; l < n; ++l) {
+            const gathered *gi = &j->by_input[index[l]];
+            double d[SC_DG_COUNT];
+            for (int q = 0; q < SC_DG_COUNT; ++q) d[q] = gi->d[q];
+            if (sc_project_backward_gaussian(j->g, &j->state->camera, &j->state->options,
+                                             j->campos, index[l], &gi->splat, d, j->out,
+                                             flushed) != 0)
+                note_bad(j, index[l]);
+        }
+        return;
+    }
+    const sc_splat *splats[SC_BW_LANES];
+    const float *d[SC_BW_LANES];
+    int results[SC_BW_LANES];
+    for (int l = 0; l < n; ++l) {
+        splats[l] = &j->by_input[index[l]].splat;
+        d[l] = j->by_input[index[l]].d;
+    }
+    if (sc_project_backward_lanes(j->g, &j->state->camera, &j->state->options, j->campos, n,
+                                  index, splats, d, j->out, flushed, results))
+        for (int l = 0; l < n; ++l)
+            if (results[l] != 0) note_bad(j, index[l]);
+}
+
 /* Phase B, input order: parameters and gradients are read and written sequentially. */
 static void backward_gaussians(void *ctx, int64_t begin, int64_t end, int thread) {
     backward_job *j = ctx;
+    int64_t batch[SC_BW_LANES];
+    int n = 0;
     for (int64_t i = begin; i < end; ++i) {
         if (!j->drawn[i]) {
             int64_t run = i + 1; /* zero a whole run of undrawn Gaussians at once */
@@ -183,14 +217,13 @@ static void backward_gaussians(void *ctx, int64_t begin, int64_t end, int thread
             i = run - 1;
             continue;
         }
-        const gathered *gi = &j->by_input[i];
-        double d[SC_DG_COUNT];
-        for (int q = 0; q < SC_DG_COUNT; ++q) d[q] = gi->d[q];
-        const int result = sc_project_backward_gaussian(
-            j->g, &j->state->camera, &j->state->options, j->campos, i, &gi->splat, d, j->out,
-            &j->flushed[thread * PAD]);
-        if (result != 0) note_bad(j, i);
+        batch[n++] = i;
+        if (n == SC_BW_LANES) {
+            project_back(j, batch, n, thread);
+            n = 0;
+        }
     }
+    if (n) project_back(j, batch, n, thread);
 }
 
 sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const float *d_rgb,
