@@ -86,32 +86,48 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
         raise ValueError(f"mesh_rgba must have shape {(height, width, 4)}, "
                          f"got {mesh_rgba.shape}")
     if color_space == "SRGB":
-        # Non-finite values become 0 in the same pass (the compositor wants finite colour).
-        layer = colour.display_from_linear(mesh_rgba, threads=threads, zero_non_finite=True)
-    else:
-        layer = np.ascontiguousarray(mesh_rgba)
-        if not np.isfinite(layer).all():
-            layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
+        return _compose_display(gaussians, camera, mesh_rgba, mesh_depth, antialiased=antialiased,
+                                near=near, sh_degree=sh_degree, threads=threads, out=out)
+    layer = np.ascontiguousarray(mesh_rgba)
+    if not np.isfinite(layer).all():
+        layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
     convert_in = time.perf_counter() - start
     result = render(gaussians, camera, mesh_rgba=layer, mesh_depth=_finite_depth(mesh_depth),
                     antialiased=antialiased, near=near, sh_degree=sh_degree, threads=threads)
     start = time.perf_counter()
-    if color_space == "SRGB":
-        # Only pixels the splats changed go back through the conversion; the others keep the
-        # mesh layer's own values, bit for bit. Natively on the thread pool; by default the
-        # result replaces the display layer (one frame-sized buffer fewer).
-        if out is None:
-            out = layer
-        native.srgb_decode_changed(result.rgb, result.alpha, mesh_rgba, layer, threads, out)
-    else:
-        if out is None:
-            out = np.empty((height, width, 4), np.float32)
-        out[..., :3] = result.rgb
-        out[..., 3] = result.alpha
+    if out is None:
+        out = np.empty((height, width, 4), np.float32)
+    out[..., :3] = result.rgb
+    out[..., 3] = result.alpha
     depth = result.depth
     depth[~np.isfinite(depth)] = FAR
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (convert_in + time.perf_counter() - start)
+    return CompositeResult(out, depth, stats)
+
+
+def _compose_display(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray,
+                     mesh_depth: np.ndarray, *, antialiased: bool, near: float,
+                     sh_degree: int | None, threads: int, out: np.ndarray | None
+                     ) -> CompositeResult:
+    """compose() in display sRGB, natively in one pass over the tiles (`sc_compose_srgb`):
+    the mesh layer encoded, composed and the changed pixels decoded only in tiles a Gaussian
+    reaches; elsewhere the mesh's own pixels. The same bits as encoding the whole layer
+    (`colour.display_from_linear`, non-finite values zeroed), rendering over it (`render`) and
+    decoding the changed pixels (`native.srgb_decode_changed`), frame-wide (tests hold it)."""
+    height, width = camera.height, camera.width
+    if out is None:
+        out = np.empty((height, width, 4), np.float32)
+    depth = np.empty((height, width), np.float32)
+    viewmat, intrinsics, _, _ = native.camera_args(camera)
+    threads = native.thread_count(threads)
+    stats = dict(native.splatcore().compose_srgb(
+        *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree),
+        viewmat, intrinsics, width, height, float(near), bool(antialiased), threads, mesh_rgba,
+        np.asarray(mesh_depth, np.float32), out, depth, FAR))
+    # The conversions run inside the tile pass: their share of its wall time, on all threads.
+    stats["colour_ms"] = stats["ms_colour_cpu"] / (threads or native.cpu_count())
+    stats["native_ms"] = stats["ms_total"] - stats["colour_ms"]
     return CompositeResult(out, depth, stats)
 
 

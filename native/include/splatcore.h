@@ -310,6 +310,27 @@ void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int dec
 void sc_srgb_decode_changed(const float *rgb, const float *alpha, const sc_rgba_view *mesh,
                             const float *layer, const sc_rgba_view *out, int threads);
 
+/* An (height, width) float32 plane anywhere in memory: byte strides of a row and a pixel. */
+typedef struct {
+    const char *data;
+    int64_t height, width;
+    int64_t row, pixel;
+} sc_plane_view;
+
+/* F12's composite (addon/core/composite.py, compose): the Gaussians composed with a mesh
+ * render, in display sRGB, back in scene-linear. mesh: premultiplied scene-linear RGBA, and
+ * mesh_depth its planar depth (NaN and +inf: nothing there, -inf: 0), both cam's size, any
+ * strides. Per 16x16 tile, in one pass on the thread pool: a tile no Gaussian reaches is the
+ * mesh itself (out = mesh bit for bit; out_depth its depth where its alpha > 0); any other is
+ * what sc_srgb_view (encode, zero_non_finite), sc_render with that display layer and
+ * sc_srgb_decode_changed give, bit for bit. out (H, W, 4), any strides, overlapping no input;
+ * out_depth (H, W) C-contiguous, `far` where nothing was hit. *colour_ms: the time the
+ * conversions and the mesh's copy took, summed over threads. */
+sc_status sc_compose_srgb(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                          const sc_rgba_view *mesh, const sc_plane_view *mesh_depth,
+                          const sc_rgba_view *out, float *out_depth, float far, sc_stats *stats,
+                          double *colour_ms);
+
 #ifdef __cplusplus
 }
 #endif
