@@ -132,7 +132,8 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             rgba, depth = composed.rgba[origin.slices()], composed.depth[origin.slices()]
             stats.update(gaussians=len(frame.gaussians), reused=frame.reused,
                          gather_ms=frame.gather_ms,
-                         native_ms=composed.stats.get("ms_total", 0.0),
+                         native_ms=composed.stats.get("native_ms",
+                                                      composed.stats.get("ms_total", 0.0)),
                          colour_ms=composed.stats.get("colour_ms", 0.0))
             if wants_splat_passes(main):
                 render_state.current.pending_passes[main.name] = (

@@ -8,6 +8,7 @@
  * with Gaussians is converted, composited (sc_composite_tile) and converted back on its own,
  * while it is in cache. An F12 of a small object leaves most tiles empty: the colour work and
  * the compositor's per-pixel set-up and write-out follow the splats, not the frame. */
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -41,26 +42,30 @@ static inline float depth_at(const sc_plane_view *v, int64_t y, int64_t x) {
 }
 
 /* A tile no Gaussian reaches: the mesh pixel as it is, and the depth the compositor gives a
- * lone mesh pixel (its depth weighted by its alpha, over that alpha; the colour layer's alpha
- * is the display layer's, non-finite as 0). */
+ * lone mesh pixel (its depth weighted by its alpha, over that alpha: z itself at alpha 1; the
+ * alpha the compositor sees is the display layer's, non-finite as 0). Locals throughout: stores
+ * through char pointers could alias the job. */
 static void copy_mesh(const compose_job *j, int x0, int y0, int w, int h) {
-    const sc_rgba_view *m = &j->mesh, *o = &j->out;
-    for (int y = y0; y < y0 + h; ++y)
-        for (int x = x0; x < x0 + w; ++x) {
-            const char *from = m->data + y * m->row + x * m->pixel;
-            char *to = (char *)o->data + y * o->row + x * o->pixel;
-            float a;
-            for (int c = 0; c < 4; ++c) {
-                float v;
-                memcpy(&v, from + c * m->channel, sizeof v);
-                memcpy(to + c * o->channel, &v, sizeof v);
-                a = v; /* the last one: alpha */
-            }
-            a = isfinite(a) ? a : 0.0f;
-            const float z = clean(depth_at(&j->depth_in, y, x), j->far);
-            float d = a > 0.0f && isfinite(z) ? (a * z) / a : INFINITY;
-            j->out_depth[(int64_t)y * j->cam->width + x] = isfinite(d) ? d : j->far;
+    const sc_rgba_view m = j->mesh, o = j->out;
+    const sc_plane_view dv = j->depth_in;
+    const float far = j->far;
+    const int64_t width = j->cam->width;
+    for (int y = y0; y < y0 + h; ++y) {
+        const char *from = m.data + y * m.row + x0 * m.pixel;
+        const char *zs = dv.data + y * dv.row + x0 * dv.pixel;
+        char *to = (char *)o.data + y * o.row + x0 * o.pixel;
+        float *depth = j->out_depth + y * width + x0;
+        for (int i = 0; i < w; ++i, from += m.pixel, to += o.pixel, zs += dv.pixel) {
+            float v[4], z;
+            for (int c = 0; c < 4; ++c) memcpy(&v[c], from + c * m.channel, sizeof v[c]);
+            for (int c = 0; c < 4; ++c) memcpy(to + c * o.channel, &v[c], sizeof v[c]);
+            memcpy(&z, zs, sizeof z);
+            z = clean(z, far);
+            const float a = v[3];
+            const float d = a == 1.0f ? z : a > 0.0f && a <= FLT_MAX ? (a * z) / a : INFINITY;
+            depth[i] = isfinite(d) ? d : far;
         }
+    }
 }
 
 static void compose_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
