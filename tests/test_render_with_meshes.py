@@ -227,6 +227,15 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
     edited = rendered("edited")
     assert edited.reused == 0 and np.array_equal(edited.gaussians.opacity_logits, logits)
     assert rendered("unchanged").reused == 1
+    # one bit of one SH value, in place: the checksum of the attribute where Blender keeps it
+    name = splat_object.SH_NAMES[1]
+    values = np.empty(3 * len(g), np.float32)
+    splats.data.attributes[name].data.foreach_get("vector", values)
+    values.view(np.uint32)[7] ^= 1
+    splats.data.attributes[name].data.foreach_set("vector", values)
+    bit = rendered("one bit")
+    assert bit.reused == 0 and bit.gaussians.sh[2, 1, 1] == values[7]
+    assert rendered("unchanged again").reused == 1
     frames.clear()
     scene.frame_start, scene.frame_end = 1, 3
     scene.render.filepath = str(tmp_path / "anim_")

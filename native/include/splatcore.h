@@ -331,6 +331,10 @@ sc_status sc_compose_srgb(const sc_gaussians *g, const sc_camera *cam, const sc_
                           const sc_rgba_view *out, float *out_depth, float far, sc_stats *stats,
                           double *colour_ms);
 
+/* A 256-bit checksum of `bytes` bytes of memory (four 64-bit lanes; checksum.c says what it
+ * always detects): for telling whether data changed. */
+void sc_checksum(const void *data, int64_t bytes, uint64_t out[4]);
+
 #ifdef __cplusplus
 }
 #endif

@@ -1040,6 +1040,24 @@ fail:
     return NULL;
 }
 
+/* checksum(buffer) -> (lane0, lane1, lane2, lane3): see sc_checksum. Any C-contiguous buffer. */
+static PyObject *py_checksum(PyObject *self, PyObject *arg) {
+    (void)self;
+    Py_buffer view;
+    if (PyObject_GetBuffer(arg, &view, PyBUF_SIMPLE) != 0) {
+        PyErr_Clear();
+        PyErr_SetString(PyExc_TypeError, "checksum needs a C-contiguous buffer");
+        return NULL;
+    }
+    uint64_t lanes[4];
+    Py_BEGIN_ALLOW_THREADS
+    sc_checksum(view.buf, (int64_t)view.len, lanes);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&view);
+    return Py_BuildValue("(KKKK)", (unsigned long long)lanes[0], (unsigned long long)lanes[1],
+                         (unsigned long long)lanes[2], (unsigned long long)lanes[3]);
+}
+
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     (void)self;
     int count, iterations;
@@ -1124,6 +1142,9 @@ static PyMethodDef methods[] = {
      "out_depth, far[, exhaustive]) -> stats\n\nF12's composite (sc_compose_srgb): the "
      "Gaussians over a scene-linear mesh render, composed in display sRGB, into out "
      "(scene-linear) and out_depth; tiles no Gaussian reaches keep the mesh's pixels."},
+    {"checksum", py_checksum, METH_O,
+     "checksum(buffer) -> tuple of four ints\n\nA 256-bit checksum of a C-contiguous buffer's "
+     "bytes (sc_checksum): any change within 193 consecutive bits changes it."},
     {"sort_keys", py_sort_keys, METH_VARARGS,
      "sort_keys(keys, threads, out_order) -> int\n\nThe renderer's depth sort on its own (for "
      "tests): out_order (int32, N) gets the stable ascending order of keys (float32, N; +inf "
