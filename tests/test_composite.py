@@ -174,6 +174,10 @@ def test_compose_tile_by_tile_is_the_frame_wide_composite_bit_for_bit(rng, threa
         got = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads)
         assert np.array_equal(got.rgba.view(np.uint32), want_rgba.view(np.uint32))
         assert np.array_equal(got.depth.view(np.uint32), want_depth.view(np.uint32))
+        colour_only = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads,
+                              with_depth=False)
+        assert colour_only.depth is None
+        assert np.array_equal(colour_only.rgba.view(np.uint32), want_rgba.view(np.uint32))
         if count:
             assert (got.rgba.view(np.uint32) != mesh_rgba.view(np.uint32)).any()
 

@@ -127,9 +127,11 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             if origin != Region(0, 0, *full):  # a cropped border: compose the whole frame
                 mesh_rgba, mesh_depth = embed(mesh_rgba, mesh_depth, origin, *full)
             composed = compose(frame.gaussians, frame.camera, mesh_rgba, mesh_depth,
-                               out=pass_image(full[1], full[0]), **frame.render_options())
+                               out=pass_image(full[1], full[0]),
+                               with_depth=bridge.uses_depth(main), **frame.render_options())
             mesh_rgba = mesh_depth = None  # not needed any more: a lower peak while writing
-            rgba, depth = composed.rgba[origin.slices()], composed.depth[origin.slices()]
+            rgba = composed.rgba[origin.slices()]
+            depth = None if composed.depth is None else composed.depth[origin.slices()]
             stats.update(gaussians=len(frame.gaussians), reused=frame.reused,
                          gather_ms=frame.gather_ms,
                          native_ms=composed.stats.get("native_ms",

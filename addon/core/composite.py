@@ -39,8 +39,9 @@ COLOR_SPACES = ("SRGB", "LINEAR")
 
 @dataclass
 class CompositeResult:
-    rgba: np.ndarray       # (H, W, 4) float32 premultiplied scene-linear composite
-    depth: np.ndarray      # (H, W) float32 expected planar depth (FAR where nothing was hit)
+    rgba: np.ndarray          # (H, W, 4) float32 premultiplied scene-linear composite
+    depth: np.ndarray | None  # (H, W) float32 expected planar depth (FAR where nothing was
+                              # hit); None when not asked for (`compose(with_depth=False)`)
     stats: dict[str, float] = field(default_factory=dict)
 
 
@@ -66,7 +67,7 @@ def _finite_depth(depth: np.ndarray) -> np.ndarray:
 def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_depth: np.ndarray,
             *, color_space: str = "SRGB", antialiased: bool = False, near: float = 0.01,
             sh_degree: int | None = None, threads: int = 0,
-            out: np.ndarray | None = None) -> CompositeResult:
+            out: np.ndarray | None = None, with_depth: bool = True) -> CompositeResult:
     """The exact composite of `gaussians` with a mesh render seen by `camera`.
 
     mesh_rgba: (H, W, 4) premultiplied scene-linear colour, rows top to bottom (float32 with
@@ -76,6 +77,8 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     out: where the composite goes, (H, W, 4) float32 with any strides, overlapping none of the
         inputs (e.g. a row-reversed view of the buffer a Blender render pass is filled from,
         reused from frame to frame); by default a new array.
+    with_depth: False when the composite's depth is not wanted (display sRGB only: its
+        `depth` is then None, and the mesh depth is not read where no Gaussian reaches).
     Returns premultiplied scene-linear RGBA (`out`) and the composite's expected depth.
     """
     _check_space(color_space)
@@ -87,7 +90,8 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
                          f"got {mesh_rgba.shape}")
     if color_space == "SRGB":
         return _compose_display(gaussians, camera, mesh_rgba, mesh_depth, antialiased=antialiased,
-                                near=near, sh_degree=sh_degree, threads=threads, out=out)
+                                near=near, sh_degree=sh_degree, threads=threads, out=out,
+                                with_depth=with_depth)
     layer = np.ascontiguousarray(mesh_rgba)
     if not np.isfinite(layer).all():
         layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
@@ -108,8 +112,8 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
 
 def _compose_display(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray,
                      mesh_depth: np.ndarray, *, antialiased: bool, near: float,
-                     sh_degree: int | None, threads: int, out: np.ndarray | None
-                     ) -> CompositeResult:
+                     sh_degree: int | None, threads: int, out: np.ndarray | None,
+                     with_depth: bool) -> CompositeResult:
     """compose() in display sRGB, natively in one pass over the tiles (`sc_compose_srgb`):
     the mesh layer encoded, composed and the changed pixels decoded only in tiles a Gaussian
     reaches; elsewhere the mesh's own pixels. The same bits as encoding the whole layer
@@ -118,7 +122,7 @@ def _compose_display(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray
     height, width = camera.height, camera.width
     if out is None:
         out = np.empty((height, width, 4), np.float32)
-    depth = np.empty((height, width), np.float32)
+    depth = np.empty((height, width), np.float32) if with_depth else None
     viewmat, intrinsics, _, _ = native.camera_args(camera)
     threads = native.thread_count(threads)
     stats = dict(native.splatcore().compose_srgb(

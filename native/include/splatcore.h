@@ -324,7 +324,8 @@ typedef struct {
  * mesh itself (out = mesh bit for bit; out_depth its depth where its alpha > 0); any other is
  * what sc_srgb_view (encode, zero_non_finite), sc_render with that display layer and
  * sc_srgb_decode_changed give, bit for bit. out (H, W, 4), any strides, overlapping no input;
- * out_depth (H, W) C-contiguous, `far` where nothing was hit. *colour_ms: the time the
+ * out_depth (H, W) C-contiguous, `far` where nothing was hit, or NULL for no depth (nothing
+ * is then read from mesh_depth in tiles no Gaussian reaches). *colour_ms: the time the
  * conversions and the mesh's copy took, summed over threads. */
 sc_status sc_compose_srgb(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                           const sc_rgba_view *mesh, const sc_plane_view *mesh_depth,

@@ -23,6 +23,7 @@ typedef struct {
     sc_rgba_view mesh, out;
     sc_plane_view depth_in;
     float *clean_depth, *out_depth, far;
+    int want_depth; /* out_depth is the caller's (else scratch: only tiles with Gaussians) */
     sc_image image; /* the display layer, clean depth and scratch rgb/alpha: full-frame */
     const sc_srgb_tiles *colour;
     int exhaustive;
@@ -54,11 +55,12 @@ static void copy_mesh(const compose_job *j, int x0, int y0, int w, int h) {
         const char *from = m.data + y * m.row + x0 * m.pixel;
         const char *zs = dv.data + y * dv.row + x0 * dv.pixel;
         char *to = (char *)o.data + y * o.row + x0 * o.pixel;
-        float *depth = j->out_depth + y * width + x0;
+        float *depth = j->want_depth ? j->out_depth + y * width + x0 : NULL;
         for (int i = 0; i < w; ++i, from += m.pixel, to += o.pixel, zs += dv.pixel) {
             float v[4], z;
             for (int c = 0; c < 4; ++c) memcpy(&v[c], from + c * m.channel, sizeof v[c]);
             for (int c = 0; c < 4; ++c) memcpy(to + c * o.channel, &v[c], sizeof v[c]);
+            if (!depth) continue;
             memcpy(&z, zs, sizeof z);
             z = clean(z, far);
             const float a = v[3];
@@ -94,7 +96,7 @@ static void compose_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
                                                           j->cam, &j->image, j->exhaustive);
         start = sc_now_ms();
         sc_srgb_tiles_decode(j->colour, x0, y0, w, h);
-        for (int y = y0; y < y0 + h; ++y)
+        for (int y = y0; y < y0 + h && j->want_depth; ++y)
             for (int x = x0; x < x0 + w; ++x) {
                 float *d = j->out_depth + (int64_t)y * width + x;
                 if (!isfinite(*d)) *d = j->far;
@@ -119,9 +121,10 @@ sc_status sc_compose_srgb(const sc_gaussians *g, const sc_camera *cam, const sc_
     float *rgb = sc_buffer_alloc(sizeof(float) * 3 * pixels);
     float *alpha = sc_buffer_alloc(sizeof(float) * pixels);
     float *clean_depth = sc_buffer_alloc(sizeof(float) * pixels);
+    float *depth_scratch = out_depth ? NULL : sc_buffer_alloc(sizeof(float) * pixels);
     const sc_rgba_view layer_view = {(const char *)layer, cam->height, cam->width,
                                      (int64_t)sizeof(float) * 4 * cam->width, 16, 4};
-    sc_srgb_tiles *colour = layer && rgb && alpha && clean_depth
+    sc_srgb_tiles *colour = layer && rgb && alpha && clean_depth && (out_depth || depth_scratch)
                                 ? sc_srgb_tiles_new(mesh, &layer_view, layer, rgb, alpha, out)
                                 : NULL;
     compose_job *job = colour ? calloc(1, sizeof *job) : NULL;
@@ -130,6 +133,8 @@ sc_status sc_compose_srgb(const sc_gaussians *g, const sc_camera *cam, const sc_
         goto done;
     }
     job->frame = &frame, job->cam = cam, job->mesh = *mesh, job->out = *out;
+    job->want_depth = out_depth != NULL;
+    if (!out_depth) out_depth = depth_scratch;
     job->depth_in = *mesh_depth, job->clean_depth = clean_depth, job->out_depth = out_depth;
     job->far = far, job->colour = colour, job->exhaustive = opt->exhaustive;
     job->image = (sc_image){.mesh_rgba = layer, .mesh_depth = clean_depth, .rgb = rgb,
@@ -153,6 +158,7 @@ done:
     sc_buffer_free(rgb);
     sc_buffer_free(alpha);
     sc_buffer_free(clean_depth);
+    sc_buffer_free(depth_scratch);
     sc_frame_free(&frame);
     return status;
 }

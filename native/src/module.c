@@ -981,7 +981,7 @@ static int get_plane_view(buffers *b, PyObject *obj, const char *name, Py_ssize_
 /* compose_srgb(means, ..., threads, mesh, mesh_depth, out, out_depth, far[, exhaustive]) ->
  * stats: see sc_compose_srgb. mesh (H, W, 4) and mesh_depth (H, W) float32, any strides; out
  * (H, W, 4) writable, any strides, overlapping none of the others; out_depth (H, W) float32
- * C-contiguous, writable, overlapping neither mesh nor mesh_depth. */
+ * C-contiguous, writable, overlapping neither mesh nor mesh_depth, or None (no depth). */
 static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[7], *mesh_obj, *depth_obj, *out_obj, *out_depth_obj;
@@ -1008,10 +1008,12 @@ static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
         get_plane_view(&b, depth_obj, "mesh_depth", height, width, &mesh_depth) != 0 ||
         get_rgba_view(&b, out_obj, "out", 1, height, width, &out) != 0)
         goto fail;
-    float *out_depth = (float *)get_array(&b, out_depth_obj, "out_depth", 'f', 2, img1, 1);
-    if (!out_depth) goto fail;
-    for (int i = first; i < first + 4; ++i)
-        for (int k = i + 1; k < first + 4; ++k)
+    float *out_depth = NULL;
+    if (out_depth_obj != Py_None &&
+        !(out_depth = (float *)get_array(&b, out_depth_obj, "out_depth", 'f', 2, img1, 1)))
+        goto fail;
+    for (int i = first; i < b.count; ++i)
+        for (int k = i + 1; k < b.count; ++k)
             if (i != first + 0 || k != first + 1) /* the two inputs may share a buffer */
                 if (overlap(&b.views[i], &b.views[k])) {
                     PyErr_SetString(PyExc_ValueError,
@@ -1141,7 +1143,8 @@ static PyMethodDef methods[] = {
      "intrinsics, width, height, near, antialiased, threads, mesh_rgba, mesh_depth, out, "
      "out_depth, far[, exhaustive]) -> stats\n\nF12's composite (sc_compose_srgb): the "
      "Gaussians over a scene-linear mesh render, composed in display sRGB, into out "
-     "(scene-linear) and out_depth; tiles no Gaussian reaches keep the mesh's pixels."},
+     "(scene-linear) and out_depth (None: no depth); tiles no Gaussian reaches keep the "
+     "mesh's pixels."},
     {"checksum", py_checksum, METH_O,
      "checksum(buffer) -> tuple of four ints\n\nA 256-bit checksum of a C-contiguous buffer's "
      "bytes (sc_checksum): any change within 193 consecutive bits changes it."},
