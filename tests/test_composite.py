@@ -3,11 +3,13 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
 from addon.core import colour, native
-from addon.core.composite import FAR, compose, embed, render_region, splat_layer
+from addon.core.composite import FAR, compose, embed, prepare, render_region, splat_layer
 from addon.core.render import render
 from scenes import random_mesh_layer, random_scene
 
@@ -174,6 +176,14 @@ def test_compose_tile_by_tile_is_the_frame_wide_composite_bit_for_bit(rng, threa
         got = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads)
         assert np.array_equal(got.rgba.view(np.uint32), want_rgba.view(np.uint32))
         assert np.array_equal(got.depth.view(np.uint32), want_depth.view(np.uint32))
+        prepared = prepare(gaussians, camera, threads=threads)  # made ahead, used twice
+        for _ in range(2):
+            again = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads,
+                            prepared=prepared)
+            assert np.array_equal(again.rgba.view(np.uint32), want_rgba.view(np.uint32))
+            assert np.array_equal(again.depth.view(np.uint32), want_depth.view(np.uint32))
+        with pytest.raises(ValueError, match="another camera"):
+            compose(gaussians, copy.copy(camera), mesh_rgba, mesh_depth, prepared=prepared)
         colour_only = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads,
                               with_depth=False)
         assert colour_only.depth is None

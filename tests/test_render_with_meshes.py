@@ -211,6 +211,7 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
     def rendered(name):
         render_still(scene, tmp_path / name)
         assert render_hooks.last_stats["gaussians"] == len(splats.data.vertices)
+        assert "prepared_ms" in render_hooks.last_stats  # made while Blender wrote the EXR
         # the render's EXR copy (in /dev/shm: memory) is gone as soon as it is read
         assert read and not os.path.exists(read[-1])
         return frames[-1]

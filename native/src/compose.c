@@ -1,4 +1,5 @@
-/* F12's composite in display sRGB, tile by tile (sc_compose_srgb, splatcore.h).
+/* F12's composite in display sRGB, tile by tile (sc_compose_prepare and sc_compose_srgb,
+ * splatcore.h).
  *
  * The same pixels as converting the whole mesh layer to display sRGB, rendering over it and
  * converting the changed pixels back (composite.py did that in three frame-wide passes), but in
@@ -105,15 +106,49 @@ static void compose_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
     }
 }
 
-sc_status sc_compose_srgb(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
-                          const sc_rgba_view *mesh, const sc_plane_view *mesh_depth,
-                          const sc_rgba_view *out, float *out_depth, float far, sc_stats *stats,
-                          double *colour_ms) {
-    const double start = sc_now_ms();
+/* The Gaussians' half of the frame, and what it was made for. */
+struct sc_prepared {
     sc_frame frame;
-    sc_status status = sc_frame_prepare(g, cam, opt, 0, &frame, stats);
-    if (status != SC_OK) return status;
-    const double binned = sc_now_ms();
+    sc_camera cam;
+    sc_options opt;
+    sc_stats stats;
+};
+
+sc_status sc_compose_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                             sc_prepared **prepared, sc_stats *stats) {
+    *prepared = NULL;
+    sc_prepared *p = calloc(1, sizeof *p);
+    if (!p) return SC_ERR_MEMORY;
+    const double start = sc_now_ms();
+    p->cam = *cam, p->opt = *opt;
+    const sc_status status = sc_frame_prepare(g, cam, opt, 0, &p->frame, &p->stats);
+    p->stats.ms_total = sc_now_ms() - start;
+    *stats = p->stats;
+    if (status != SC_OK) {
+        free(p);
+        return status;
+    }
+    *prepared = p;
+    return SC_OK;
+}
+
+void sc_prepared_size(const sc_prepared *p, int *width, int *height) {
+    *width = p->cam.width, *height = p->cam.height;
+}
+
+void sc_prepared_free(sc_prepared *p) {
+    if (!p) return;
+    sc_frame_free(&p->frame);
+    free(p);
+}
+
+sc_status sc_compose_srgb(const sc_prepared *p, const sc_rgba_view *mesh,
+                          const sc_plane_view *mesh_depth, const sc_rgba_view *out,
+                          float *out_depth, float far, sc_stats *stats, double *colour_ms) {
+    const double start = sc_now_ms();
+    const sc_camera *cam = &p->cam;
+    *stats = p->stats;
+    sc_status status = SC_OK;
 
     /* Full-frame scratch, touched only in the tiles with Gaussians (kept between frames). */
     const size_t pixels = (size_t)cam->width * (size_t)cam->height;
@@ -132,19 +167,18 @@ sc_status sc_compose_srgb(const sc_gaussians *g, const sc_camera *cam, const sc_
         status = SC_ERR_MEMORY;
         goto done;
     }
-    job->frame = &frame, job->cam = cam, job->mesh = *mesh, job->out = *out;
+    job->frame = &p->frame, job->cam = cam, job->mesh = *mesh, job->out = *out;
     job->want_depth = out_depth != NULL;
     if (!out_depth) out_depth = depth_scratch;
     job->depth_in = *mesh_depth, job->clean_depth = clean_depth, job->out_depth = out_depth;
-    job->far = far, job->colour = colour, job->exhaustive = opt->exhaustive;
+    job->far = far, job->colour = colour, job->exhaustive = p->opt.exhaustive;
     job->image = (sc_image){.mesh_rgba = layer, .mesh_depth = clean_depth, .rgb = rgb,
                             .alpha = alpha, .depth = out_depth};
-    const int threads = opt->threads < MAX_THREADS ? opt->threads : MAX_THREADS;
-    sc_parallel_for(threads, frame.ntiles, 1, compose_tiles, job);
-    const double composited = sc_now_ms();
+    const int threads = p->opt.threads < MAX_THREADS ? p->opt.threads : MAX_THREADS;
+    sc_parallel_for(threads, p->frame.ntiles, 1, compose_tiles, job);
 
-    stats->ms_composite = composited - binned;
-    stats->ms_total = composited - start;
+    stats->ms_composite = sc_now_ms() - start;
+    stats->ms_total = p->stats.ms_total + stats->ms_composite;
     stats->evaluations = 0;
     *colour_ms = 0.0;
     for (int t = 0; t < MAX_THREADS; ++t) {
@@ -159,6 +193,5 @@ done:
     sc_buffer_free(alpha);
     sc_buffer_free(clean_depth);
     sc_buffer_free(depth_scratch);
-    sc_frame_free(&frame);
     return status;
 }
