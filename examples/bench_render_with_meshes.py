@@ -22,6 +22,8 @@ and prints medians (ms) of where the difference goes:
     write     the composite -> the helper scene's render result (RenderPass.rect.foreach_set)
     other     the rest of the difference: the helper scene's render and Blender's compositor
               pass (the Render Layers node of the helper scene feeding the output)
+    extra CPU the process's CPU time (every thread) with splats minus without, medians of the
+              pairs: steadier than the wall clock where other programs share the cores
 
 and the frame's peak memory: the process's peak resident size during one frame above what it
 held before it (Linux: /proc/self/clear_refs resets the peak), without and with splats, and the
@@ -82,9 +84,13 @@ def _reset_peak_rss() -> int | None:
     return _kilobytes("VmRSS")
 
 
-def _render() -> float:
-    start = time.perf_counter()
+def _render(cpu: list[float] | None = None) -> float:
+    """One F12; returns its wall-clock ms (and appends the process's CPU ms, all threads, to
+    `cpu`: on a shared machine the CPU time moves less than the wall clock)."""
+    start, start_cpu = time.perf_counter(), time.process_time()
     assert bpy.ops.render.render() == {"FINISHED"}
+    if cpu is not None:
+        cpu.append(1000 * (time.process_time() - start_cpu))
     return 1000 * (time.perf_counter() - start)
 
 
@@ -141,8 +147,9 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
                  samples: int = 4, repeat: int = 5) -> dict:
     """One scene's F12 figures: medians (ms) of Blender alone ("blender"), with splats
     ("with_splats"), their difference ("extra", the median of the interleaved pairs' own
-    differences), its parts (PARTS and "other"), the first render's gather ("gather_first"),
-    the splat count, and the frame's peak memory (MB): "rss_plain_mb", "rss_splats_mb",
+    differences), its parts (PARTS and "other"), the process CPU time the splats add
+    ("extra_cpu", the same way), the first render's gather ("gather_first"), the splat count,
+    and the frame's peak memory (MB): "rss_plain_mb", "rss_splats_mb",
     "numpy_splats_mb" (see the module docstring)."""
     from addon.blender import compositor_bridge, render_hooks, splat_object
 
@@ -151,17 +158,18 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
     _use_splats(scene, True)
     _render()  # gathers the splats: later frames find them in the cache
     first = dict(render_hooks.last_stats)
-    plain, with_splats, stats = [], [], []
+    plain, with_splats, stats, plain_cpu, splats_cpu = [], [], [], [], []
     for _ in range(repeat):
         _use_splats(scene, False)
-        plain.append(_render())
+        plain.append(_render(plain_cpu))
         _use_splats(scene, True)
-        with_splats.append(_render())
+        with_splats.append(_render(splats_cpu))
         stats.append(dict(render_hooks.last_stats))
     median = statistics.median
     result = {
         "splats": count, "size": size, "blender": median(plain), "with_splats": median(with_splats),
         "extra": median([s - p for s, p in zip(with_splats, plain)]),
+        "extra_cpu": median([s - p for s, p in zip(splats_cpu, plain_cpu)]),
         "gather": median([s.get("gather_ms", 0.0) for s in stats]),
         "read": median([s.get("save_ms", 0.0) + s.get("read_ms", 0.0) for s in stats]),
         "colour": median([s.get("colour_ms", 0.0) for s in stats]),
@@ -177,8 +185,8 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
     return result
 
 
-HEADER = ("splats", "Blender", "with splats", "extra", *PARTS, "other", "gather (first)",
-          "peak RSS +MB (off / on)", "NumPy peak MB")
+HEADER = ("splats", "Blender", "with splats", "extra", *PARTS, "other", "extra CPU",
+          "gather (first)", "peak RSS +MB (off / on)", "NumPy peak MB")
 
 
 def table_row(name: str, r: dict) -> str:
@@ -186,7 +194,7 @@ def table_row(name: str, r: dict) -> str:
         return "n/a" if value is None else f"{value:.0f}"
 
     cells = [f"{name} ({r['splats']:,})", *(f"{r[k]:.0f}" for k in
-             ("blender", "with_splats", "extra", *PARTS, "other", "gather_first")),
+             ("blender", "with_splats", "extra", *PARTS, "other", "extra_cpu", "gather_first")),
              f"{mb(r['rss_plain_mb'])} / {mb(r['rss_splats_mb'])}", mb(r["numpy_splats_mb"])]
     return "| " + " | ".join(cells) + " |"
 

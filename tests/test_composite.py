@@ -3,11 +3,13 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
-from addon.core import colour
-from addon.core.composite import FAR, compose, embed, render_region, splat_layer
+from addon.core import colour, native
+from addon.core.composite import FAR, compose, embed, prepare, render_region, splat_layer
 from addon.core.render import render
 from scenes import random_mesh_layer, random_scene
 
@@ -140,6 +142,54 @@ def test_compose_reads_strided_layers_and_writes_where_asked(rng):
         assert np.shares_memory(got.rgba, buffer)
         assert np.array_equal(buffer[::-1].view(np.uint32), want.rgba.view(np.uint32))
         assert np.array_equal(got.depth, want.depth)
+
+
+def _compose_frame_wide(gaussians, camera, mesh_rgba, mesh_depth, threads):
+    """compose() as three frame-wide passes (what it was before the tile pass): the whole layer
+    to display sRGB, the native render over it, the changed pixels back."""
+    layer = colour.display_from_linear(mesh_rgba, threads=threads, zero_non_finite=True)
+    depth_in = np.nan_to_num(mesh_depth, nan=FAR, posinf=FAR, neginf=0.0).astype(np.float32)
+    result = render(gaussians, camera, mesh_rgba=layer, mesh_depth=depth_in, threads=threads)
+    out = np.empty_like(layer)
+    native.srgb_decode_changed(result.rgb, result.alpha, mesh_rgba, layer, threads, out)
+    depth = result.depth
+    depth[~np.isfinite(depth)] = FAR
+    return out, depth
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_compose_tile_by_tile_is_the_frame_wide_composite_bit_for_bit(rng, threads):
+    """The tile pass (mesh pixels copied where no Gaussian reaches, converted and composed
+    elsewhere) gives the bits of the frame-wide passes: colour and depth, with non-finite mesh
+    values, odd image sizes (partial tiles) and Gaussians that leave tiles empty."""
+    for width, height, count in ((67, 45, 12), (160, 96, 200), (33, 17, 0)):
+        gaussians, camera = random_scene(rng, max(count, 1), width, height, 1)
+        if count == 0:
+            gaussians = gaussians.subset(np.zeros(len(gaussians), bool))
+        mesh_rgba, mesh_depth = random_mesh_layer(rng, width, height)
+        mesh_rgba[::7, ::3, 0] = np.nan
+        mesh_rgba[::11, ::5, 3] = np.inf
+        mesh_depth[::13, ::2] = np.nan
+        mesh_depth[1::13, ::3] = -np.inf
+        want_rgba, want_depth = _compose_frame_wide(gaussians, camera, mesh_rgba, mesh_depth,
+                                                    threads)
+        got = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads)
+        assert np.array_equal(got.rgba.view(np.uint32), want_rgba.view(np.uint32))
+        assert np.array_equal(got.depth.view(np.uint32), want_depth.view(np.uint32))
+        prepared = prepare(gaussians, camera, threads=threads)  # made ahead, used twice
+        for _ in range(2):
+            again = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads,
+                            prepared=prepared)
+            assert np.array_equal(again.rgba.view(np.uint32), want_rgba.view(np.uint32))
+            assert np.array_equal(again.depth.view(np.uint32), want_depth.view(np.uint32))
+        with pytest.raises(ValueError, match="another camera"):
+            compose(gaussians, copy.copy(camera), mesh_rgba, mesh_depth, prepared=prepared)
+        colour_only = compose(gaussians, camera, mesh_rgba, mesh_depth, threads=threads,
+                              with_depth=False)
+        assert colour_only.depth is None
+        assert np.array_equal(colour_only.rgba.view(np.uint32), want_rgba.view(np.uint32))
+        if count:
+            assert (got.rgba.view(np.uint32) != mesh_rgba.view(np.uint32)).any()
 
 
 def test_compose_is_the_native_composite_in_display_space(rng):

@@ -211,6 +211,7 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
     def rendered(name):
         render_still(scene, tmp_path / name)
         assert render_hooks.last_stats["gaussians"] == len(splats.data.vertices)
+        assert "prepared_ms" in render_hooks.last_stats  # made while Blender wrote the EXR
         # the render's EXR copy (in /dev/shm: memory) is gone as soon as it is read
         assert read and not os.path.exists(read[-1])
         return frames[-1]
@@ -227,6 +228,15 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
     edited = rendered("edited")
     assert edited.reused == 0 and np.array_equal(edited.gaussians.opacity_logits, logits)
     assert rendered("unchanged").reused == 1
+    # one bit of one SH value, in place: the checksum of the attribute where Blender keeps it
+    name = splat_object.SH_NAMES[1]
+    values = np.empty(3 * len(g), np.float32)
+    splats.data.attributes[name].data.foreach_get("vector", values)
+    values.view(np.uint32)[7] ^= 1
+    splats.data.attributes[name].data.foreach_set("vector", values)
+    bit = rendered("one bit")
+    assert bit.reused == 0 and bit.gaussians.sh[2, 1, 1] == values[7]
+    assert rendered("unchanged again").reused == 1
     frames.clear()
     scene.frame_start, scene.frame_end = 1, 3
     scene.render.filepath = str(tmp_path / "anim_")

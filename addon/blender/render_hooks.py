@@ -11,7 +11,9 @@ How a frame is made (see `compositor_bridge` for why it works this way):
    modifier levels, animation at the frame) and the camera Blender renders with.
 3. The compositor asks for the helper scene: `SplatRenderEngine.render` reads the meshes' colour
    (premultiplied scene-linear) and planar depth from the Render Result, composes the splats with
-   them exactly (`addon.core.composite.compose`) and returns the composite. The compositor hands
+   them exactly (`addon.core.composite.compose`) and returns the composite. The Gaussians' half
+   of that (projection, depth sort, binning: `composite.prepare`) needs no mesh, so it runs on a
+   thread of its own while Blender writes the render out to be read. The compositor hands
    it on to the Render Result (the Image Editor shows it), to the file or movie Blender writes,
    and to any compositor nodes downstream.
 4. `render_write`: for multilayer EXR output, the splat layer's own colour, alpha and depth are
@@ -28,6 +30,7 @@ transparency, with no mesh render at all.
 
 from __future__ import annotations
 
+import threading
 import time
 import traceback
 
@@ -37,7 +40,7 @@ from bpy.app.handlers import persistent
 
 from ..core import exr_layers
 from ..core.render import release_buffers
-from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed,
+from ..core.composite import (FAR, Region, apply_shadow_catcher, compose, embed, prepare,
                               render_region, splat_layer)
 from . import compositor_bridge as bridge
 from . import render_state
@@ -59,6 +62,45 @@ def _print_stats(stats: dict) -> None:
         parts = ", ".join(f"{k[:-3]} {v:.0f}" for k, v in stats.items() if k.endswith("_ms"))
         print(f"Gaussian splats: {int(stats.get('gaussians', 0)):,} splats, "
               f"{int(stats.get('width', 0))}x{int(stats.get('height', 0))}: {parts} ms", flush=True)
+
+
+class _Preparing:
+    """`composite.prepare` of a frame's splats on a thread of its own (the native call releases
+    the GIL, so it runs beside Blender's work on the main thread); `result()` waits for it and
+    gives (frame, prepared, ms waited), or raises what it raised."""
+
+    def __init__(self, frame, options: dict) -> None:
+        self.frame, self._prepared, self._error = frame, None, None
+        self._thread = threading.Thread(target=self._run, args=(options,), daemon=True,
+                                        name="splat prepare")
+        self._thread.start()
+
+    @classmethod
+    def start(cls, frame, scene, settings) -> _Preparing | None:
+        """Started for a frame that will be composed in display sRGB; else None."""
+        if (frame is None or frame.camera is None or len(frame.gaussians) == 0
+                or not settings.enabled or scene.render.engine == ENGINE_ID
+                or frame.color_space != "SRGB" or render_state.current.errors):
+            return None
+        options = frame.render_options()
+        del options["color_space"]
+        return cls(frame, options)
+
+    def _run(self, options: dict) -> None:
+        try:
+            self._prepared = prepare(self.frame.gaussians, self.frame.camera, **options)
+        except BaseException as error:  # handed to the engine thread by result()
+            self._error = error
+
+    def join(self) -> None:
+        self._thread.join()
+
+    def result(self):
+        start = time.perf_counter()
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self.frame, self._prepared, 1000 * (time.perf_counter() - start)
 
 
 # ------------------------------------------------------------------------------- the engine
@@ -99,7 +141,18 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         if main is None:
             raise RuntimeError("the splat composite was rendered outside a render of a scene")
         layer_name = bridge.bridge_view_layer(main) or main.view_layers[0].name
-        mesh_rgba, mesh_depth, timings = read_render_layer(main, layer_name)
+        settings = settings_of(main)
+        # The Gaussians' half of the composite needs no mesh: it runs on a thread (in native code,
+        # without the GIL) while Blender writes the mesh render out for us to read.
+        preparing = _Preparing.start(render_state.current.frames.get((main.name, layer_name)),
+                                     main, settings)
+        try:
+            mesh_rgba, mesh_depth, timings = read_render_layer(main, layer_name)
+        except BaseException:
+            if preparing is not None:
+                preparing.join()  # (its own error, if any, would hide this one)
+            raise
+        prepared_frame, prepared, wait_ms = preparing.result() if preparing else (None,) * 3
         layer_name = timings.pop("layer")
         shadow = timings.pop("shadow")
         full = frame_size(main.render)
@@ -107,7 +160,6 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         height, width = mesh_depth.shape
         origin = frame_target((width, height), full, region)
         frame = render_state.current.frames.get((main.name, layer_name))
-        settings = settings_of(main)
         stats = {"width": width, "height": height, "gaussians": 0, **timings}
         for warning in (frame.warnings if frame is not None else ()):
             print(f"Gaussian splats: {warning}")
@@ -126,13 +178,20 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         else:
             if origin != Region(0, 0, *full):  # a cropped border: compose the whole frame
                 mesh_rgba, mesh_depth = embed(mesh_rgba, mesh_depth, origin, *full)
+            if prepared_frame is not frame:  # another view layer was rendered (rare)
+                prepared = wait_ms = None
             composed = compose(frame.gaussians, frame.camera, mesh_rgba, mesh_depth,
-                               out=pass_image(full[1], full[0]), **frame.render_options())
+                               out=pass_image(full[1], full[0]), prepared=prepared,
+                               with_depth=bridge.uses_depth(main), **frame.render_options())
             mesh_rgba = mesh_depth = None  # not needed any more: a lower peak while writing
-            rgba, depth = composed.rgba[origin.slices()], composed.depth[origin.slices()]
+            rgba = composed.rgba[origin.slices()]
+            depth = None if composed.depth is None else composed.depth[origin.slices()]
+            native_ms = composed.stats.get("native_ms", composed.stats.get("ms_total", 0.0))
+            if wait_ms is not None:  # only the wait for the thread counts, and the tile pass
+                stats["prepared_ms"] = prepared.stats["ms_total"]
+                native_ms += wait_ms - prepared.stats["ms_total"]
             stats.update(gaussians=len(frame.gaussians), reused=frame.reused,
-                         gather_ms=frame.gather_ms,
-                         native_ms=composed.stats.get("ms_total", 0.0),
+                         gather_ms=frame.gather_ms, native_ms=native_ms,
                          colour_ms=composed.stats.get("colour_ms", 0.0))
             if wants_splat_passes(main):
                 render_state.current.pending_passes[main.name] = (

@@ -39,8 +39,9 @@ COLOR_SPACES = ("SRGB", "LINEAR")
 
 @dataclass
 class CompositeResult:
-    rgba: np.ndarray       # (H, W, 4) float32 premultiplied scene-linear composite
-    depth: np.ndarray      # (H, W) float32 expected planar depth (FAR where nothing was hit)
+    rgba: np.ndarray          # (H, W, 4) float32 premultiplied scene-linear composite
+    depth: np.ndarray | None  # (H, W) float32 expected planar depth (FAR where nothing was
+                              # hit); None when not asked for (`compose(with_depth=False)`)
     stats: dict[str, float] = field(default_factory=dict)
 
 
@@ -66,7 +67,8 @@ def _finite_depth(depth: np.ndarray) -> np.ndarray:
 def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_depth: np.ndarray,
             *, color_space: str = "SRGB", antialiased: bool = False, near: float = 0.01,
             sh_degree: int | None = None, threads: int = 0,
-            out: np.ndarray | None = None) -> CompositeResult:
+            out: np.ndarray | None = None, with_depth: bool = True,
+            prepared: Prepared | None = None) -> CompositeResult:
     """The exact composite of `gaussians` with a mesh render seen by `camera`.
 
     mesh_rgba: (H, W, 4) premultiplied scene-linear colour, rows top to bottom (float32 with
@@ -76,6 +78,10 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     out: where the composite goes, (H, W, 4) float32 with any strides, overlapping none of the
         inputs (e.g. a row-reversed view of the buffer a Blender render pass is filled from,
         reused from frame to frame); by default a new array.
+    with_depth: False when the composite's depth is not wanted (display sRGB only: its
+        `depth` is then None, and the mesh depth is not read where no Gaussian reaches).
+    prepared: `prepare(gaussians, camera, ...)` made beforehand with the same options (display
+        sRGB only; made here when None).
     Returns premultiplied scene-linear RGBA (`out`) and the composite's expected depth.
     """
     _check_space(color_space)
@@ -86,32 +92,73 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
         raise ValueError(f"mesh_rgba must have shape {(height, width, 4)}, "
                          f"got {mesh_rgba.shape}")
     if color_space == "SRGB":
-        # Non-finite values become 0 in the same pass (the compositor wants finite colour).
-        layer = colour.display_from_linear(mesh_rgba, threads=threads, zero_non_finite=True)
-    else:
-        layer = np.ascontiguousarray(mesh_rgba)
-        if not np.isfinite(layer).all():
-            layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
+        return _compose_display(gaussians, camera, mesh_rgba, mesh_depth, antialiased=antialiased,
+                                near=near, sh_degree=sh_degree, threads=threads, out=out,
+                                with_depth=with_depth, prepared=prepared)
+    layer = np.ascontiguousarray(mesh_rgba)
+    if not np.isfinite(layer).all():
+        layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
     convert_in = time.perf_counter() - start
     result = render(gaussians, camera, mesh_rgba=layer, mesh_depth=_finite_depth(mesh_depth),
                     antialiased=antialiased, near=near, sh_degree=sh_degree, threads=threads)
     start = time.perf_counter()
-    if color_space == "SRGB":
-        # Only pixels the splats changed go back through the conversion; the others keep the
-        # mesh layer's own values, bit for bit. Natively on the thread pool; by default the
-        # result replaces the display layer (one frame-sized buffer fewer).
-        if out is None:
-            out = layer
-        native.srgb_decode_changed(result.rgb, result.alpha, mesh_rgba, layer, threads, out)
-    else:
-        if out is None:
-            out = np.empty((height, width, 4), np.float32)
-        out[..., :3] = result.rgb
-        out[..., 3] = result.alpha
+    if out is None:
+        out = np.empty((height, width, 4), np.float32)
+    out[..., :3] = result.rgb
+    out[..., 3] = result.alpha
     depth = result.depth
     depth[~np.isfinite(depth)] = FAR
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (convert_in + time.perf_counter() - start)
+    return CompositeResult(out, depth, stats)
+
+
+@dataclass
+class Prepared:
+    """The Gaussians' half of a display-sRGB composite (`prepare`): projected, sorted and binned
+    for one camera; it needs no mesh render, so it can be made while Blender writes that out."""
+
+    handle: object            # splatcore's prepared frame (freed with this object)
+    camera: Camera
+    threads: int
+    stats: dict[str, float]
+
+
+def prepare(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False,
+            near: float = 0.01, sh_degree: int | None = None, threads: int = 0) -> Prepared:
+    """The first half of `compose` (display sRGB), for `compose(..., prepared=)`. Releases the
+    GIL while it runs: another thread may do this while the main one reads the render."""
+    viewmat, intrinsics, width, height = native.camera_args(camera)
+    threads = native.thread_count(threads)
+    handle, stats = native.splatcore().compose_prepare(
+        *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree),
+        viewmat, intrinsics, width, height, float(near), bool(antialiased), threads)
+    return Prepared(handle, camera, threads, stats)
+
+
+def _compose_display(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray,
+                     mesh_depth: np.ndarray, *, antialiased: bool, near: float,
+                     sh_degree: int | None, threads: int, out: np.ndarray | None,
+                     with_depth: bool, prepared: Prepared | None) -> CompositeResult:
+    """compose() in display sRGB, natively in one pass over the tiles (`sc_compose_srgb`):
+    the mesh layer encoded, composed and the changed pixels decoded only in tiles a Gaussian
+    reaches; elsewhere the mesh's own pixels. The same bits as encoding the whole layer
+    (`colour.display_from_linear`, non-finite values zeroed), rendering over it (`render`) and
+    decoding the changed pixels (`native.srgb_decode_changed`), frame-wide (tests hold it)."""
+    if prepared is None:
+        prepared = prepare(gaussians, camera, antialiased=antialiased, near=near,
+                           sh_degree=sh_degree, threads=threads)
+    elif prepared.camera is not camera:
+        raise ValueError("prepared was made for another camera")
+    height, width = camera.height, camera.width
+    if out is None:
+        out = np.empty((height, width, 4), np.float32)
+    depth = np.empty((height, width), np.float32) if with_depth else None
+    stats = dict(native.splatcore().compose_srgb(
+        prepared.handle, mesh_rgba, np.asarray(mesh_depth, np.float32), out, depth, FAR))
+    # The conversions run inside the tile pass: their share of its wall time, on all threads.
+    stats["colour_ms"] = stats["ms_colour_cpu"] / (prepared.threads or native.cpu_count())
+    stats["native_ms"] = stats["ms_total"] - stats["colour_ms"]
     return CompositeResult(out, depth, stats)
 
 

@@ -312,6 +312,43 @@ void sc_srgb_premultiplied(const float *src, float *dst, int64_t pixels, int dec
 void sc_srgb_decode_changed(const float *rgb, const float *alpha, const sc_rgba_view *mesh,
                             const float *layer, const sc_rgba_view *out, int threads);
 
+/* An (height, width) float32 plane anywhere in memory: byte strides of a row and a pixel. */
+typedef struct {
+    const char *data;
+    int64_t height, width;
+    int64_t row, pixel;
+} sc_plane_view;
+
+/* F12's composite (addon/core/composite.py, compose): the Gaussians composed with a mesh
+ * render, in display sRGB, back in scene-linear; in two steps, so that the Gaussians' half
+ * (project, sort, bin: no mesh needed) can run while Blender writes the mesh render out.
+ *
+ * sc_compose_prepare: that half for `cam` (its stats: project, sort and bin times, visible,
+ * tile_pairs, peak_bytes; error_index with SC_ERR_NONFINITE). Free with sc_prepared_free.
+ *
+ * sc_compose_srgb: mesh is premultiplied scene-linear RGBA, mesh_depth its planar depth (NaN
+ * and +inf: nothing there, -inf: 0), both cam's size, any strides. Per 16x16 tile, in one pass
+ * on the thread pool: a tile no Gaussian reaches is the mesh itself (out = mesh bit for bit;
+ * out_depth its depth where its alpha > 0); any other is what sc_srgb_view (encode,
+ * zero_non_finite), sc_render with that display layer and sc_srgb_decode_changed give, bit
+ * for bit. out (H, W, 4), any strides, overlapping no input; out_depth (H, W) C-contiguous,
+ * `far` where nothing was hit, or NULL for no depth (nothing is then read from mesh_depth in
+ * tiles no Gaussian reaches). stats: the prepared ones, with the tile pass as ms_composite and
+ * both in ms_total; *colour_ms: the time the conversions and the mesh's copy took, summed over
+ * threads. */
+typedef struct sc_prepared sc_prepared;
+sc_status sc_compose_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                             sc_prepared **prepared, sc_stats *stats);
+sc_status sc_compose_srgb(const sc_prepared *prepared, const sc_rgba_view *mesh,
+                          const sc_plane_view *mesh_depth, const sc_rgba_view *out,
+                          float *out_depth, float far, sc_stats *stats, double *colour_ms);
+void sc_prepared_size(const sc_prepared *prepared, int *width, int *height);
+void sc_prepared_free(sc_prepared *prepared);
+
+/* A 256-bit checksum of `bytes` bytes of memory (four 64-bit lanes; checksum.c says what it
+ * always detects): for telling whether data changed. */
+void sc_checksum(const void *data, int64_t bytes, uint64_t out[4]);
+
 #ifdef __cplusplus
 }
 #endif

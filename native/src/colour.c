@@ -21,6 +21,7 @@
  * the same for any thread count. */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "internal.h"
@@ -294,4 +295,38 @@ void sc_srgb_decode_changed(const float *rgb, const float *alpha, const sc_rgba_
     changed_job j = {.rgb = rgb, .alpha = alpha, .layer = layer, .mesh = *mesh, .out = *out};
     power_table_init(&j.table, 2.4);
     sc_parallel_for(threads, out->height * out->width, 1 << 14, changed_pixels, &j);
+}
+
+/* ---------------------------------------------------------------- a rectangle at a time
+ * compose.c converts only the tiles some Gaussian reaches, inside its tile pass: the same
+ * conversions as sc_srgb_view (encode, zero_non_finite) and sc_srgb_decode_changed, over the
+ * rows of one rectangle, with tables made once per frame. */
+struct sc_srgb_tiles {
+    job encode;
+    changed_job decode;
+};
+
+sc_srgb_tiles *sc_srgb_tiles_new(const sc_rgba_view *mesh, const sc_rgba_view *layer_view,
+                                 const float *layer, const float *rgb, const float *alpha,
+                                 const sc_rgba_view *out) {
+    sc_srgb_tiles *t = malloc(sizeof *t);
+    if (!t) return NULL;
+    t->encode = (job){.src = *mesh, .dst = *layer_view, .decode = 0, .zero_non_finite = 1};
+    power_table_init(&t->encode.table, 1.0 / 2.4);
+    t->decode = (changed_job){.rgb = rgb, .alpha = alpha, .layer = layer, .mesh = *mesh,
+                              .out = *out};
+    power_table_init(&t->decode.table, 2.4);
+    return t;
+}
+
+void sc_srgb_tiles_free(sc_srgb_tiles *t) { free(t); }
+
+void sc_srgb_tiles_encode(const sc_srgb_tiles *t, int64_t x0, int64_t y0, int64_t w, int64_t h) {
+    const int64_t width = t->encode.src.width;
+    for (int64_t y = y0; y < y0 + h; ++y) encode_isa(&t->encode, y * width + x0, y * width + x0 + w);
+}
+
+void sc_srgb_tiles_decode(const sc_srgb_tiles *t, int64_t x0, int64_t y0, int64_t w, int64_t h) {
+    const int64_t width = t->decode.out.width;
+    for (int64_t y = y0; y < y0 + h; ++y) changed_isa(&t->decode, y * width + x0, y * width + x0 + w);
 }

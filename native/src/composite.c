@@ -71,7 +71,8 @@ static SC_ALWAYS_INLINE sc_half_rows live_half_rows(const tile_state *st) {
     return alive;
 }
 
-/* Blend the mesh layer into pixel p with the transmittance left. */
+/* Blend the mesh layer into pixel p with the transmittance left. A pixel left with T < SC_T_MIN
+ * takes nothing more (the next Gaussian it would draw stops it, adding 0), so it stops here. */
 static void blend_mesh(tile_state *st, int p, const float *rgba, float z) {
     const float t = st->T[p], a = rgba[3];
     st->r[p] += t * rgba[0];
@@ -82,6 +83,7 @@ static void blend_mesh(tile_state *st, int p, const float *rgba, float z) {
         st->weight[p] += t * a;
     }
     st->T[p] = t * (1.0f - a);
+    if (st->T[p] < SC_T_MIN) st->live[p] = 0.0f;
 }
 
 typedef struct {
@@ -126,7 +128,10 @@ static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
         if ((k & 15) == 15 && !(alive = live_half_rows(st))) break;
         const sc_splat *s = &splats[list[k]];
         if (k + 8 < count) SC_PREFETCH(&splats[list[k + 8]]); /* the list jumps about */
-        if (has_mesh && s->depth >= ms->next_mesh_z) flush_mesh(st, ms, cam, im, s->depth);
+        if (has_mesh && s->depth >= ms->next_mesh_z) {
+            flush_mesh(st, ms, cam, im, s->depth);
+            if (!(alive = live_half_rows(st))) break; /* e.g. all behind an opaque mesh */
+        }
         int j0, j1, i0, i1;
         sc_tile_span(s, ms->x0, ms->y0, &j0, &j1, &i0, &i1);
         sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1);

@@ -90,6 +90,18 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
                            int with_pairs, sc_frame *frame, sc_stats *stats);
 void sc_frame_free(sc_frame *frame);
 
+/* sRGB conversions a rectangle at a time (colour.c), for sc_compose_srgb's tile pass: encode
+ * mesh (scene-linear) into layer_view as sc_srgb_view does with zero_non_finite, and decode as
+ * sc_srgb_decode_changed does (rgb, alpha and layer (H, W, ...) C-contiguous, layer_view a view
+ * of layer). NULL when out of memory. */
+typedef struct sc_srgb_tiles sc_srgb_tiles;
+sc_srgb_tiles *sc_srgb_tiles_new(const sc_rgba_view *mesh, const sc_rgba_view *layer_view,
+                                 const float *layer, const float *rgb, const float *alpha,
+                                 const sc_rgba_view *out);
+void sc_srgb_tiles_encode(const sc_srgb_tiles *t, int64_t x0, int64_t y0, int64_t w, int64_t h);
+void sc_srgb_tiles_decode(const sc_srgb_tiles *t, int64_t x0, int64_t y0, int64_t w, int64_t h);
+void sc_srgb_tiles_free(sc_srgb_tiles *t);
+
 /* ---------------------------------------------------------------- training stages */
 
 /* Gradients of a projected Gaussian (its sc_splat fields), as records of SC_DG_COUNT floats. */

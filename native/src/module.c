@@ -955,6 +955,166 @@ fail:
     return NULL;
 }
 
+/* An (H, W) float32 array with any strides as an sc_plane_view. */
+static int get_plane_view(buffers *b, PyObject *obj, const char *name, Py_ssize_t h, Py_ssize_t w,
+                          sc_plane_view *out) {
+    Py_buffer *view = &b->views[b->count];
+    if (PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES) != 0) {
+        PyErr_Clear();
+        PyErr_Format(PyExc_TypeError, "%s must be a float32 array (buffer protocol)", name);
+        return -1;
+    }
+    b->count++;
+    if (!format_is(view->format, 'f') || view->itemsize != 4) {
+        PyErr_Format(PyExc_TypeError, "%s must have dtype float32, got format '%s'", name,
+                     view->format ? view->format : "B");
+        return -1;
+    }
+    if (view->ndim != 2 || view->shape[0] != h || view->shape[1] != w) {
+        PyErr_Format(PyExc_ValueError, "%s must have shape (%zd, %zd)", name, h, w);
+        return -1;
+    }
+    *out = (sc_plane_view){(const char *)view->buf, view->shape[0], view->shape[1],
+                           view->strides[0], view->strides[1]};
+    return 0;
+}
+
+static const char PREPARED_NAME[] = "splatcore.Prepared";
+
+static void prepared_destructor(PyObject *capsule) {
+    sc_prepared *p = PyCapsule_GetPointer(capsule, PREPARED_NAME);
+    if (!p) {
+        PyErr_Clear();
+        return;
+    }
+    sc_prepared_free(p);
+}
+
+/* compose_prepare(means, ..., sh_degree, world_to_camera, intrinsics, width, height, near,
+ * antialiased, threads[, exhaustive]) -> (prepared, stats): see sc_compose_prepare. The
+ * Gaussians' arrays are not kept (the prepared frame holds its own copies). */
+static PyObject *py_compose_prepare(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *objs[7];
+    int sh_degree, width, height, antialiased, threads, exhaustive = 0;
+    double near;
+    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&|p:compose_prepare", &objs[0], &objs[1], &objs[2],
+                          &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
+                          &near, &antialiased, parse_threads, &threads, &exhaustive))
+        return NULL;
+    buffers b = {.count = 0};
+    sc_gaussians g;
+    sc_camera cam;
+    sc_options opt;
+    if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
+                     &opt) != 0) {
+        release_all(&b);
+        return NULL;
+    }
+    opt.exhaustive = exhaustive;
+    sc_stats stats = {0};
+    sc_prepared *prepared = NULL;
+    sc_status status;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_compose_prepare(&g, &cam, &opt, &prepared, &stats);
+    Py_END_ALLOW_THREADS
+    if (status != SC_OK) {
+        PyObject *error = raise_status(status, &g, &stats);
+        release_all(&b);
+        return error;
+    }
+    release_all(&b);
+    PyObject *capsule = PyCapsule_New(prepared, PREPARED_NAME, prepared_destructor);
+    if (!capsule) {
+        sc_prepared_free(prepared);
+        return NULL;
+    }
+    PyObject *dict = stats_dict(&stats);
+    if (!dict) {
+        Py_DECREF(capsule);
+        return NULL;
+    }
+    return Py_BuildValue("(NN)", capsule, dict);
+}
+
+/* compose_srgb(prepared, mesh, mesh_depth, out, out_depth, far) -> stats: see sc_compose_srgb.
+ * mesh (H, W, 4) and mesh_depth (H, W) float32, any strides, of the prepared camera's size; out
+ * (H, W, 4) writable, any strides, overlapping none of the others; out_depth (H, W) float32
+ * C-contiguous, writable, overlapping neither mesh nor mesh_depth, or None (no depth). */
+static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *capsule, *mesh_obj, *depth_obj, *out_obj, *out_depth_obj;
+    double far;
+    if (!PyArg_ParseTuple(args, "OOOOOd:compose_srgb", &capsule, &mesh_obj, &depth_obj, &out_obj,
+                          &out_depth_obj, &far))
+        return NULL;
+    if (!PyCapsule_IsValid(capsule, PREPARED_NAME)) {
+        PyErr_SetString(PyExc_TypeError, "prepared must be what compose_prepare returned");
+        return NULL;
+    }
+    const sc_prepared *prepared = PyCapsule_GetPointer(capsule, PREPARED_NAME);
+    int width, height;
+    sc_prepared_size(prepared, &width, &height);
+    buffers b = {.count = 0};
+    sc_rgba_view mesh, out;
+    sc_plane_view mesh_depth;
+    const Py_ssize_t img1[] = {height, width};
+    if (get_rgba_view(&b, mesh_obj, "mesh_rgba", 0, height, width, &mesh) != 0 ||
+        get_plane_view(&b, depth_obj, "mesh_depth", height, width, &mesh_depth) != 0 ||
+        get_rgba_view(&b, out_obj, "out", 1, height, width, &out) != 0)
+        goto fail;
+    float *out_depth = NULL;
+    if (out_depth_obj != Py_None &&
+        !(out_depth = (float *)get_array(&b, out_depth_obj, "out_depth", 'f', 2, img1, 1)))
+        goto fail;
+    for (int i = 0; i < b.count; ++i)
+        for (int k = i + 1; k < b.count; ++k)
+            if (i != 0 || k != 1) /* the two inputs may share a buffer */
+                if (overlap(&b.views[i], &b.views[k])) {
+                    PyErr_SetString(PyExc_ValueError,
+                                    "out and out_depth must overlap neither each other nor the "
+                                    "mesh layers");
+                    goto fail;
+                }
+    if (!isfinite(far)) {
+        PyErr_SetString(PyExc_ValueError, "far must be finite");
+        goto fail;
+    }
+    sc_stats stats = {0};
+    double colour_ms = 0.0;
+    sc_status status;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_compose_srgb(prepared, &mesh, &mesh_depth, &out, out_depth, (float)far, &stats,
+                             &colour_ms);
+    Py_END_ALLOW_THREADS
+    PyObject *result = status == SC_OK ? stats_dict(&stats) : raise_status(status, NULL, &stats);
+    if (result && set_number(result, "ms_colour_cpu", PyFloat_FromDouble(colour_ms)) != 0)
+        Py_CLEAR(result);
+    release_all(&b);
+    return result;
+fail:
+    release_all(&b);
+    return NULL;
+}
+
+/* checksum(buffer) -> (lane0, lane1, lane2, lane3): see sc_checksum. Any C-contiguous buffer. */
+static PyObject *py_checksum(PyObject *self, PyObject *arg) {
+    (void)self;
+    Py_buffer view;
+    if (PyObject_GetBuffer(arg, &view, PyBUF_SIMPLE) != 0) {
+        PyErr_Clear();
+        PyErr_SetString(PyExc_TypeError, "checksum needs a C-contiguous buffer");
+        return NULL;
+    }
+    uint64_t lanes[4];
+    Py_BEGIN_ALLOW_THREADS
+    sc_checksum(view.buf, (int64_t)view.len, lanes);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&view);
+    return Py_BuildValue("(KKKK)", (unsigned long long)lanes[0], (unsigned long long)lanes[1],
+                         (unsigned long long)lanes[2], (unsigned long long)lanes[3]);
+}
+
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     (void)self;
     int count, iterations;
@@ -1033,6 +1193,19 @@ static PyMethodDef methods[] = {
      "out_rgb, out_alpha, out_depth[, exhaustive]) -> stats\n\nRender into the out_* arrays; "
      "returns timings (ms) and counts. exhaustive: evaluate each Gaussian over its tiles' whole "
      "bounding spans (the same image, for tests)."},
+    {"compose_prepare", py_compose_prepare, METH_VARARGS,
+     "compose_prepare(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
+     "intrinsics, width, height, near, antialiased, threads[, exhaustive]) -> (prepared, stats)"
+     "\n\nF12's composite, the Gaussians' half (sc_compose_prepare): projected, sorted and "
+     "binned for the camera; no mesh needed yet."},
+    {"compose_srgb", py_compose_srgb, METH_VARARGS,
+     "compose_srgb(prepared, mesh_rgba, mesh_depth, out, out_depth, far) -> stats\n\n"
+     "F12's composite (sc_compose_srgb): the prepared Gaussians over a scene-linear mesh render, "
+     "composed in display sRGB, into out (scene-linear) and out_depth (None: no depth); tiles "
+     "no Gaussian reaches keep the mesh's pixels."},
+    {"checksum", py_checksum, METH_O,
+     "checksum(buffer) -> tuple of four ints\n\nA 256-bit checksum of a C-contiguous buffer's "
+     "bytes (sc_checksum): any change within 193 consecutive bits changes it."},
     {"sort_keys", py_sort_keys, METH_VARARGS,
      "sort_keys(keys, threads, out_order) -> int\n\nThe renderer's depth sort on its own (for "
      "tests): out_order (int32, N) gets the stable ascending order of keys (float32, N; +inf "
