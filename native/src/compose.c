@@ -8,7 +8,8 @@
  * and the way back copied the mesh's own pixel), so it is copied and nothing converted; a tile
  * with Gaussians is converted, composited (sc_composite_tile) and converted back on its own,
  * while it is in cache. An F12 of a small object leaves most tiles empty: the colour work and
- * the compositor's per-pixel set-up and write-out follow the splats, not the frame. */
+ * the compositor's per-pixel set-up and write-out follow the splats, not the frame. The empty
+ * tiles are copied first, row by row (copy_empty_rows), then the others are composed. */
 #include <float.h>
 #include <math.h>
 #include <stdlib.h>
@@ -43,7 +44,7 @@ static inline float depth_at(const sc_plane_view *v, int64_t y, int64_t x) {
     return z;
 }
 
-/* A tile no Gaussian reaches: the mesh pixel as it is, and the depth the compositor gives a
+/* Pixels no Gaussian reaches: the mesh pixel as it is, and the depth the compositor gives a
  * lone mesh pixel (its depth weighted by its alpha, over that alpha: z itself at alpha 1; the
  * alpha the compositor sees is the display layer's, non-finite as 0). Locals throughout: stores
  * through char pointers could alias the job. */
@@ -71,6 +72,31 @@ static void copy_mesh(const compose_job *j, int x0, int y0, int w, int h) {
     }
 }
 
+/* The tiles no Gaussian reaches, a row of pixels at a time: each run of them along a row is
+ * copied in one go, so the mesh's planar rows (an EXR's) are read in order, not 16 pixels of
+ * each per tile (which a prefetcher cannot follow: about three times slower). */
+static void copy_empty_rows(void *ctx, int64_t begin, int64_t end, int thread) {
+    compose_job *j = ctx;
+    const sc_frame *f = j->frame;
+    const int width = j->cam->width;
+    const double start = sc_now_ms();
+    for (int64_t y = begin; y < end; ++y) {
+        const int64_t *offsets = f->offsets + (y / SC_TILE) * f->tiles_x;
+        for (int tx = 0; tx < f->tiles_x;) {
+            if (offsets[tx + 1] != offsets[tx]) {
+                ++tx;
+                continue;
+            }
+            int last = tx;
+            while (last + 1 < f->tiles_x && offsets[last + 2] == offsets[last + 1]) ++last;
+            const int x0 = tx * SC_TILE, x1 = (last + 1) * SC_TILE < width ? (last + 1) * SC_TILE : width;
+            copy_mesh(j, x0, (int)y, x1 - x0, 1);
+            tx = last + 1;
+        }
+    }
+    j->colour_ms[thread * PAD] += sc_now_ms() - start;
+}
+
 static void compose_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
     compose_job *j = ctx;
     const sc_frame *f = j->frame;
@@ -81,12 +107,8 @@ static void compose_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
         const int w = width - x0 < SC_TILE ? width - x0 : SC_TILE;
         const int h = height - y0 < SC_TILE ? height - y0 : SC_TILE;
         const int64_t first = f->offsets[t], count = f->offsets[t + 1] - first;
+        if (count == 0) continue; /* copy_empty_rows' */
         double start = sc_now_ms();
-        if (count == 0) {
-            copy_mesh(j, x0, y0, w, h);
-            j->colour_ms[thread * PAD] += sc_now_ms() - start;
-            continue;
-        }
         sc_srgb_tiles_encode(j->colour, x0, y0, w, h);
         for (int y = y0; y < y0 + h; ++y)
             for (int x = x0; x < x0 + w; ++x)
@@ -175,6 +197,7 @@ sc_status sc_compose_srgb(const sc_prepared *p, const sc_rgba_view *mesh,
     job->image = (sc_image){.mesh_rgba = layer, .mesh_depth = clean_depth, .rgb = rgb,
                             .alpha = alpha, .depth = out_depth};
     const int threads = p->opt.threads < MAX_THREADS ? p->opt.threads : MAX_THREADS;
+    sc_parallel_for(threads, cam->height, 8, copy_empty_rows, job);
     sc_parallel_for(threads, p->frame.ntiles, 1, compose_tiles, job);
 
     stats->ms_composite = sc_now_ms() - start;
