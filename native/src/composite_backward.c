@@ -148,6 +148,54 @@ static SC_ALWAYS_INLINE sc_half_rows live_half_rows(const int32_t *block_last, i
     return live;
 }
 
+/* A Gaussian's record: each quantity's 8 lane sums added in lane order, 0 + v0 + v1 + ... + v7
+ * (the order is part of the result). With vector extensions the 12 x 8 sums are transposed
+ * (shuffles), so that 8 quantities are added at once in that order: a column at a time, the
+ * compiler built each from 8 scalar loads. */
+#if defined(__clang__) || (defined(__GNUC__) && __GNUC__ >= 12)
+typedef float lane_vector __attribute__((vector_size(BLOCK * sizeof(float))));
+#define SHUFFLE __builtin_shufflevector
+
+static SC_ALWAYS_INLINE void reduce_lanes(const lane_sums *sums, float *rec) {
+    _Static_assert(NG == 12 && BLOCK == 8, "the transposes below are for 12 x 8 sums");
+    lane_vector r[12], t[12], u[12];
+    memcpy(r, sums->v, sizeof r);
+    /* Per 128-bit half: interleave pairs of rows, then pairs of pairs: u[4a + i] holds, for
+     * rows 4a..4a+3, column i in its low half and column i + 4 in its high half. */
+    for (int a = 0; a < 3; ++a) {
+        const lane_vector *ra = r + 4 * a;
+        lane_vector *ta = t + 4 * a, *ua = u + 4 * a;
+        ta[0] = SHUFFLE(ra[0], ra[1], 0, 8, 1, 9, 4, 12, 5, 13);
+        ta[1] = SHUFFLE(ra[0], ra[1], 2, 10, 3, 11, 6, 14, 7, 15);
+        ta[2] = SHUFFLE(ra[2], ra[3], 0, 8, 1, 9, 4, 12, 5, 13);
+        ta[3] = SHUFFLE(ra[2], ra[3], 2, 10, 3, 11, 6, 14, 7, 15);
+        ua[0] = SHUFFLE(ta[0], ta[2], 0, 1, 8, 9, 4, 5, 12, 13);
+        ua[1] = SHUFFLE(ta[0], ta[2], 2, 3, 10, 11, 6, 7, 14, 15);
+        ua[2] = SHUFFLE(ta[1], ta[3], 0, 1, 8, 9, 4, 5, 12, 13);
+        ua[3] = SHUFFLE(ta[1], ta[3], 2, 3, 10, 11, 6, 7, 14, 15);
+    }
+    /* Quantities 0..7: column x as one vector (rows 0..3 from u[0..3], 4..7 from u[4..7]). */
+    lane_vector total = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int x = 0; x < 4; ++x) total += SHUFFLE(u[x], u[4 + x], 0, 1, 2, 3, 8, 9, 10, 11);
+    for (int x = 0; x < 4; ++x) total += SHUFFLE(u[x], u[4 + x], 4, 5, 6, 7, 12, 13, 14, 15);
+    memcpy(rec, &total, sizeof total);
+    /* Quantities 8..11: columns 0..3 in u[8..11]'s low halves, then 4..7 from the high halves. */
+    lane_vector rest = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int x = 0; x < 4; ++x) rest += u[8 + x];
+    for (int x = 0; x < 4; ++x) rest += SHUFFLE(u[8 + x], u[8 + x], 4, 5, 6, 7, 4, 5, 6, 7);
+    memcpy(rec + 8, &rest, 4 * sizeof(float));
+}
+#undef SHUFFLE
+#else
+static SC_ALWAYS_INLINE void reduce_lanes(const lane_sums *sums, float *rec) {
+    for (int q = 0; q < NG; ++q) {
+        float total = 0.0f;
+        for (int x = 0; x < BLOCK; ++x) total += sums->v[q][x];
+        rec[q] = total;
+    }
+}
+#endif
+
 static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *block_last, int x0,
                                               int y0, int32_t kmax, const sc_splat *splats,
                                               const uint32_t *list, float *records,
@@ -209,14 +257,7 @@ static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *bl
             back_block(st, &sums[b], item, dys[b][q >> 1], columns[b].dx + item->first % SC_TILE,
                        &sp[b], depth);
         }
-        for (int b = 0; b < n; ++b) {
-            float *rec = records + (int64_t)entries[b] * NG;
-            for (int q = 0; q < NG; ++q) {
-                float total = 0.0f;
-                for (int x = 0; x < BLOCK; ++x) total += sums[b].v[q][x];
-                rec[q] = total;
-            }
-        }
+        for (int b = 0; b < n; ++b) reduce_lanes(&sums[b], records + (int64_t)entries[b] * NG);
     }
     return evaluations;
 }
