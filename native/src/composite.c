@@ -10,7 +10,8 @@
  *    where the CPU has them, chosen once at run time by cpu.c; SSE2 otherwise; NEON on arm64);
  *  - exp() is a polynomial (sc_fast_exp, internal.h) with relative error below 4e-7, far
  *    inside the 1e-4 tolerance and the threshold margins the tests allow (checked against
- *    float64 in tests). */
+ *    float64 in tests), floored where a pixel cannot be drawn so that no result is subnormal;
+ *  - the Gaussians go in batches, set-up and exp() apart from the blending (work_item). */
 #include <math.h>
 #include <string.h>
 
