@@ -10,7 +10,8 @@
  *    where the CPU has them, chosen once at run time by cpu.c; SSE2 otherwise; NEON on arm64);
  *  - exp() is a polynomial (sc_fast_exp, internal.h) with relative error below 4e-7, far
  *    inside the 1e-4 tolerance and the threshold margins the tests allow (checked against
- *    float64 in tests). */
+ *    float64 in tests), floored where a pixel cannot be drawn so that no result is subnormal;
+ *  - the Gaussians go in batches, set-up and exp() apart from the blending (work_item). */
 #include <math.h>
 #include <string.h>
 
@@ -23,29 +24,64 @@ typedef struct {
     float live[PIXELS]; /* 1 while the pixel takes Gaussians, 0 once stopped (or off-image) */
 } tile_state;
 
-/* One Gaussian over the 8 pixels of a half row starting at `first`. The decisions are 0/1 float
- * masks rather than branches so that the loop vectorises. With `record` (a constant at every
- * call, so the compiler drops the branch) it also notes `entry` as the last Gaussian added at
- * each pixel it was added to, for the backward pass. */
-static SC_ALWAYS_INLINE void blend_block(tile_state *st, int first, float power_y, float cb_dy,
-                                         const sc_columns *c, const int record,
-                                         int32_t *restrict last_all, int32_t entry) {
+/* A tile's Gaussians go in batches of up to BATCH, in three passes: each Gaussian's set-up (its
+ * half rows, columns and rows), then its alpha over each half row it is evaluated at (an item),
+ * then the items in order, blended into the running state. The first two have no dependence
+ * from one Gaussian to the next, so they overlap freely; the third is only the short chain
+ * through each pixel's transmittance. One Gaussian at a time, its set-up and exp() sat between
+ * dependent blends, and a few half rows per Gaussian left the processor little to overlap.
+ * Per pixel the Gaussians are blended in list order as before, with the same expressions (each
+ * value that went through memory still does, so no multiply-add is fused differently): the
+ * same bits. */
+enum { BATCH = 16, MAX_ITEMS = BATCH * PIXELS / BLOCK };
+
+typedef struct {
+    float alpha[BLOCK]; /* the clamped alpha where power <= 0 and alpha >= 1/255, else 0 */
+    int32_t first;      /* the half row's first pixel */
+    int32_t gaussian;   /* its Gaussian's place in the batch */
+} work_item;
+
+typedef struct {
+    float r, g, b, depth;
+    int32_t entry; /* its tile-list entry + 1 (n_contrib) */
+} item_colour;
+
+/* The first pass for one half row: alpha = min(0.99, o exp(power)), 0 where not drawn. */
+static SC_ALWAYS_INLINE void alpha_block(work_item *item, int first, float power_y, float cb_dy,
+                                         const sc_columns *c) {
     const int col = first % SC_TILE;
-    float *restrict T = st->T + first, *restrict live = st->live + first;
-    float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
-                    *restrict depth = st->depth + first, *restrict weight = st->weight + first;
-    int32_t *restrict last = record ? last_all + first : NULL;
     const float *restrict dx = c->dx + col, *restrict power_x = c->power_x + col;
     const float opacity = c->opacity;
-    const float cr = c->r, cg = c->g, cbl = c->b, cz = c->depth;
+    float *restrict out = item->alpha;
     for (int x = 0; x < BLOCK; ++x) {
         const float power = power_x[x] + power_y - cb_dy * dx[x];
         float alpha = opacity * sc_fast_exp(power);
         alpha = alpha < SC_ALPHA_MAX ? alpha : SC_ALPHA_MAX;
+        const float drawn = alpha >= SC_ALPHA_MIN ? alpha : 0.0f;
+        out[x] = power <= 0.0f ? drawn : 0.0f;
+    }
+}
+
+/* The second pass for one item. The decisions are 0/1 float masks rather than branches so
+ * that the loop vectorises. Where alpha is 0 (not drawn) nothing changes: w = 0. With `record`
+ * (a constant at every call, so the compiler drops the branch) it also notes the entry as the
+ * last Gaussian added at each pixel it was added to, for the backward pass. */
+static SC_ALWAYS_INLINE void blend_block(tile_state *st, const work_item *item,
+                                         const item_colour *colour, const int record,
+                                         int32_t *restrict last_all) {
+    const int first = item->first;
+    float *restrict T = st->T + first, *restrict live = st->live + first;
+    float *restrict r = st->r + first, *restrict g = st->g + first, *restrict b = st->b + first,
+                    *restrict depth = st->depth + first, *restrict weight = st->weight + first;
+    int32_t *restrict last = record ? last_all + first : NULL;
+    const float *restrict alphas = item->alpha;
+    const float cr = colour->r, cg = colour->g, cbl = colour->b, cz = colour->depth;
+    const int32_t entry = colour->entry;
+    for (int x = 0; x < BLOCK; ++x) {
+        const float alpha = alphas[x];
         const float t = T[x];
         const float next_t = t * (1.0f - alpha);
-        const float drawn = alpha >= SC_ALPHA_MIN ? live[x] : 0.0f;
-        const float visible = power <= 0.0f ? drawn : 0.0f;
+        const float visible = alpha > 0.0f ? live[x] : 0.0f;
         const float stop = next_t < SC_T_MIN ? visible : 0.0f;
         const float added = visible - stop;
         const float w = added * alpha * t; /* alpha T when added, else 0 */
@@ -121,39 +157,58 @@ static SC_ALWAYS_INLINE int64_t composite(tile_state *st, mesh_state *ms,
     const int has_mesh = im->mesh_rgba != NULL;
     const float px0 = (float)ms->x0 + 0.5f;
     int64_t evaluations = 0;
+    sc_columns columns[BATCH];
+    float power_y[BATCH][SC_TILE], cb_dy[BATCH][SC_TILE];
+    sc_half_rows todos[BATCH];
+    item_colour colours[BATCH];
+    work_item items[MAX_ITEMS];
     sc_half_rows alive = live_half_rows(st);
-    for (int64_t k = 0; k < count; ++k) {
-        /* Now and then, which half rows still take Gaussians: the others are skipped (their
-         * pixels would add exactly 0), and a tile whose pixels have all stopped is finished. */
+    int64_t k = 0;
+    while (k < count) {
+        /* Now and then (before every 16th entry), which half rows still take Gaussians: the
+         * others are skipped (their pixels would add exactly 0), and a tile whose pixels have
+         * all stopped is finished. A batch ends there, or before a Gaussian behind pending
+         * mesh pixels (blended first), so `alive` is fixed within a batch. */
         if ((k & 15) == 15 && !(alive = live_half_rows(st))) break;
-        const sc_splat *s = &splats[list[k]];
-        if (k + 8 < count) SC_PREFETCH(&splats[list[k + 8]]); /* the list jumps about */
-        if (has_mesh && s->depth >= ms->next_mesh_z) {
-            flush_mesh(st, ms, cam, im, s->depth);
+        if (has_mesh && splats[list[k]].depth >= ms->next_mesh_z) {
+            flush_mesh(st, ms, cam, im, splats[list[k]].depth);
             if (!(alive = live_half_rows(st))) break; /* e.g. all behind an opaque mesh */
         }
-        int j0, j1, i0, i1;
-        sc_tile_span(s, ms->x0, ms->y0, &j0, &j1, &i0, &i1);
-        sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1);
-        if (!todo) continue;
-        sc_columns c;
-        sc_prepare_columns(&c, s, px0);
-        /* A span of a few half rows has little to skip: not worth the masks' set-up. */
-        if (!exhaustive && sc_popcount(todo) > 3)
-            todo = sc_footprint_half_rows(s, &c, ms->y0, todo);
-        if (!exhaustive) todo &= alive;
-        evaluations += BLOCK * (int64_t)sc_popcount(todo);
-        /* Each row's terms, for all 16 rows at once (vectorised; the same bits as one by one). */
-        float power_y[SC_TILE], cb_dy[SC_TILE];
-        for (int j = 0; j < SC_TILE; ++j) {
-            const float dy = c.y - ((float)(ms->y0 + j) + 0.5f);
-            power_y[j] = -(c.half_cc * dy * dy), cb_dy[j] = c.cb * dy;
+        const int64_t end = (k | 15) + ((k & 15) == 15 ? 16 : 0), stop = end < count ? end : count;
+        int n = 0; /* Gaussians of the batch with half rows to evaluate */
+        for (const int64_t k0 = k; k < stop; ++k) {
+            const sc_splat *s = &splats[list[k]];
+            if (k + 8 < count) SC_PREFETCH(&splats[list[k + 8]]); /* the list jumps about */
+            if (k > k0 && has_mesh && s->depth >= ms->next_mesh_z) break;
+            int j0, j1, i0, i1;
+            sc_tile_span(s, ms->x0, ms->y0, &j0, &j1, &i0, &i1);
+            sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1);
+            if (!todo) continue;
+            sc_columns *c = &columns[n];
+            sc_prepare_columns(c, s, px0);
+            /* A span of a few half rows has little to skip: not worth the masks' set-up. */
+            if (!exhaustive && sc_popcount(todo) > 3)
+                todo = sc_footprint_half_rows(s, c, ms->y0, todo);
+            if (!exhaustive) todo &= alive;
+            evaluations += BLOCK * (int64_t)sc_popcount(todo);
+            /* Each row's terms, for all 16 rows at once (vectorised; the same bits as one by one). */
+            for (int j = 0; j < SC_TILE; ++j) {
+                const float dy = c->y - ((float)(ms->y0 + j) + 0.5f);
+                power_y[n][j] = -(c->half_cc * dy * dy), cb_dy[n][j] = c->cb * dy;
+            }
+            todos[n] = todo;
+            colours[n++] = (item_colour){c->r, c->g, c->b, c->depth, (int32_t)(k + 1)};
         }
-        while (todo) {
-            const int q = sc_lowest_bit(todo), j = q >> 1;
-            todo &= todo - 1;
-            blend_block(st, q * BLOCK, power_y[j], cb_dy[j], &c, record, last, (int32_t)(k + 1));
-        }
+        int items_n = 0;
+        for (int b = 0; b < n; ++b)
+            for (sc_half_rows todo = todos[b]; todo; todo &= todo - 1) {
+                const int q = sc_lowest_bit(todo);
+                work_item *item = &items[items_n++];
+                item->first = q * BLOCK, item->gaussian = b;
+                alpha_block(item, q * BLOCK, power_y[b][q >> 1], cb_dy[b][q >> 1], &columns[b]);
+            }
+        for (int i = 0; i < items_n; ++i)
+            blend_block(st, &items[i], &colours[items[i].gaussian], record, last);
     }
     return evaluations;
 }

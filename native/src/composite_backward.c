@@ -36,20 +36,60 @@ typedef struct {
     float v[NG][BLOCK]; /* per-lane partial sums of one Gaussian's gradient record */
 } lane_sums;
 
-/* One Gaussian over the 8 pixels of a half row starting at `first`. */
-static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, int first, float dy,
-                              float power_y, float cb_dy, const sc_columns *c, float ca, float cb,
-                              float cc, int32_t entry, const int depth) {
-    const int col = first % SC_TILE;
+/* As the forward (composite.c), a tile's Gaussians go in batches of up to BATCH, in three
+ * passes: each Gaussian's set-up, then exp() over each half row it is evaluated at (an item),
+ * then the items in order through the running state (back to front) into each Gaussian's lane
+ * sums. The first two have no dependence from one Gaussian to the next, so they overlap freely.
+ * Per pixel and per lane everything happens in the same order with the same expressions as one
+ * Gaussian at a time (each value that went through memory still does, so no multiply-add is
+ * fused differently): the same bits. */
+enum { BATCH = 16, MAX_ITEMS = BATCH * PIXELS / BLOCK };
+
+typedef struct {
+    float g[BLOCK];   /* exp(power) where the forward added the Gaussian, else 0 */
+    int32_t first;    /* the half row's first pixel */
+    int32_t gaussian; /* its Gaussian's place in the batch */
+} work_item;
+
+typedef struct {
+    float ca, cb, cc, opacity, r, g, b, depth;
+} item_splat;
+
+/* The second pass for one half row: exp(power), 0 where this Gaussian was not added (those
+ * pixels then change nothing: see back_block). Exactly the forward's expressions, so the same
+ * pixels count. */
+static SC_ALWAYS_INLINE void exp_block(const back_state *st, work_item *item, float power_y,
+                                       float cb_dy, const sc_columns *c, int32_t entry) {
+    const int first = item->first, col = first % SC_TILE;
+    const int32_t *restrict last = st->last + first;
+    const float *restrict dxs = c->dx + col, *restrict power_x = c->power_x + col;
+    const float opacity = c->opacity;
+    float *restrict out = item->g;
+    for (int x = 0; x < BLOCK; ++x) {
+        const float power = power_x[x] + power_y - cb_dy * dxs[x];
+        const float g = sc_fast_exp(power);
+        const float raw = opacity * g;
+        const float alpha = raw < SC_ALPHA_MAX ? raw : SC_ALPHA_MAX;
+        const float mine = entry <= last[x] ? g : 0.0f;
+        const float drawn = alpha >= SC_ALPHA_MIN ? mine : 0.0f;
+        out[x] = power <= 0.0f ? drawn : 0.0f;
+    }
+}
+
+/* The third pass for one item: its Gaussian over the 8 pixels of a half row. */
+static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, const work_item *item,
+                                        float dy, const float *dxs, const item_splat *sp,
+                                        const int depth) {
+    const int first = item->first;
     float *restrict T = st->T + first;
     float *restrict ar = st->acc_r + first, *restrict ag = st->acc_g + first,
                     *restrict ab = st->acc_b + first, *restrict az = st->acc_z + first;
     const float *restrict gr = st->d_r + first, *restrict gg = st->d_g + first,
                           *restrict gb = st->d_b + first, *restrict gz = st->d_z + first,
                           *restrict gt = st->d_t + first;
-    const int32_t *restrict last = st->last + first;
-    const float *restrict dxs = c->dx + col, *restrict power_x = c->power_x + col;
-    const float opacity = c->opacity, cr = c->r, cg = c->g, cbl = c->b, cz = c->depth;
+    const float *restrict gs = item->g;
+    const float opacity = sp->opacity, cr = sp->r, cg = sp->g, cbl = sp->b, cz = sp->depth;
+    const float ca = sp->ca, cb = sp->cb, cc = sp->cc;
     float *restrict s_x = sums->v[SC_DG_X], *restrict s_y = sums->v[SC_DG_Y];
     float *restrict s_a = sums->v[SC_DG_CA], *restrict s_b = sums->v[SC_DG_CB],
                     *restrict s_c = sums->v[SC_DG_CC], *restrict s_o = sums->v[SC_DG_OPACITY];
@@ -58,17 +98,14 @@ static SC_ALWAYS_INLINE void back_block(back_state *st, lane_sums *sums, int fir
     float *restrict s_ax = sums->v[SC_DG_ABS_X], *restrict s_ay = sums->v[SC_DG_ABS_Y];
     for (int x = 0; x < BLOCK; ++x) {
         const float dx = dxs[x];
-        /* Exactly the forward's expressions, so the same pixels count. */
-        const float power = power_x[x] + power_y - cb_dy * dx;
-        const float g = sc_fast_exp(power);
+        const float g = gs[x]; /* > 0 exactly where the Gaussian was added (alpha >= 1/255) */
         const float raw = opacity * g;
         const float alpha = raw < SC_ALPHA_MAX ? raw : SC_ALPHA_MAX;
-        const float mine = entry <= last[x] ? 1.0f : 0.0f;
-        const float drawn = alpha >= SC_ALPHA_MIN ? mine : 0.0f;
-        const float use = power <= 0.0f ? drawn : 0.0f;
+        const float use = g > 0.0f ? 1.0f : 0.0f;
 
         /* Where the Gaussian was not added, used_alpha is 0, so the division by 1 - 0 and the
-         * updates below leave T and the colour behind exactly as they were (no blend needed). */
+         * updates below leave T and the colour behind exactly as they were (no blend needed),
+         * and every term of the sums is 0. */
         const float used_alpha = use * alpha;
         const float inv = 1.0f / (1.0f - used_alpha);
         const float t = T[x] * inv; /* T_i */
@@ -111,53 +148,116 @@ static SC_ALWAYS_INLINE sc_half_rows live_half_rows(const int32_t *block_last, i
     return live;
 }
 
+/* A Gaussian's record: each quantity's 8 lane sums added in lane order, 0 + v0 + v1 + ... + v7
+ * (the order is part of the result). With vector extensions the 12 x 8 sums are transposed
+ * (shuffles), so that 8 quantities are added at once in that order: a column at a time, the
+ * compiler built each from 8 scalar loads. */
+#if defined(__clang__) || (defined(__GNUC__) && __GNUC__ >= 12)
+typedef float lane_vector __attribute__((vector_size(BLOCK * sizeof(float))));
+#define SHUFFLE __builtin_shufflevector
+
+static SC_ALWAYS_INLINE void reduce_lanes(const lane_sums *sums, float *rec) {
+    _Static_assert(NG == 12 && BLOCK == 8, "the transposes below are for 12 x 8 sums");
+    lane_vector r[12], t[12], u[12];
+    memcpy(r, sums->v, sizeof r);
+    /* Per 128-bit half: interleave pairs of rows, then pairs of pairs: u[4a + i] holds, for
+     * rows 4a..4a+3, column i in its low half and column i + 4 in its high half. */
+    for (int a = 0; a < 3; ++a) {
+        const lane_vector *ra = r + 4 * a;
+        lane_vector *ta = t + 4 * a, *ua = u + 4 * a;
+        ta[0] = SHUFFLE(ra[0], ra[1], 0, 8, 1, 9, 4, 12, 5, 13);
+        ta[1] = SHUFFLE(ra[0], ra[1], 2, 10, 3, 11, 6, 14, 7, 15);
+        ta[2] = SHUFFLE(ra[2], ra[3], 0, 8, 1, 9, 4, 12, 5, 13);
+        ta[3] = SHUFFLE(ra[2], ra[3], 2, 10, 3, 11, 6, 14, 7, 15);
+        ua[0] = SHUFFLE(ta[0], ta[2], 0, 1, 8, 9, 4, 5, 12, 13);
+        ua[1] = SHUFFLE(ta[0], ta[2], 2, 3, 10, 11, 6, 7, 14, 15);
+        ua[2] = SHUFFLE(ta[1], ta[3], 0, 1, 8, 9, 4, 5, 12, 13);
+        ua[3] = SHUFFLE(ta[1], ta[3], 2, 3, 10, 11, 6, 7, 14, 15);
+    }
+    /* Quantities 0..7: column x as one vector (rows 0..3 from u[0..3], 4..7 from u[4..7]). */
+    lane_vector total = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int x = 0; x < 4; ++x) total += SHUFFLE(u[x], u[4 + x], 0, 1, 2, 3, 8, 9, 10, 11);
+    for (int x = 0; x < 4; ++x) total += SHUFFLE(u[x], u[4 + x], 4, 5, 6, 7, 12, 13, 14, 15);
+    memcpy(rec, &total, sizeof total);
+    /* Quantities 8..11: columns 0..3 in u[8..11]'s low halves, then 4..7 from the high halves. */
+    lane_vector rest = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int x = 0; x < 4; ++x) rest += u[8 + x];
+    for (int x = 0; x < 4; ++x) rest += SHUFFLE(u[8 + x], u[8 + x], 4, 5, 6, 7, 4, 5, 6, 7);
+    memcpy(rec + 8, &rest, 4 * sizeof(float));
+}
+#undef SHUFFLE
+#else
+static SC_ALWAYS_INLINE void reduce_lanes(const lane_sums *sums, float *rec) {
+    for (int q = 0; q < NG; ++q) {
+        float total = 0.0f;
+        for (int x = 0; x < BLOCK; ++x) total += sums->v[q][x];
+        rec[q] = total;
+    }
+}
+#endif
+
 static SC_ALWAYS_INLINE int64_t back_tile_body(back_state *st, const int32_t *block_last, int x0,
                                               int y0, int32_t kmax, const sc_splat *splats,
                                               const uint32_t *list, float *records,
                                               const int depth, const int exhaustive) {
     const float px0 = (float)x0 + 0.5f;
     int64_t evaluations = 0;
-    for (int32_t k = kmax - 1; k >= 0; --k) {
-        /* The splats are read in list order but lie apart in memory: fetch a few ahead. */
-        if (k >= PREFETCH) SC_PREFETCH(&splats[list[k - PREFETCH]]);
-        const sc_splat *s = &splats[list[k]];
-        float *rec = records + (int64_t)k * NG;
-        int j0, j1, i0, i1;
-        sc_tile_span(s, x0, y0, &j0, &j1, &i0, &i1);
-        /* Only the half rows the forward could have added this Gaussian to: inside its
-         * alpha >= 1/255 ellipse (the forward's footprint masks) and with a pixel that had not
-         * stopped before it. Every pixel left out adds exactly 0 to the record. */
-        sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1);
-        if (!exhaustive) todo &= live_half_rows(block_last, k);
-        sc_columns c;
-        if (todo) {
-            sc_prepare_columns(&c, s, px0);
-            if (!exhaustive && sc_popcount(todo) > 3) todo = sc_footprint_half_rows(s, &c, y0, todo);
+    sc_columns columns[BATCH];
+    float dys[BATCH][SC_TILE], power_y[BATCH][SC_TILE], cb_dy[BATCH][SC_TILE];
+    sc_half_rows todos[BATCH];
+    int32_t entries[BATCH];
+    item_splat sp[BATCH];
+    lane_sums sums[BATCH];
+    work_item items[MAX_ITEMS];
+    for (int32_t k = kmax - 1; k >= 0;) {
+        int n = 0; /* Gaussians of the batch with half rows to evaluate */
+        for (const int32_t stop = k >= BATCH ? k - BATCH : -1; k > stop; --k) {
+            /* The splats are read in list order but lie apart in memory: fetch a few ahead. */
+            if (k >= PREFETCH) SC_PREFETCH(&splats[list[k - PREFETCH]]);
+            const sc_splat *s = &splats[list[k]];
+            int j0, j1, i0, i1;
+            sc_tile_span(s, x0, y0, &j0, &j1, &i0, &i1);
+            /* Only the half rows the forward could have added this Gaussian to: inside its
+             * alpha >= 1/255 ellipse (the forward's footprint masks) and with a pixel that had
+             * not stopped before it. Every pixel left out adds exactly 0 to the record. */
+            sc_half_rows todo = sc_span_half_rows(j0, j1, i0, i1);
+            if (!exhaustive) todo &= live_half_rows(block_last, k);
+            sc_columns *c = &columns[n];
+            if (todo) {
+                sc_prepare_columns(c, s, px0);
+                if (!exhaustive && sc_popcount(todo) > 3) todo = sc_footprint_half_rows(s, c, y0, todo);
+            }
+            if (!todo) {
+                memset(records + (int64_t)k * NG, 0, sizeof(float) * NG);
+                continue;
+            }
+            evaluations += BLOCK * (int64_t)sc_popcount(todo);
+            for (int j = 0; j < SC_TILE; ++j) { /* all rows at once (vectorised) */
+                dys[n][j] = c->y - ((float)(y0 + j) + 0.5f);
+                power_y[n][j] = -(c->half_cc * dys[n][j] * dys[n][j]), cb_dy[n][j] = c->cb * dys[n][j];
+            }
+            for (int q = 0; q < NG; ++q)
+                for (int x = 0; x < BLOCK; ++x) sums[n].v[q][x] = 0.0f;
+            sp[n] = (item_splat){s->ca, s->cb, s->cc, c->opacity, c->r, c->g, c->b, c->depth};
+            todos[n] = todo;
+            entries[n++] = k;
         }
-        if (!todo) {
-            memset(rec, 0, sizeof(float) * NG);
-            continue;
+        int items_n = 0;
+        for (int b = 0; b < n; ++b) /* row by row, left to right: the sums' fixed order */
+            for (sc_half_rows todo = todos[b]; todo; todo &= todo - 1) {
+                const int q = sc_lowest_bit(todo);
+                work_item *item = &items[items_n++];
+                item->first = q * BLOCK, item->gaussian = b;
+                exp_block(st, item, power_y[b][q >> 1], cb_dy[b][q >> 1], &columns[b],
+                          entries[b] + 1);
+            }
+        for (int i = 0; i < items_n; ++i) {
+            const work_item *item = &items[i];
+            const int b = item->gaussian, q = item->first / BLOCK;
+            back_block(st, &sums[b], item, dys[b][q >> 1], columns[b].dx + item->first % SC_TILE,
+                       &sp[b], depth);
         }
-        evaluations += BLOCK * (int64_t)sc_popcount(todo);
-        float dys[SC_TILE], power_y[SC_TILE], cb_dy[SC_TILE]; /* all rows at once (vectorised) */
-        for (int j = 0; j < SC_TILE; ++j) {
-            dys[j] = c.y - ((float)(y0 + j) + 0.5f);
-            power_y[j] = -(c.half_cc * dys[j] * dys[j]), cb_dy[j] = c.cb * dys[j];
-        }
-        lane_sums sums;
-        for (int q = 0; q < NG; ++q) /* a loop, not memset: the sums then live in registers */
-            for (int x = 0; x < BLOCK; ++x) sums.v[q][x] = 0.0f;
-        while (todo) { /* row by row, left to right: the sums' fixed order */
-            const int q = sc_lowest_bit(todo), j = q >> 1;
-            todo &= todo - 1;
-            back_block(st, &sums, q * BLOCK, dys[j], power_y[j], cb_dy[j], &c, s->ca, s->cb,
-                       s->cc, k + 1, depth);
-        }
-        for (int q = 0; q < NG; ++q) {
-            float total = 0.0f;
-            for (int x = 0; x < BLOCK; ++x) total += sums.v[q][x];
-            rec[q] = total;
-        }
+        for (int b = 0; b < n; ++b) reduce_lanes(&sums[b], records + (int64_t)entries[b] * NG);
     }
     return evaluations;
 }
