@@ -6,7 +6,8 @@
     blender --background --python examples/train.py -- --colmap DIR --steps 7000 --out out.ply
 
 With no --steps, training stops when done: when the held-out PSNR gains less than
---stop-gain dB per minute (0.1; checked every 500 steps; at most 30000 steps), then compacts.
+--stop-gain dB per minute over the last minute (0.1; checked every 500 steps; at most 30000
+steps), then compacts.
 The default strategy, "auto", sizes the model itself (--max-gaussians is only a ceiling).
 Every 8th image (by name) is held out; held-out PSNR/SSIM is printed every --eval-every steps
 and at the end. --compact prunes negligible Gaussians and SH bands afterwards and reports size

@@ -155,7 +155,7 @@ def test_stops_when_the_gain_stalls(dataset, tmp_path) -> None:
     # With no step count (0: until done), any real gain is below 1e9 dB a minute: the third
     # check (step 30) stops the run (with no annealing steps after it).
     config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
-                          stop_check_every=10, anneal_steps=0)
+                          stop_window_seconds=0, stop_check_every=10, anneal_steps=0)
     trainer = Trainer(dataset, config)
     history = list(trainer.run())
     assert trainer.converged and trainer.step == 30 and len(history) == 30
@@ -220,7 +220,7 @@ def test_coarse_to_fine_training_learns(dataset) -> None:
 
 def test_a_job_until_done_ends_done_compacts_and_says_so(dataset) -> None:
     config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
-                          stop_check_every=10, strategy="auto", anneal_steps=15)
+                          stop_window_seconds=0, stop_check_every=10, strategy="auto", anneal_steps=15)
     seen = []
     job = TrainingJob(Trainer(dataset, config), compact_after=True, on_progress=seen.append).run()
     p = job.progress()  # stalled at step 30, annealed 15 steps
@@ -252,7 +252,7 @@ def test_contribution_counts_dark_gaussians(dataset) -> None:
 
 def test_a_run_until_done_anneals_its_learning_rates_then_stops(dataset, tmp_path) -> None:
     config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
-                          stop_check_every=10, anneal_steps=20, anneal_to=0.01)
+                          stop_window_seconds=0, stop_check_every=10, anneal_steps=20, anneal_to=0.01)
     trainer = Trainer(dataset, config)
     plain = Trainer(dataset, short_config(steps=120))
     rates = {}

@@ -57,7 +57,7 @@ class Progress:
     psnr: float = float("nan")  # training-view PSNR, mean over the last `window` steps
     gaussians: int = 0
     sizing: str = ""  # how the count changes ("growing", "settled"; "" if not said)
-    gain_per_minute: float = float("nan")  # held-out PSNR gain at the last stop check
+    gain_per_minute: float = float("nan")  # held-out PSNR gain over the last minute of checks
     sh_degree: int = 0
     elapsed: float = 0.0  # seconds since training (not loading) began
     seconds_per_step: float = float("nan")  # mean wall time of the last `window` steps

@@ -39,6 +39,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from . import stopping
 from . import train_kernels as tk
 from .cameras import Camera
 from .gaussians import Gaussians, sh_count
@@ -287,12 +288,9 @@ class Trainer:
 
     @property
     def gain_per_minute(self) -> float:
-        """The held-out (else training-view) PSNR gain per minute between the last two stop
-        checks; NaN before two."""
-        if len(self.checks) < 2:
-            return float("nan")
-        (t0, p0), (t1, p1) = self.checks[-2:]
-        return (p1 - p0) / max((t1 - t0) / 60.0, 1e-9)
+        """The held-out (else training-view) PSNR gain per minute over the last
+        `stop_window_seconds` of stop checks (`stopping.gain_per_minute`); NaN before two."""
+        return stopping.gain_per_minute(self.checks, self.config.stop_window_seconds)
 
     # -- running, evaluating --------------------------------------------------------------
     @property
@@ -321,16 +319,13 @@ class Trainer:
             yield stats
 
     def _gain_has_stalled(self) -> bool:
-        """Record a check; True when the last two intervals each gained less than the threshold
-        per minute (a single slow interval, e.g. across an opacity reset, does not stop it)."""
+        """Record a check; True when the gain over the last window has stalled at two checks in
+        a row (`stopping.has_stalled`)."""
         train = self.dataset.train_indices
         views = self.dataset.test_indices or train[::max(1, len(train) // 8)][:8]
         self.checks.append((self.seconds, self.evaluate(views).psnr))
-        if len(self.checks) < 3:
-            return False
-        rates = [(b[1] - a[1]) / max((b[0] - a[0]) / 60.0, 1e-9)
-                 for a, b in zip(self.checks[-3:-1], self.checks[-2:])]
-        return all(rate < self.config.stop_below_db_per_minute for rate in rates)
+        c = self.config
+        return stopping.has_stalled(self.checks, c.stop_window_seconds, c.stop_below_db_per_minute)
 
     def evaluate(self, indices: list[int] | None = None, *, sh_degree: int | None = None,
                  gaussians: Gaussians | None = None) -> Evaluation:

@@ -19,12 +19,13 @@ class TrainConfig:
     # A fixed number of steps; 0: until done (not in the reference): `Trainer.run()` ends once
     # the PSNR on the held-out views (with none, on up to 8 training views), measured every
     # `stop_check_every` steps, gained less than `stop_below_db_per_minute` per minute of
-    # training time at two checks in a row (`Trainer.converged` then says so; 0: never), or at
-    # `max_steps`.
+    # training time over the last `stop_window_seconds` of checks, at two checks in a row
+    # (`stopping.py`; `Trainer.converged` then says so; 0: never), or at `max_steps`.
     steps: int = 0
     max_steps: int = 30_000
     stop_below_db_per_minute: float = 0.1
     stop_check_every: int = 500
+    stop_window_seconds: float = 60.0
     # Once the gain stalls, a run until done trains `anneal_steps` more with every learning rate
     # decaying exponentially to `anneal_to` of its value, then stops: the held-out PSNR of a
     # model still moving at full rates swings by tenths of a dB from check to check (cup from
