@@ -237,7 +237,7 @@ class _LossStream:
 
 
 def test_auto_grows_while_growth_pays_then_settles(rng) -> None:
-    config = TrainConfig(strategy="auto", densify_every=10, mcmc_growth=0.05,
+    config = TrainConfig(strategy="auto", densify_every=10, auto_growth=0.05,
                          auto_gain_per_growth=0.2, auto_patience=2, max_gaussians=10_000)
     params = GaussianParameters(random_gaussians(rng, 200, 0))
     strategy = AutoStrategy(config, 1.0, rng)
@@ -278,3 +278,12 @@ def test_auto_learns_and_keeps_its_sizing_through_a_checkpoint(dataset, tmp_path
     for name in ("growing", "misses", "level", "fall_sum", "fall_steps", "previous_count",
                  "view_loss"):
         assert getattr(resumed.strategy, name) == getattr(trainer.strategy, name), name
+
+
+def test_auto_grows_by_its_own_fraction_and_mcmc_by_its(rng) -> None:
+    for name, cls in (("auto", AutoStrategy), ("mcmc", MCMCStrategy)):
+        config = TrainConfig(strategy=name, auto_growth=0.10, mcmc_growth=0.05)
+        params = GaussianParameters(random_gaussians(rng, 1000, 0))
+        strategy = cls(config, 1.0, rng)
+        strategy.reset(len(params))
+        assert strategy.grow(params) == (100 if name == "auto" else 50)

@@ -1,8 +1,9 @@
 """A strategy that sizes the model itself: 3DGS-MCMC (`mcmc.py`) whose Gaussian count follows
 from the images instead of a budget.
 
-The count grows as MCMC grows it (`mcmc_growth` more every `densify_every` steps, each new
-Gaussian a share of a live one drawn by opacity) only while growing still buys error on the
+The count grows as MCMC grows it (`auto_growth`, 10 %, more every `densify_every` steps, each
+new Gaussian a share of a live one drawn by opacity; MCMC's own 5 % reached the count the scene
+settles at later, and so a given PSNR later) only while growing still buys error on the
 training views at the current resolution:
 
 - the training loss is compared per view: each step's loss against the same view's loss the
@@ -10,7 +11,7 @@ training views at the current resolution:
   Views differ in difficulty far more than a model improves in an interval, so comparing means
   over different draws of views would mostly measure which views were drawn;
 - after an interval that grew the count by a fraction g, that fall must be at least
-  `auto_gain_per_growth` x g (1 by default: 5 % more Gaussians must come with at least 5 %
+  `auto_gain_per_growth` x g (1 by default: 10 % more Gaussians must come with at least 10 %
   less loss in the interval). The fall includes what the optimiser finds with the Gaussians
   it has, so when even that is below the bar, more Gaussians do not pay: after
   `auto_patience` such intervals in a row the count settles;
@@ -37,6 +38,9 @@ class AutoStrategy(MCMCStrategy):
 
     def densifies_from(self) -> int:
         return self.config.auto_densify_from
+
+    def growth(self) -> float:
+        return self.config.auto_growth
 
     def reset(self, count: int) -> None:
         super().reset(count)

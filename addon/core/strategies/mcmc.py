@@ -129,10 +129,14 @@ class MCMCStrategy(Strategy):
             params.reset_moments(name, np.concatenate([dead, picked]))
         return len(dead)
 
+    def growth(self) -> float:
+        """The fraction of the count added at each densification step."""
+        return self.config.mcmc_growth
+
     def grow(self, params: GaussianParameters) -> int:
-        """Add `mcmc_growth` of the count more, up to the budget. Returns how many were added."""
+        """Add `growth()` of the count more, up to the budget. Returns how many were added."""
         n = len(params)
-        target = min(self.config.max_gaussians, int((1.0 + self.config.mcmc_growth) * n))
+        target = min(self.config.max_gaussians, int((1.0 + self.growth()) * n))
         count = max(0, target - n)
         if count == 0:
             return 0
