@@ -281,8 +281,9 @@ def suite_with_wheel(wheel: Path, scratch: Path) -> str:
             # reported as flaky, loudly, with its messages, but does not fail the build: one
             # such failure in CI was not reproduced in 70 runs and 40 seeds per random test.
             report = "".join(f"\n    {line}" for line in _failure_lines(done)[:20])
-            rerun = _pytest([line[len("FAILED "):].split(" - ")[0] for line in done.stdout.splitlines()
-                             if line.startswith("FAILED ")] or chosen, level_env)
+            failed = [line[len("FAILED "):].split(" - ")[0]
+                      for line in done.stdout.splitlines() if line.startswith("FAILED ")]
+            rerun = _pytest(failed or chosen, level_env)
             check(rerun.returncode == 0, f"native tests with the linux-x64 wheel, {isa}: "
                   f"{summary}, and again when rerun: {_last_line(rerun)}{report}")
             if rerun.returncode == 0:
