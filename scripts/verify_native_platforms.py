@@ -279,7 +279,7 @@ def suite_with_wheel(wheel: Path, scratch: Path) -> str:
             # Say which test failed and with which seed (the log used to say only "1 failed").
             # A failure that a second run of the same tests with fresh seeds does not repeat is
             # reported as flaky, loudly, with its messages, but does not fail the build: one
-            # such failure in CI was not reproduced in 70 runs and 40 seeds per random test.
+            # such failure in CI was not reproduced in 45 runs and 40 seeds per random test.
             report = "".join(f"\n    {line}" for line in _failure_lines(done)[:20])
             failed = [line[len("FAILED "):].split(" - ")[0]
                       for line in done.stdout.splitlines() if line.startswith("FAILED ")]

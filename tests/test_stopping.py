@@ -24,6 +24,8 @@ def test_gain_is_the_least_squares_slope_over_the_window() -> None:
     # Window 0: the difference of the last two checks, per minute.
     assert gain_per_minute(_checks([0.0, 30.0, 60.0], [20.0, 21.0, 20.5]), 0.0) == pytest.approx(-1.0)
     assert np.isnan(gain_per_minute(_checks([0.0], [20.0]), 60.0))
+    # A negative window (a script's setting) reads as 0, not as an error mid-run.
+    assert gain_per_minute(_checks([0.0, 30.0, 60.0], [20.0, 21.0, 20.5]), -5.0) == pytest.approx(-1.0)
 
 
 def test_noise_on_a_slow_climb_does_not_stop_a_run(rng) -> None:

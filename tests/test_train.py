@@ -220,7 +220,8 @@ def test_coarse_to_fine_training_learns(dataset) -> None:
 
 def test_a_job_until_done_ends_done_compacts_and_says_so(dataset) -> None:
     config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
-                          stop_window_seconds=0, stop_check_every=10, strategy="auto", anneal_steps=15)
+                          stop_window_seconds=0, stop_check_every=10, strategy="auto",
+                          anneal_steps=15)
     seen = []
     job = TrainingJob(Trainer(dataset, config), compact_after=True, on_progress=seen.append).run()
     p = job.progress()  # stalled at step 30, annealed 15 steps
@@ -252,7 +253,8 @@ def test_contribution_counts_dark_gaussians(dataset) -> None:
 
 def test_a_run_until_done_anneals_its_learning_rates_then_stops(dataset, tmp_path) -> None:
     config = short_config(steps=0, max_steps=120, stop_below_db_per_minute=1e9,
-                          stop_window_seconds=0, stop_check_every=10, anneal_steps=20, anneal_to=0.01)
+                          stop_window_seconds=0, stop_check_every=10, anneal_steps=20,
+                          anneal_to=0.01)
     trainer = Trainer(dataset, config)
     plain = Trainer(dataset, short_config(steps=120))
     rates = {}

@@ -24,7 +24,7 @@ def gain_per_minute(checks: list[Check], window: float) -> float:
     if len(checks) < 2:
         return float("nan")
     end = checks[-1][0]
-    first = next(i for i, (t, _) in enumerate(checks) if t >= end - window)
+    first = next((i for i, (t, _) in enumerate(checks) if t >= end - window), len(checks) - 2)
     t, p = np.array(checks[min(first, len(checks) - 2):], np.float64).T
     t = t - t.mean()
     return float(60.0 * (t @ (p - p.mean())) / max(t @ t, 1e-18))
