@@ -12,6 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # the shared helpers (reference, scenes, bpy_support...)
 
 # bpy-level tests must not read or write the user's Blender configuration.
 os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="splat-blender-user-")

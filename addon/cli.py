@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from .core import axes
-from .core.train_config import STRATEGY_NAMES
+from .core.train.config import STRATEGY_NAMES
 
 COMMAND_ID = "gaussian_splatting"  # `blender -c gaussian_splatting ...` (the extension's id)
 
@@ -117,7 +117,8 @@ def _is_splat_file(path: Path) -> bool:
 
 def _splat_object(bpy, source: Path, object_name: str | None, forward: str, up: str):
     """A splat object: imported from a splat file, or named (or the only one) in a .blend."""
-    from .blender import io_operators, splat_object
+    from .blender.io import operators as io_operators
+    from .blender import splat_object
 
     if source.suffix.lower() == ".blend":
         _open(bpy, source)
@@ -164,7 +165,7 @@ def _train(args: argparse.Namespace) -> None:
         _empty_scene(bpy)
         bpy.ops.splat.import_colmap(directory=str(source.resolve()),
                                     **_options(args, ("image_folder",)))
-    from .blender import train_operator
+    from .blender.train import operator as train_operator
 
     collection = train_operator.find_colmap_collection(bpy.context, args.collection or "")
     if collection is None:
@@ -189,7 +190,7 @@ def _train(args: argparse.Namespace) -> None:
 
 
 def _export(bpy, obj, out: Path, forward: str, up: str) -> None:
-    from .blender import io_operators
+    from .blender.io import operators as io_operators
     for warning in io_operators.export_splats(obj, out, forward_axis=forward, up_axis=up):
         print(f"warning: {warning}", file=sys.stderr)
     print(f"wrote {out}", flush=True)

@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 from addon.core import splat_io  # noqa: E402
 from addon.core.cameras import Camera  # noqa: E402
 from addon.core.gaussians import Gaussians  # noqa: E402
-from addon.core.render import render  # noqa: E402
+from addon.core.render.renderer import render  # noqa: E402
 
 PLAYBOT = ROOT.parent / "shared" / "data" / "splats" / "playbot_125k_sh2.ply"
 NAMES = ["x.ply", "x.compressed.ply", "x.splat", "x.spz", "x.sog", "meta.json", "x.glb", "x.gltf"]

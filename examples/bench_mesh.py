@@ -103,8 +103,8 @@ def psnr(a, b) -> float:
 
 def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, folder):
     from addon.blender import mesh_convert
-    from addon.core import surface, mesh_texture
-    from addon.core.render import render
+    from addon.core.mesh import surface, texture as mesh_texture
+    from addon.core.render.renderer import render
 
     bounds = surface.splat_bounds(gaussians)
     diag = float(np.linalg.norm(bounds[1] - bounds[0]))
@@ -180,7 +180,8 @@ def main() -> None:
 
     import bpy  # noqa: F401
 
-    from addon.core import splat_io, surface
+    from addon.core import splat_io
+    from addon.core.mesh import surface
     from addon.core.cameras import Camera
 
     folder = Path(tempfile.mkdtemp(prefix="bench_mesh_"))
@@ -197,7 +198,7 @@ def main() -> None:
     rows += run_scene(bpy, "demo", g, fusion, held, settings, folder)
     if args.cup:
         from addon.core.colmap import read_colmap
-        from addon.core.dataset import ColmapDataset
+        from addon.core.train.dataset import ColmapDataset
 
         scene = read_colmap(args.colmap, image_folder="images_4")
         dataset = ColmapDataset(scene)

@@ -131,7 +131,7 @@ def table(rows: list[list[str]], header: list[str]) -> None:
 
 
 def measure(gaussians, camera, repeats: int, threads: int) -> list[str]:
-    from addon.core.render import render
+    from addon.core.render.renderer import render
 
     masks = "exhaustive" in inspect.signature(render).parameters
     render(gaussians, camera, threads=threads)  # warm-up: page in, start the pool
@@ -194,7 +194,7 @@ def main_table(args) -> None:
 
 def efficiency(gaussians, camera) -> None:
     import splatcore
-    from addon.core.render import render
+    from addon.core.render.renderer import render
 
     iterations = 400
     seconds = min(splatcore.composite_microbench(512, iterations) for _ in range(5))
@@ -209,7 +209,7 @@ def efficiency(gaussians, camera) -> None:
 
 
 def knobs(gaussians, camera, repeats: int) -> None:
-    from addon.core.render import render
+    from addon.core.render.renderer import render
 
     def timed(**options) -> float:
         render(gaussians, camera, **options)
@@ -232,7 +232,7 @@ def knobs(gaussians, camera, repeats: int) -> None:
 
 def reference_error(gaussians, camera, **options) -> str:
     import reference
-    from addon.core.render import render
+    from addon.core.render.renderer import render
 
     start = time.perf_counter()
     ref = reference.render_scene(gaussians, camera, **options)

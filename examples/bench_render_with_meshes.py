@@ -15,7 +15,7 @@ and prints medians (ms) of where the difference goes:
     gather    splats from the render's depsgraph (world space; cached per object, so this is
               the cost of a frame whose splats did not change: "first" is the first render's)
     read      the meshes' colour and depth: Render Result -> float EXR in a RAM folder
-              (Blender's Image.save_render) -> numpy views of its rows (addon.core.exr_scanlines)
+              (Blender's Image.save_render) -> numpy views of its rows (addon.core.images.exr_scanlines)
     colour    scene-linear <-> display sRGB of the mesh layer and of the pixels the splats
               changed (addon.core.colour, native, on every core)
     native    the native compositor (projection, sort, binning, per-pixel composite)
@@ -96,7 +96,7 @@ def _render(cpu: list[float] | None = None) -> float:
 
 def _use_splats(scene, on: bool) -> None:
     """Splats on (with the compositor bridge), or off with no bridge: Blender alone."""
-    from addon.blender import compositor_bridge
+    from addon.blender.render import compositor_bridge
 
     scene.splat_render.enabled = on
     if on:
@@ -151,7 +151,8 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
     ("extra_cpu", the same way), the first render's gather ("gather_first"), the splat count,
     and the frame's peak memory (MB): "rss_plain_mb", "rss_splats_mb",
     "numpy_splats_mb" (see the module docstring)."""
-    from addon.blender import compositor_bridge, render_hooks, splat_object
+    from addon.blender.render import compositor_bridge, hooks as render_hooks
+    from addon.blender import splat_object
 
     scene = build(splats, random=random, size=size, samples=samples)
     count = sum(len(o.data.vertices) for o in scene.objects if splat_object.is_splat_object(o))

@@ -35,12 +35,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from addon.core import train_kernels as tk  # noqa: E402
+from addon.core.train import kernels as tk  # noqa: E402
 from addon.core.colmap import read_colmap  # noqa: E402
-from addon.core.dataset import ColmapDataset  # noqa: E402
-from addon.core.render import render  # noqa: E402
-from addon.core.train import Trainer, TrainConfig, compact, ply_bytes, psnr  # noqa: E402
-from addon.core.train_config import STRATEGY_NAMES  # noqa: E402
+from addon.core.train.dataset import ColmapDataset  # noqa: E402
+from addon.core.render.renderer import render  # noqa: E402
+from addon.core.train.trainer import Trainer, TrainConfig, compact, ply_bytes, psnr  # noqa: E402
+from addon.core.train.config import STRATEGY_NAMES  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 # name: (COLMAP folder, image folder, further downscale)

@@ -31,9 +31,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "examples"))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from addon.core import render as api  # noqa: E402
+from addon.core.render import renderer as api  # noqa: E402
 from addon.core import splat_io  # noqa: E402
-from addon.core import train_kernels as tk  # noqa: E402
+from addon.core.train import kernels as tk  # noqa: E402
 from bench_render import PLAYBOT, playbot_camera, table  # noqa: E402
 from scenes import fast_random_gaussians, random_camera  # noqa: E402
 
@@ -77,7 +77,7 @@ def step_profile(label: str, gaussians, views, repeats: int) -> None:
     """One training step's stages as the trainer runs them (`views`: (camera, target) pairs,
     stepped through in turn). Single-thread CPU ms (best of `repeats` per stage, steadiest
     under load) and 2-thread wall ms (median)."""
-    from addon.core.optimizer import GaussianParameters
+    from addon.core.train.optimizer import GaussianParameters
 
     lrs = {"means": 1e-6, "log_scales": 1e-6, "quats": 1e-6, "opacity_logits": 1e-6,
            "sh_dc": 1e-6, "sh_rest": 1e-6}  # tiny: the Gaussians stay what they were
@@ -131,8 +131,8 @@ def step_profile(label: str, gaussians, views, repeats: int) -> None:
 def trained_cup(steps: int):
     """The default trainer's Gaussians after `steps` on cup at 200x150, and its training views."""
     from addon.core.colmap import read_colmap
-    from addon.core.dataset import ColmapDataset
-    from addon.core.train import Trainer, TrainConfig
+    from addon.core.train.dataset import ColmapDataset
+    from addon.core.train.trainer import Trainer, TrainConfig
 
     dataset = ColmapDataset(read_colmap(ROOT.parent / "shared" / "data" / "cup",
                                         image_folder="images_4"))
@@ -150,8 +150,8 @@ def level_profile(steps: int, repeats: int) -> None:
     halved twice, once, not at all), at the degree the trainer renders at that step: each
     stage's native timer (ms), the fastest and the median of `repeats`."""
     from addon.core.colmap import read_colmap
-    from addon.core.dataset import ColmapDataset
-    from addon.core.train import Trainer, TrainConfig
+    from addon.core.train.dataset import ColmapDataset
+    from addon.core.train.trainer import Trainer, TrainConfig
 
     dataset = ColmapDataset(read_colmap(ROOT.parent / "shared" / "data" / "cup",
                                         image_folder="images_4"))

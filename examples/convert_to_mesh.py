@@ -37,7 +37,8 @@ def main(argv: list[str]) -> None:
     import bpy
 
     import addon
-    from addon.blender import io_operators, mesh_convert
+    from addon.blender.io import operators as io_operators
+    from addon.blender import mesh_convert
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     if not hasattr(bpy.types, "SPLAT_OT_convert_to_mesh"):

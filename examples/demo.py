@@ -14,8 +14,8 @@ sys.path.insert(0, str(ROOT))
 
 from addon.core import splat_io  # noqa: E402
 from addon.core.cameras import Camera  # noqa: E402
-from addon.core.image_io import write_image  # noqa: E402
-from addon.core.render import render  # noqa: E402
+from addon.core.images.files import write_image  # noqa: E402
+from addon.core.render.renderer import render  # noqa: E402
 
 
 def main() -> None:

@@ -14,7 +14,7 @@ and intrinsics, and that similarity.
 
 `--sfm` also runs pycolmap's incremental mapping on the images (no poses given) and compares
 the recovered camera centres with the known ones after a similarity alignment, relative to the
-scene size (the camera rig's diameter); `tests/test_colmap_demo.py` runs the same check.
+scene size (the camera rig's diameter); `tests/core/colmap/test_colmap_demo.py` runs the same check.
 
     .venv/bin/python examples/make_colmap_demo.py            # render, write, triangulate
     .venv/bin/python examples/make_colmap_demo.py --sfm      # ... and check SfM against truth

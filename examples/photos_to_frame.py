@@ -113,7 +113,7 @@ def main() -> None:
     verb("render", str(work / "final.blend"), "--camera", CAMERA, "--out", str(work / "final_"))
 
     if args.docs:
-        from addon.core import image_io
+        from addon.core.images import files as image_io
 
         docs = Path(args.docs).resolve()
         docs.mkdir(parents=True, exist_ok=True)

@@ -133,8 +133,8 @@ def main() -> None:
     scene = bpy.context.scene
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    hooks = import_module(bpy.types.SPLAT_OT_import_splats.__module__.rsplit(".", 1)[0]
-                          + ".render_hooks")
+    hooks = import_module(bpy.types.SPLAT_OT_import_splats.__module__.split(".blender.")[0]
+                          + ".blender.render.hooks")
 
     scene.render.image_settings.file_format = "PNG"
     scene.render.filepath = str(out / "headless_still")

@@ -28,9 +28,9 @@ sys.path.insert(0, str(ROOT))
 
 from addon.core import splat_io  # noqa: E402
 from addon.core.colmap import read_colmap  # noqa: E402
-from addon.core.dataset import ColmapDataset  # noqa: E402
-from addon.core.train import Trainer, TrainConfig, compact, ply_bytes  # noqa: E402
-from addon.core.train_config import STRATEGY_NAMES  # noqa: E402
+from addon.core.train.dataset import ColmapDataset  # noqa: E402
+from addon.core.train.trainer import Trainer, TrainConfig, compact, ply_bytes  # noqa: E402
+from addon.core.train.config import STRATEGY_NAMES  # noqa: E402
 
 def arguments(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

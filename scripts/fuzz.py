@@ -13,7 +13,7 @@ consistent), `refused` (SplatFileError / ColmapError naming the file), and the f
 
 Seeds are small files made here (so mutants reach the data, not just the header) plus, for
 campaigns, the real files of `--corpus` folders (default ../shared/data/splats and the COLMAP
-models in ../shared/data). tests/test_fuzz.py runs a fixed-seed few hundred per reader.
+models in ../shared/data). tests/core/formats/test_fuzz.py runs a fixed-seed few hundred per reader.
 """
 
 from __future__ import annotations

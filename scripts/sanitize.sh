@@ -44,17 +44,17 @@ run() {  # run <name> <sanitizer runtime> <pytest arguments...>: the tests on bu
     ) || { cat "$out"/report.* 2>/dev/null; exit 1; }
 }
 
-NATIVE_TESTS=(tests/test_render_reference.py tests/test_backward.py tests/test_train_kernels.py
-              tests/test_bad_input.py tests/test_hard_cases.py tests/test_threads.py)
+NATIVE_TESTS=(tests/core/render/test_render_reference.py tests/core/train/test_backward.py tests/core/train/test_train_kernels.py
+              tests/core/formats/test_bad_input.py tests/core/render/test_hard_cases.py tests/core/render/test_threads.py)
 
 if [ "$which" = all ] || [ "$which" = asan ]; then
     echo "sanitize: AddressSanitizer + UndefinedBehaviorSanitizer"
     build asan "-fsanitize=address,undefined -fno-sanitize-recover=all"
-    run asan libasan.so "${NATIVE_TESTS[@]}" tests/test_fuzz.py
+    run asan libasan.so "${NATIVE_TESTS[@]}" tests/core/formats/test_fuzz.py
 fi
 if [ "$which" = all ] || [ "$which" = tsan ]; then
     echo "sanitize: ThreadSanitizer"
     build tsan "-fsanitize=thread"
-    run tsan libtsan.so tests/test_threads.py tests/test_train_kernels.py
+    run tsan libtsan.so tests/core/render/test_threads.py tests/core/train/test_train_kernels.py
 fi
 echo "sanitize: clean"

@@ -19,7 +19,7 @@ holding nothing but that bpy wheel and what pip installs with it (cached in --ca
             front and a plane behind, and a two-frame animation (`render(animation=True)`, as
             `blender -b -a` runs). Each written PNG must equal the native composite within
             1/255 and show both the splats and the cube. The expected image is computed here,
-            in the project venv (addon.core.render, OpenImageIO from requirements.txt), from
+            in the project venv (addon.core.render.renderer, OpenImageIO from requirements.txt), from
             what the Blender process saves beside each frame: the same frame as a multilayer
             EXR (Blender's own mesh colour and depth), the splats the add-on gathered, and the
             camera; so a Blender that cannot compose (or read images) fails the check, not
@@ -157,11 +157,11 @@ def compare_frame(frame: dict) -> str:
     shows both the splats and the cube in front of them; else a summary."""
     import numpy as np
 
-    from addon.core import exr_layers as exr
+    from addon.core.images import exr_layers as exr
     from addon.core.colour import display_from_linear, linear_from_display
     from addon.core.cameras import BlenderCameraParams, camera_from_blender
     from addon.core.gaussians import Gaussians
-    from addon.core.render import render
+    from addon.core.render.renderer import render
 
     channels = exr.read_channels(frame["exr"])
     mesh = exr.find_pass(channels, "ViewLayer", "Combined", "RGBA")

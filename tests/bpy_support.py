@@ -10,7 +10,7 @@ import addon
 from addon.blender import gather, splat_object
 from addon.core.cameras import BlenderCameraParams, Camera, camera_from_blender
 from addon.core.gaussians import Gaussians
-from addon.core.render import render
+from addon.core.render.renderer import render
 
 
 def ensure_registered() -> None:

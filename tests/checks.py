@@ -71,7 +71,7 @@ def _pixel(got, want, err, ok) -> str:
 
 def assert_projection_matches(got, want: dict, means, viewmat, fx, fy, cx, cy, *, unit=UNIT,
                               opacity_atol=1e-5, rgb_atol=1e-5) -> None:
-    """`got` an addon.core.render.Projection, `want` a reference.project() dict.
+    """`got` an addon.core.render.renderer.Projection, `want` a reference.project() dict.
 
     Tolerances, per Gaussian, with u = `unit`, s = |mean| + |t| (the size of what the view
     transform adds up) and k = max(1, s / z) (how much z's rounding is amplified by 1/z):
@@ -120,3 +120,21 @@ def assert_projection_matches(got, want: dict, means, viewmat, fx, fy, cx, cy, *
                 f"{name}: {np.count_nonzero(~rows_ok)} Gaussians out of tolerance; worst #{row}: "
                 f"native {getattr(got, name)[row]!r} reference {want[name][row]!r} "
                 f"tolerance {tol[row]!r} (xy {want['xy'][row]}, depth {want['depth'][row]})")
+
+
+# Renders of one scene in two frames (tests/core/test_transform.py): equal up to float rounding,
+# except pixels where a threshold flips under rounding: at most 0.5 % of them, each bounded.
+RENDER_ATOL = 2e-4
+RENDER_FLIP_ATOL = 0.05
+MAX_FLIP_FRACTION = 0.005
+
+
+def compare_renders(a, b, depth_scale: float = 1.0) -> dict[str, float]:
+    err = np.maximum(np.abs(a.rgb - b.rgb).max(axis=2), np.abs(a.alpha - b.alpha))
+    flips = err > RENDER_ATOL
+    assert flips.mean() <= MAX_FLIP_FRACTION, f"{flips.sum()} pixels differ by more than {RENDER_ATOL}"
+    assert err.max() <= RENDER_FLIP_ATOL, f"worst error {err.max()}"
+    hit = np.isfinite(a.depth) & ~flips
+    depth_err = np.abs(b.depth[hit] / depth_scale - a.depth[hit]) / a.depth[hit]
+    return {"max": float(err.max()), "p99.5": float(np.quantile(err, 0.995)),
+            "depth_rel": float(depth_err.max(initial=0.0)), "flipped": int(flips.sum())}

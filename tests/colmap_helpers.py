@@ -90,7 +90,7 @@ def synthetic_workspace(root: Path, cameras: list[tuple[str, int, int, list[floa
     """
     import pycolmap
 
-    from addon.core import image_io
+    from addon.core.images import files as image_io
 
     rec = pycolmap.Reconstruction()
     cams = []

@@ -1,7 +1,7 @@
 """Float64 NumPy reference of the forward renderer: the slow, obviously-correct twin.
 
 This mirrors docs/conventions.md ("Rendering semantics", "Compositing with meshes") and the semantics
-stated in `addon/core/render.py`, step by step, in float64, with no tiles, no bounding boxes
+stated in `addon/core/render/renderer.py`, step by step, in float64, with no tiles, no bounding boxes
 and no cleverness; the native module `splatcore` is held against it. Readability beats speed:
 it is vectorised over pixels and loops over the Gaussians in depth order.
 
@@ -97,7 +97,7 @@ def eval_sh(sh: np.ndarray, dirs: np.ndarray, degree: int) -> np.ndarray:
 
 def project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy, width,
             height, *, near=0.01, antialiased=False, sh_degree=None) -> dict[str, np.ndarray]:
-    """Per-Gaussian screen-space data, as `addon.core.render.project` documents it.
+    """Per-Gaussian screen-space data, as `addon.core.render.renderer.project` documents it.
 
     Returns xy (N, 2), conic (N, 3) = A, B, C of the inverse dilated 2D covariance, depth (N,)
     view-space z, opacity (N,), rgb (N, 3), valid (N,) bool; rows where valid is False are zero.

@@ -9,6 +9,7 @@ import numpy as np
 
 from addon.core.cameras import Camera
 from addon.core.gaussians import Gaussians, sh_count
+from addon.core.sh import SH_C0
 
 
 def random_camera(rng: np.random.Generator, width: int, height: int, *,
@@ -90,3 +91,17 @@ def playbot_camera() -> Camera:
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     mse = float(np.mean((a.astype(np.float64) - b) ** 2))
     return math.inf if mse == 0 else -10.0 * math.log10(mse)
+
+
+def sphere_gaussians(radius: float = 1.0, count: int = 3000, sigma: float = 0.05,
+                     centre=(0.0, 0.0, 0.0)) -> Gaussians:
+    """Isotropic, nearly opaque Gaussians on a sphere: red on top (z > 0), blue below."""
+    i = np.arange(count) + 0.5
+    z = 1 - 2 * i / count
+    r = np.sqrt(1 - z * z)
+    phi = np.pi * (3 - np.sqrt(5)) * np.arange(count)
+    dirs = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    colour = np.where(dirs[:, 2:3] > 0, [0.9, 0.2, 0.1], [0.1, 0.2, 0.9])
+    sh = ((colour - 0.5) / SH_C0)[:, None, :]
+    return Gaussians(np.asarray(centre) + radius * dirs, np.full((count, 3), np.log(sigma)),
+                     np.tile([1.0, 0, 0, 0], (count, 1)), np.full(count, 4.0), sh)

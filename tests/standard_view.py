@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from addon.core.render import render
+from addon.core.render.renderer import render
 
 
 def encode(x):

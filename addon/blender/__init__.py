@@ -10,14 +10,14 @@ import importlib
 from types import ModuleType
 
 MODULE_NAMES: list[str] = [
-    # one line per module, e.g. "splat_object", "io_operators"
-    "properties", "gather", "io_operators", "edit_operators",  # splat objects
-    "sequence",  # splat sequences: the frame's file on the object (frame_change_pre)
-    "colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
-    "render_panel", "render_failures", "render_hooks", "viewport",  # rendering with meshes
+    # one line per module, dotted under this package, e.g. "splat_object", "io.operators"
+    "properties", "gather", "io.operators", "edit_operators",  # splat objects
+    "io.sequence",  # splat sequences: the frame's file on the object (frame_change_pre)
+    "io.colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
+    "render.panel", "render.failures", "render.hooks", "viewport",  # rendering with meshes
     "job_runner",  # long jobs: status bar, Esc, splat.train_stop
-    "train_operator", "scene_to_splats",  # training: splat.train, splat.bake_to_splats
-    "training_panel",  # 3D View sidebar: start training, follow its progress
+    "train.operator", "train.scene_to_splats",  # training: splat.train, splat.bake_to_splats
+    "train.panel",  # 3D View sidebar: start training, follow its progress
     "mesh_convert",  # splats to a textured mesh: splat.convert_to_mesh
     "cli_command",  # blender -c gaussian_splatting <verb> (addon.cli)
 ]

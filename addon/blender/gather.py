@@ -1,4 +1,4 @@
-"""Gather the splats a depsgraph shows, in world space, ready for `addon.core.render.render`.
+"""Gather the splats a depsgraph shows, in world space, ready for `addon.core.render.renderer.render`.
 
 `gather(depsgraph)` walks `depsgraph.object_instances` (so it sees exactly what Blender would
 render: visibility, modifiers, geometry nodes, instancing, parenting, constraints, drivers and

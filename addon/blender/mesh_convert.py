@@ -1,6 +1,6 @@
 """Splats to a textured mesh: `convert_to_mesh(obj, ...)` and `bpy.ops.splat.convert_to_mesh`.
 
-Pipeline (the numpy parts are in `addon.core.surface` and `addon.core.mesh_texture`):
+Pipeline (the numpy parts are in `addon.core.mesh.surface` and `addon.core.mesh.texture`):
   1. gather the splat object's world-space Gaussians (modifiers, transform applied);
   2. cameras: the COLMAP cameras the object was trained from (`cameras='COLMAP'`; 'AUTO' uses
      them when found), else `view_count` cameras on a Fibonacci sphere framing the splats
@@ -18,7 +18,7 @@ Proxy (`proxy=True`), for composing meshes with a captured scene:
   - Cycles shadow catcher (`is_shadow_catcher`): the proxy itself renders transparent, only the
     shadows modelled objects cast onto it show. In final renders the compositor bridge turns
     on Cycles' Shadow Catcher pass and multiplies the caught shadow over the splat composite
-    (`compositor_bridge.needs_shadow_pass`, `addon.core.composite.apply_shadow_catcher`).
+    (`compositor_bridge.needs_shadow_pass`, `addon.core.render.composite.apply_shadow_catcher`).
     It stays visible to camera rays, because Cycles shows caught shadows only on camera-visible
     catchers; it is hidden from glossy and transmission rays (so it never
     appears in reflections) but casts shadows (`visible_shadow`) and is diffusely lit;
@@ -45,8 +45,8 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty
 
 from ..core.cameras import Camera
-from ..core import surface, mesh_texture
-from ..core.surface import Cancelled
+from ..core.mesh import surface, texture as mesh_texture
+from ..core.mesh.surface import Cancelled
 from ..core.jobs import StagedJob
 from . import dependencies, gather, splat_object
 from .camera_adapter import camera_of

@@ -36,7 +36,7 @@ from bpy.app.handlers import persistent
 from ..core import colour
 from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
-from ..core.render import render
+from ..core.render.renderer import render
 from . import gather
 
 REST_SECONDS = 0.15

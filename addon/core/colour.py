@@ -3,7 +3,7 @@ display sRGB the splats were trained in.
 
 Blender renders meshes in scene-linear Rec.709 (premultiplied alpha); splats trained on photos
 hold display sRGB colours, and the reference 3DGS rasterizer blends them in that space. The
-composite of the two (`addon.core.composite`) therefore happens in display sRGB: the mesh layer
+composite of the two (`addon.core.render.composite`) therefore happens in display sRGB: the mesh layer
 goes through `display_from_linear`, the native compositor blends, and the result comes back
 through `linear_from_display`. Blender's "Standard" view transform applies exactly the sRGB
 encoding below when it writes or shows the result, so:

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Callable, Generator, Sequence
 
 from .gaussians import Gaussians
-from .train import CompactionReport, Evaluation, Trainer, compact
+from .train.trainer import CompactionReport, Evaluation, Trainer, compact
 
 PHASES = ("waiting", "loading", "working", "training", "compacting", "evaluating", "saving", "done",
           "cancelled", "failed")

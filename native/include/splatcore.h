@@ -319,7 +319,7 @@ typedef struct {
     int64_t row, pixel;
 } sc_plane_view;
 
-/* F12's composite (addon/core/composite.py, compose): the Gaussians composed with a mesh
+/* F12's composite (addon/core/render/composite.py, compose): the Gaussians composed with a mesh
  * render, in display sRGB, back in scene-linear; in two steps, so that the Gaussians' half
  * (project, sort, bin: no mesh needed) can run while Blender writes the mesh render out.
  *

@@ -1,4 +1,4 @@
-/* 3DGS-MCMC's position noise (Kheradmand et al. 2024; addon/core/strategies/mcmc.py), per
+/* 3DGS-MCMC's position noise (Kheradmand et al. 2024; addon/core/train/strategies/mcmc.py), per
  * Gaussian in double, as the reference computes it in float64:
  *   o = sigmoid(opacity logit),  gate = sigmoid(100 ((1 - o) - 0.995)),
  *   mean += float32(R diag(s^2) R^T z gate scale),  s = exp(log scales),

@@ -27,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from addon.core import exr_layers as exr  # noqa: E402
+from addon.core.images import exr_layers as exr  # noqa: E402
 from addon.core.cameras import BlenderCameraParams, Camera, camera_from_blender  # noqa: E402
 from addon.core.gaussians import Gaussians  # noqa: E402
 from scenes import random_gaussians  # noqa: E402

@@ -18,7 +18,7 @@ ADDON = "bl_ext.user_default.gaussian_splatting"
 
 
 def main(kind: str) -> None:
-    hooks = importlib.import_module(ADDON + ".blender.render_hooks")
+    hooks = importlib.import_module(ADDON + ".blender.render.hooks")
     dependencies = importlib.import_module(ADDON + ".blender.dependencies")
     if kind == "module":
         real = dependencies.require

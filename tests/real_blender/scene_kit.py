@@ -1,4 +1,4 @@
-"""Scene pieces shared by the bpy tests (tests/test_render_with_meshes.py), the installed-extension
+"""Scene pieces shared by the bpy tests (tests/blender/render/test_render_with_meshes.py), the installed-extension
 driver (scripts/test_installed_extension.py, inside a clean bpy venv) and the real-Blender scripts
 (copied beside them): plain bpy, no imports from this project, since each runs in its own Python."""
 

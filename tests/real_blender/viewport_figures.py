@@ -21,7 +21,7 @@ import json
 
 import numpy as np
 
-from addon.core.render import render
+from addon.core.render.renderer import render
 from standard_view import read_png
 
 CUBE_MIN = np.array([0.35 - 0.45, -2.5 - 0.45, 0.15 - 0.45])

@@ -12,7 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
-from .. import image_io
+from ..images import files as image_io
 from ..atomic import atomic_write
 from .checks import inside
 from .errors import ColmapError

@@ -7,7 +7,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import image_io
+from ..images import files as image_io
 from .checks import check_binary_model, check_text_cameras, is_inside
 from .errors import ColmapError, import_pycolmap
 

@@ -1,0 +1,1 @@
+"""Files into and out of Blender: splat import/export, COLMAP scenes, splat sequences."""

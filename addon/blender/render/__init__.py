@@ -1,0 +1,1 @@
+"""Final renders with splats: engine hooks, the compositor bridge, render state, layers, failures, the panel."""

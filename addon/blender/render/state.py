@@ -1,0 +1,97 @@
+"""The state of the render in progress, and what each of its frames renders.
+
+`current` is the one place the render hooks (`render_hooks`), the reading of the meshes'
+render (`render_layers`) and the failure handling (`render_failures`) share what they know
+about the render between Blender's handler calls.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from ...core.cameras import Camera
+from ...core.gaussians import Gaussians
+from .. import gather
+from ..camera_adapter import camera_of
+
+
+@dataclass
+class FrameSplats:
+    """What one frame renders: gathered from the render's own depsgraph."""
+
+    scene: str
+    view_layer: str
+    frame: int
+    gaussians: Gaussians
+    camera: Camera | None        # the full frame; None: no perspective camera (nothing to draw)
+    antialiased: bool
+    color_space: str
+    sh_degree: int
+    near: float
+    threads: int
+    gather_ms: float
+    warnings: list[str] = field(default_factory=list)
+    reused: int = 0              # splat objects whose Gaussians came from the gather cache
+
+    def render_options(self) -> dict:
+        return dict(color_space=self.color_space, antialiased=self.antialiased, near=self.near,
+                    sh_degree=self.sh_degree, threads=self.threads)
+
+
+class RenderState:
+    """What the render in progress knows (render_init..render_complete/cancel)."""
+
+    def __init__(self) -> None:
+        self.scene: str | None = None          # the scene being rendered (render_init..complete)
+        self.frames: dict[tuple[str, str], FrameSplats] = {}
+        self.frame_start_ns = 0
+        self.pending_passes: dict[str, tuple[int, object]] = {}
+        self.cache_restore: dict[str, bool] = {}
+        self.force_cache_file = False          # tests: read the render through the cache file
+        self.errors: list[str] = []            # why the current (or last) render failed
+        self.failed_frames: set[int] = set()   # frames whose written files must not stay
+        self.camera_restore: dict[str, object] = {}  # scenes whose camera a failure cleared
+        self.set_aside: dict[str, str] = {}    # output file -> where its previous copy waits
+
+
+current = RenderState()
+
+
+def settings_of(scene):
+    return scene.splat_render
+
+
+def render_border(render) -> tuple[float, float, float, float] | None:
+    if not render.use_border:
+        return None
+    return (render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y)
+
+
+def capture_frame(scene, depsgraph) -> FrameSplats:
+    """Gather the splats and the camera a render depsgraph shows (see `render_hooks`)."""
+    settings = settings_of(scene)
+    start = time.perf_counter()
+    result = gather.gather(depsgraph)
+    warnings = list(result.warnings)
+    camera = None
+    camera_obj = depsgraph.scene.camera
+    if camera_obj is None:
+        warnings.append("the scene has no camera")
+    else:
+        camera_obj = camera_obj.evaluated_get(depsgraph)
+        if camera_obj.type != "CAMERA" or camera_obj.data.type != "PERSP":
+            warnings.append("splats render through perspective cameras only: "
+                            f"{camera_obj.name!r} is not one, so no splats are drawn")
+        else:
+            camera = camera_of(camera_obj, depsgraph.scene_eval.render)
+    antialiased = {"OBJECT": result.antialiased, "ON": True, "OFF": False}[settings.antialiased]
+    spaces = {b.color_space for b in result.batches}
+    if len(spaces) > 1:
+        warnings.append("splat objects disagree on the colour space: composing in sRGB")
+    color_space = "LINEAR" if spaces == {"LINEAR"} else "SRGB"
+    gaussians = result.gaussians
+    return FrameSplats(scene.name, depsgraph.view_layer.name, scene.frame_current, gaussians,
+                       camera, antialiased, color_space,
+                       min(settings.sh_degree, gaussians.degree), settings.near, settings.threads,
+                       1000 * (time.perf_counter() - start), warnings, result.cache_hits)

@@ -1,0 +1,1 @@
+"""Training in Blender: the operator, the sidebar panel, Bake to Splats."""

@@ -1,0 +1,1 @@
+"""Images on disk: OpenImageIO files and Blender's multilayer OpenEXR."""

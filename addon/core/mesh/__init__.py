@@ -1,0 +1,1 @@
+"""Splats to meshes: the surface (TSDF, surface nets) and its texture."""

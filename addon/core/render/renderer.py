@@ -1,0 +1,106 @@
+"""The renderer's Python API: `render()` and `project()` over the native module `splatcore`.
+
+Semantics are the reference 3DGS rasterizer's (docs/conventions.md, "Rendering semantics"); the float64
+NumPy twin in `tests/reference.py` is what the native code is held against.
+
+Layers, front to back, per pixel:
+  1. the Gaussians in front of the mesh (view-space depth of the mean < `mesh_depth`), in depth
+     order, with the reference's 1/255 alpha skip and 1e-4 transmittance stop;
+  2. the mesh pixel (`mesh_rgba`, premultiplied) weighted by the transmittance left;
+  3. the Gaussians behind it, by the same rules;
+  4. `background`, an RGB colour, weighted by the transmittance left.
+
+Outputs: `rgb` premultiplied (the background included), `alpha = 1 - T` (coverage by splats and
+mesh; the background does not count), `depth` the expected planar depth `sum(w z) / sum(w)` over
+the Gaussians and the mesh layer (weights `w = alpha_i T_i`), `inf` where nothing was hit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+from .. import native
+from ..cameras import Camera
+from ..gaussians import Gaussians
+
+
+@dataclass
+class Projection:
+    """Per-Gaussian screen-space data; rows where `valid` is False are zero."""
+
+    xy: np.ndarray        # (N, 2) projected mean in pixels
+    conic: np.ndarray     # (N, 3) A, B, C: inverse of the dilated 2D covariance [[A, B], [B, C]]
+    depth: np.ndarray     # (N,)   view-space z of the mean
+    opacity: np.ndarray   # (N,)   sigmoid(logit), times the antialiasing compensation if on
+    rgb: np.ndarray       # (N, 3) SH colour + 0.5, clamped at 0
+    valid: np.ndarray     # (N,)   in front of the near plane with a finite, positive-definite footprint
+
+
+@dataclass
+class RenderResult:
+    """`rgb, alpha, depth = render(...)` unpacks the images; `stats` holds timings and counts."""
+
+    rgb: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+    stats: dict[str, float] = field(default_factory=dict)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return iter((self.rgb, self.alpha, self.depth))
+
+
+def project(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False, near: float = 0.01,
+            sh_degree: int | None = None, threads: int = 0) -> Projection:
+    """Project every Gaussian into `camera` (the renderer's first stage, exposed for tests)."""
+    viewmat, intrinsics, width, height = native.camera_args(camera)
+    n = len(gaussians)
+    out = Projection(np.zeros((n, 2), np.float32), np.zeros((n, 3), np.float32),
+                     np.zeros(n, np.float32), np.zeros(n, np.float32),
+                     np.zeros((n, 3), np.float32), np.zeros(n, np.uint8))
+    native.splatcore().project(
+        *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree), viewmat,
+        intrinsics, width, height, float(near), bool(antialiased), native.thread_count(threads),
+        out.xy, out.conic, out.depth, out.opacity, out.rgb, out.valid)
+    out.valid = out.valid.view(bool)
+    return out
+
+
+def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | None = None,
+           mesh_rgba: np.ndarray | None = None, mesh_depth: np.ndarray | None = None,
+           antialiased: bool = False, near: float = 0.01, sh_degree: int | None = None,
+           threads: int = 0, exhaustive: bool = False) -> RenderResult:
+    """Render `gaussians` seen by `camera`, optionally composed with a mesh layer.
+
+    background: RGB (3,) behind everything, or None for black.
+    mesh_rgba, mesh_depth: (H, W, 4) premultiplied colour and (H, W) planar depth of what Blender
+        rendered; both or neither. Pixels with no mesh have alpha 0 (their depth is then unused).
+    sh_degree: use at most this many SH bands (None: all the Gaussians have).
+    threads: worker threads, 0 for all cores; the image is identical for any count.
+    exhaustive: evaluate every Gaussian over the whole bounding span of each of its tiles, not only
+        the half rows its alpha >= 1/255 ellipse reaches: the slow twin of that optimisation, for
+        tests and benchmarks; the image is the same bit for bit.
+    """
+    viewmat, intrinsics, width, height = native.camera_args(camera)
+    if (mesh_rgba is None) != (mesh_depth is None):
+        raise ValueError("mesh_rgba and mesh_depth must be given together")
+    background = native.background_arg(background)
+    if mesh_rgba is not None:
+        mesh_rgba = native.float_image("mesh_rgba", mesh_rgba, (height, width, 4))
+        mesh_depth = native.float_image("mesh_depth", mesh_depth, (height, width))
+    rgb = np.empty((height, width, 3), np.float32)
+    alpha = np.empty((height, width), np.float32)
+    depth = np.empty((height, width), np.float32)
+    stats = native.splatcore().render(
+        *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree), viewmat,
+        intrinsics, width, height, float(near), bool(antialiased), native.thread_count(threads),
+        background, mesh_rgba, mesh_depth, rgb, alpha, depth, bool(exhaustive))
+    return RenderResult(rgb, alpha, depth, dict(stats))
+
+
+def release_buffers() -> None:
+    """Give the working buffers renders keep for the next frame back to the system (after a
+    render job: a viewport draw or the next F12 allocates them again)."""
+    native.splatcore().release_buffers()

@@ -1,0 +1,1 @@
+"""Training: the loop, its settings, kernels, optimiser, stopping rule, datasets and densification strategies."""

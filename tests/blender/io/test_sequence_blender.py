@@ -1,0 +1,200 @@
+"""Splat sequences in Blender (bpy): one object whose Gaussians are the frame's file, through
+frame changes, gather, F12 animation renders, export back, with bounded memory."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import bpy_support as bs
+from bpy_support import bpy  # the shared bpy import
+import numpy as np
+import pytest
+
+from addon.blender.io import operators as io_operators, sequence
+from addon.core import splat_io
+from addon.core.formats import registry
+from addon.core.render.renderer import render
+from scenes import random_gaussians
+from standard_view import read_png
+
+COUNTS = {1: 120, 2: 200, 3: 60}  # frame number -> Gaussians in its file
+
+
+@pytest.fixture(autouse=True)
+def empty_scene():
+    bs.reset_scene()
+    yield
+    sequence.forget_all()
+
+
+def write_frames(folder: Path, counts: dict[int, int], *, degree: int = 1) -> dict[int, Path]:
+    rng = np.random.default_rng(7)
+    files = {}
+    for number, count in counts.items():
+        g = random_gaussians(rng, count, degree, radius=1.0, stray=0.0)
+        g.means[:, 0] += 0.4 * (number - 2)  # each frame somewhere else: different images
+        files[number] = folder / f"walk_{number:04d}.ply"
+        splat_io.save(g, files[number])
+    return files
+
+
+def file_gaussians(path: Path):
+    return registry.read(path)[0]
+
+
+def test_each_frame_shows_its_file_bit_exact(tmp_path):
+    files = write_frames(tmp_path, COUNTS)
+    scene = bpy.context.scene
+    scene.frame_set(2)
+    obj = io_operators.import_sequence(files[1])
+    assert obj.splat.sequence_source == str(files[1]) and obj.name == "walk"
+    assert bs.gaussians_equal(bs.mesh_gaussians(obj), file_gaussians(files[2]))  # frame 2 now
+    assert len(bpy.data.objects) == 1
+    for frame in (1, 3, 2, 1):
+        scene.frame_set(frame)
+        assert bs.gaussians_equal(bs.mesh_gaussians(obj), file_gaussians(files[frame])), frame
+        gathered = bs.gather.gather(bpy.context.evaluated_depsgraph_get())  # cached path
+        assert len(gathered.gaussians) == COUNTS[frame]
+    scene.frame_set(10)  # after the last file: the last one holds
+    assert len(obj.data.vertices) == COUNTS[3]
+    obj.splat.sequence_frame_offset = 1  # scene frame 1 shows file 2
+    scene.frame_set(1)
+    assert bs.gaussians_equal(bs.mesh_gaussians(obj), file_gaussians(files[2]))
+
+
+def test_the_operator_imports_one_object_and_reports_bad_sequences(tmp_path):
+    files = write_frames(tmp_path, COUNTS)
+    assert bpy.ops.splat.import_splats(filepath=str(files[2]), sequence=True) == {"FINISHED"}
+    (obj,) = bpy.data.objects
+    assert obj.splat.sequence_source and bpy.context.view_layer.objects.active == obj
+    before = bs.scene_state()
+    with pytest.raises(RuntimeError, match="no files match"):
+        bpy.ops.splat.import_splats(filepath=str(tmp_path / "none_####.ply"), sequence=True)
+    assert bs.scene_state() == before
+
+
+def test_edit_mode_is_left_alone(tmp_path):
+    files = write_frames(tmp_path, COUNTS)
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    obj = io_operators.import_sequence(files[1])
+    bpy.ops.object.mode_set(mode="EDIT")
+    scene.frame_set(2)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    assert len(obj.data.vertices) == COUNTS[1]
+    scene.frame_set(3)
+    assert len(obj.data.vertices) == COUNTS[3]
+
+
+def test_a_bad_frame_keeps_the_previous_splats(tmp_path, capfd):
+    files = write_frames(tmp_path, COUNTS)
+    files[2].write_bytes(b"ply\nformat nonsense\n")
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    obj = io_operators.import_sequence(files[1])
+    scene.frame_set(2)
+    assert len(obj.data.vertices) == COUNTS[1]
+    assert "walk_0002.ply" in capfd.readouterr().err
+    scene.frame_set(3)
+    assert len(obj.data.vertices) == COUNTS[3]
+
+
+def _animation_scene(tmp_path, files):
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    io_operators.import_sequence(files[1])
+    camera = bs.add_camera(location=(0.0, -6.0, 0.0), rotation=(math.pi / 2, 0, 0), lens=35,
+                           width=32, height=24)
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.render.film_transparent = True
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    settings = scene.render.image_settings
+    settings.media_type, settings.file_format, settings.color_mode = "IMAGE", "PNG", "RGBA"
+    settings.color_depth = "8"
+    scene.frame_start, scene.frame_end = 1, 3
+    scene.render.filepath = str(tmp_path / "anim_")
+    return scene, camera
+
+
+def test_animation_render_gives_each_frames_image(tmp_path):
+    """F12 animation (Workbench): frame F's PNG is the reference render of file F's splats."""
+    files = write_frames(tmp_path, COUNTS)
+    scene, camera = _animation_scene(tmp_path, files)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    images = []
+    for frame in (1, 2, 3):
+        written = read_png(tmp_path / f"anim_{frame:04d}.png")
+        scene.frame_set(frame)
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        gathered = bs.gather.gather(depsgraph, use_cache=False).gaussians
+        assert len(gathered) == COUNTS[frame]
+        reference = render(gathered, bs.camera_of(camera, depsgraph))
+        assert np.abs(written[..., 3] - np.round(reference.alpha * 255)).max() <= 1, frame
+        images.append(written)
+    assert all(np.abs(images[k] - images[k - 1]).max() > 20 for k in (1, 2))
+
+
+def test_export_round_trip(tmp_path):
+    files = write_frames(tmp_path, COUNTS)
+    scene = bpy.context.scene
+    scene.frame_set(2)
+    obj = io_operators.import_sequence(tmp_path / "walk_####.ply")
+    out = tmp_path / "out"
+    out.mkdir()
+    written = io_operators.export_sequence(obj, out / "copy_####.ply", [1, 2, 3])
+    assert written == [out / f"copy_{n:04d}.ply" for n in (1, 2, 3)]
+    assert scene.frame_current == 2
+    for number in (1, 2, 3):
+        assert bs.gaussians_equal(file_gaussians(written[number - 1]), file_gaussians(files[number]))
+    scene.frame_start, scene.frame_end = 1, 3
+    with bpy.context.temp_override(active_object=obj, object=obj):
+        assert bpy.ops.splat.export_splats(filepath=str(out / "op.ply"), sequence=True) \
+            == {"FINISHED"}
+    for number in (1, 2, 3):
+        assert bs.gaussians_equal(file_gaussians(out / f"op_{number:04d}.ply"),
+                                  file_gaussians(files[number]))
+
+
+def test_memory_stays_bounded_and_scrubbing_back_reads_nothing(tmp_path):
+    write_frames(tmp_path, {n: 10 + n for n in range(1, 21)}, degree=0)
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    obj = io_operators.import_sequence(tmp_path)  # a folder
+    frames = sequence.sequence_of(obj)
+    assert len(frames) == 20 and frames.reads == 1
+    for frame in range(1, 21):
+        scene.frame_set(frame)
+        assert len(obj.data.vertices) == 10 + frame
+        assert len(frames.cached_numbers()) <= sequence.CACHE_FRAMES
+    assert frames.reads == 20 and frames.cached_numbers() == [18, 19, 20]
+    for frame in (19, 18, 20, 19, 18, 19, 20):  # scrubbing back over cached frames
+        scene.frame_set(frame)
+        assert len(obj.data.vertices) == 10 + frame
+    assert frames.reads == 20
+    assert sequence.loaded_sequences() == 1
+
+
+def test_frames_of_the_same_count_gather_their_own_splats(tmp_path):
+    files = write_frames(tmp_path, {1: 50, 2: 50})
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    obj = io_operators.import_sequence(files[1])
+    for frame in (1, 2, 1, 2):
+        scene.frame_set(frame)
+        gathered = bs.gather.gather(bpy.context.evaluated_depsgraph_get()).gaussians
+        matrix = np.array(obj.matrix_world, dtype=np.float64)
+        expected = file_gaussians(files[frame]).means @ matrix[:3, :3].T + matrix[:3, 3]
+        assert np.allclose(gathered.means, expected, atol=1e-5), frame
+
+
+def test_a_frame_that_cannot_be_read_fails_the_render_not_shows_stale_splats(tmp_path):
+    files = write_frames(tmp_path, COUNTS)
+    scene, _camera = _animation_scene(tmp_path, files)
+    files[2].write_bytes(b"ply\nformat nonsense\n")
+    try:
+        bpy.ops.render.render(animation=True)
+    except RuntimeError:
+        pass  # the render failed, as it must
+    assert not (tmp_path / "anim_0002.png").exists()  # never frame 1's splats under frame 2
