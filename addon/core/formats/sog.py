@@ -364,7 +364,8 @@ def _with_source(path: str | os.PathLike, action: Callable[[Path, _Source], Any]
         bundle = zipfile.ZipFile(path)
     except FileNotFoundError:
         raise _fail(path, "no such file") from None
-    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError) as e:
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError, NotImplementedError,
+            RuntimeError) as e:
         raise _fail(path, f"not a .sog bundle (a ZIP file): {e}") from None
     budget = MAX_UNPACK_RATIO * size + UNPACK_SLACK
     with bundle, malformed(path, "SOG"):
