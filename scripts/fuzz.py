@@ -1,5 +1,6 @@
 """Mutation fuzzing of every file reader: splat formats (.ply, compressed .ply, .splat, .spz
-v2/v3/v4) and COLMAP models (.bin, .txt).
+v2/v3/v4, SOG folders and .sog bundles, streamed SOG sets, .gltf and .glb), sequences and COLMAP
+models (.bin, .txt).
 
     .venv/bin/python scripts/fuzz.py [--minutes 10 | --mutants N] [--readers ply,spz4,...]
                                      [--seed S] [--corpus DIR ...] [--out DIR]
@@ -9,7 +10,9 @@ the parent already maps) and a time limit (`--seconds`), so a crash, hang or run
 is a finding, not a dead campaign. Outcomes: `loaded` (and the result is sane: finite, shapes
 consistent), `refused` (SplatFileError / ColmapError naming the file), and the findings:
 `unclean` (any other exception), `insane` (loaded, but non-finite or inconsistent), `memory`,
-`hang`, `crash` (killed by a signal). Findings are saved under --out with their traceback.
+`hang`, `crash` (killed by a signal), `escaped` (opened a file outside the mutant's folder: its
+sibling `outside/`, /dev or /etc). Findings are saved under --out with their traceback.
+The multi-file formats' seeds and format-aware mutations are in scripts/fuzz_files.py.
 
 Seeds are small files made here (so mutants reach the data, not just the header) plus, for
 campaigns, the real files of `--corpus` folders (default ../shared/data/splats and the COLMAP
@@ -39,8 +42,12 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
+from scripts import fuzz_files  # noqa: E402
+
 GOOD = ("loaded", "refused")
-FINDINGS = ("unclean", "insane", "memory", "hang", "crash")
+FINDINGS = ("unclean", "insane", "memory", "hang", "crash", "escaped")
+# Readers whose seeds and mutations are scripts/fuzz_files.py's (several files, JSON, zip).
+FILE_READERS = ("sog_folder", "sog_bundle", "sog_lod", "glb", "gltf", "gltf_external", "sequence")
 
 INTERESTING_INTS = [0, 1, 2, 3, 7, 0x7F, 0x80, 0xFF, 0x100, 0x7FFF, 0x8000, 0xFFFF, 0x10000,
                     0x7FFFFFFF, 0x80000000, 0xFFFFFFFF, 2**40, 2**63 - 1, 2**63, 2**64 - 1,
@@ -143,7 +150,24 @@ def small_seeds(seed: int = 0) -> list[Seed]:
         seeds.append(Seed(f"spz{version}", "a.spz", {"a.spz": data}))
     seeds.append(Seed("colmap_bin", "model", _colmap_model(".bin", rng)))
     seeds.append(Seed("colmap_txt", "model", _colmap_model(".txt", rng)))
+    seeds += fuzz_files.seeds(g, _gaussians(7, 0, rng), Seed)
     return seeds
+
+
+_SPARES: list[bytes] = []
+_OUTSIDE: dict[str, bytes] = {}
+
+
+def _spares() -> list[bytes]:
+    if not _SPARES:
+        _SPARES.extend(fuzz_files.spare_images())
+    return _SPARES
+
+
+def _outside() -> dict[str, bytes]:
+    if not _OUTSIDE:
+        _OUTSIDE.update(fuzz_files.outside_files(_gaussians(5, 1, np.random.default_rng(5))))
+    return _OUTSIDE
 
 
 def corpus_seeds(folders: list[Path]) -> list[Seed]:
@@ -260,6 +284,8 @@ def _mutate_spz4(data: bytes, rnd: random.Random) -> bytes:
 
 
 def mutate(seed: Seed, rnd: random.Random) -> dict[str, bytes]:
+    if seed.reader in FILE_READERS:
+        return fuzz_files.mutate(seed.reader, seed.files, seed.name, rnd, _spares())
     files = dict(seed.files)
     name = rnd.choice(sorted(files))
     data = files[name]
@@ -309,8 +335,36 @@ def _load(reader: str, folder: Path, name: str) -> str | None:
         scene = read_colmap(folder / name, require_photos=False, copy_photos=False,
                             cache_dir=folder / "cache", threads=1)
         return _sane_scene(scene)
+    if reader == "sequence":
+        from addon.core.formats.sequence import SplatSequence
+        sequence = SplatSequence(folder / name, cache_frames=2)
+        for number in sequence.numbers[:20]:
+            problem = _sane_gaussians(sequence.gaussians(number))
+            if problem is not None:
+                return f"frame {number}: {problem}"
+        return None
     from addon.core import splat_io
     return _sane_gaussians(splat_io.load(folder / name))
+
+
+class Escaped(BaseException):
+    """A reader opened a file outside the mutant's folder (not an Exception: no reader's
+    `except` may swallow it)."""
+
+
+def _guard_opens(outside: Path) -> None:
+    """Audit every Python-level open: one outside the mutant's folder (its sibling `outside/`,
+    a device, /etc) raises Escaped before the file is opened."""
+    fence = str(outside)
+
+    def hook(event: str, args: tuple) -> None:
+        if event != "open" or not isinstance(args[0], (str, bytes, os.PathLike)):
+            return
+        name = os.fsdecode(args[0])
+        real = os.path.realpath(name)
+        if real.startswith(fence) or (real.startswith(("/dev/", "/etc/")) and real != "/dev/null"):
+            raise Escaped(f"opened {name!r} ({real})")
+    sys.addaudithook(hook)
 
 
 def _child(reader: str, folder: Path, name: str, memory: int, seconds: int, pipe: int) -> None:
@@ -319,11 +373,14 @@ def _child(reader: str, folder: Path, name: str, memory: int, seconds: int, pipe
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
     from addon.core.colmap import ColmapError
     from addon.core.formats.errors import SplatFileError
+    _guard_opens(folder.parent / "outside")
     code, text = 0, ""
     try:
         problem = _load(reader, folder, name)
         if problem is not None:
             code, text = 4, problem
+    except Escaped:
+        code, text = 6, traceback.format_exc()
     except (SplatFileError, ColmapError) as error:
         code, text = 1, str(error)
         if str(folder) not in text:
@@ -354,14 +411,16 @@ def run_one(reader: str, files: dict[str, bytes], name: str, *, memory_mb: int =
             seconds: int = 20) -> Outcome:
     """Write the mutant to a fresh folder and read it in a forked child."""
     with tempfile.TemporaryDirectory(prefix="fuzz.") as tmp:
-        folder = Path(tmp)
+        folder = Path(tmp) / "user"
+        folder.mkdir()
+        fuzz_files.write(Path(tmp) / "outside", _outside())
         target = folder / name
         if reader.startswith("colmap"):
             target.mkdir()
             for file, data in files.items():
                 (target / file).write_bytes(data)
         else:
-            target.write_bytes(files[name])
+            fuzz_files.write(folder, files)
         read, write = os.pipe()
         limit = _address_space() + (memory_mb << 20)
         pid = os.fork()
@@ -382,8 +441,8 @@ def run_one(reader: str, files: dict[str, bytes], name: str, *, memory_mb: int =
         sig = os.WTERMSIG(status)
         return Outcome("hang" if sig == signal.SIGALRM else "crash", f"signal {sig}")
     code = os.WEXITSTATUS(status)
-    return Outcome({0: "loaded", 1: "refused", 2: "unclean", 3: "memory", 4: "insane"}.get(code, "crash"),
-                   text)
+    return Outcome({0: "loaded", 1: "refused", 2: "unclean", 3: "memory", 4: "insane",
+                    6: "escaped"}.get(code, "crash"), text)
 
 
 # -- campaigns -----------------------------------------------------------------------------------
@@ -403,7 +462,9 @@ class Tally:
         kinds = GOOD + FINDINGS
         lines = [f"{'reader':16}" + "".join(f"{k:>9}" for k in kinds)]
         for reader, per in sorted(self.counts.items()):
-            lines.append(f"{reader:16}" + "".join(f"{per.get(k, 0):>9}" for k in kinds))
+            lines.append(f"{reader:16}" + "".join(f"{per.get(k, 0):>9}" for k in kinds)
+                         + f"{sum(per.values()):>9}")
+        lines[0] += f"{'mutants':>9}"
         return "\n".join(lines)
 
 
@@ -413,7 +474,13 @@ def preload() -> None:
     import pycolmap  # noqa: F401
 
     from addon.core import colmap, splat_io  # noqa: F401
-    from addon.core.formats import compressed_ply, ply, splat, spz  # noqa: F401
+    from addon.core.formats import (compressed_ply, gltf, ply, sequence, sog, sog_lod,  # noqa: F401
+                                    splat, spz, webp)
+    try:
+        import OpenImageIO  # noqa: F401
+    except ImportError:
+        pass
+    _spares(), _outside()
     try:
         import zstandard  # noqa: F401
     except ImportError:

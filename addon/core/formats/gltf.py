@@ -35,12 +35,15 @@ quaternions come back normalised (same rotation; w >= 0 is not enforced).
 from __future__ import annotations
 
 import base64
+import binascii
 import json
 import math
 import os
+import stat
 import struct
+import urllib.parse
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -49,9 +52,11 @@ from ..gaussians import Gaussians
 from ..sh import SH_C0
 from ..transform import transform_gaussians
 from ..atomic import atomic_write
+from .contained import contained_file
 from .errors import SplatFileError
 from .frames import rdf_to_rub
 from .json_file import malformed, parse_object
+from .limits import check_gaussian_count
 from .quaternions import unit_quaternions
 
 __all__ = ["load", "save", "EXTENSION", "SPZ_EXTENSION", "attribute_names"]
@@ -176,11 +181,17 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
 # Reading
 
 
-def _read_bytes(path: Path) -> bytes:
+def _read_bytes(path: Path, shown: Path | None = None, what: str = "file",
+               limit: int | None = None) -> bytes:
+    """A regular file's bytes (the first `limit` of them); errors name `shown` (the user's file)."""
+    shown = shown or path
     try:
-        return path.read_bytes()
+        with open(path, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                raise SplatFileError(shown, f"{what} is not a regular file")
+            return f.read() if limit is None else f.read(limit)
     except OSError as e:
-        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
+        raise SplatFileError(shown, f"cannot read {what}: {e.strerror or e}") from None
 
 
 def _parse_json(path: Path, text: bytes) -> dict:
@@ -197,40 +208,61 @@ def _split_glb(path: Path, data: bytes) -> tuple[dict, bytes | None]:
         raise SplatFileError(path, f"unsupported glTF container version {version}: expected 2")
     if length > len(data):
         raise SplatFileError(path, f"truncated .glb: header says {length} bytes, the file has {len(data)}")
-    chunks, at = [], 12
+    view = memoryview(data)
+    json_chunk, binary, at = None, None, 12
     while at + 8 <= length:
         size, kind = struct.unpack_from("<II", data, at)
         if at + 8 + size > length:
             raise SplatFileError(path, f"truncated .glb: a chunk of {size} bytes runs past the end")
-        chunks.append((kind, data[at + 8:at + 8 + size]))
+        if json_chunk is None:
+            if kind != CHUNK_JSON:
+                break
+            json_chunk = data[at + 8:at + 8 + size]
+        elif kind == CHUNK_BIN and binary is None:
+            binary = view[at + 8:at + 8 + size]  # shared, not copied
         at += 8 + size
-    if not chunks or chunks[0][0] != CHUNK_JSON:
+    if json_chunk is None:
         raise SplatFileError(path, "bad .glb: the first chunk is not JSON")
-    binary = next((c for k, c in chunks[1:] if k == CHUNK_BIN), None)
-    return _parse_json(path, chunks[0][1]), binary
+    return _parse_json(path, json_chunk), binary
 
 
-def _buffers(path: Path, document: dict, binary: bytes | None) -> list[bytes]:
-    buffers = []
+def _buffers(path: Path, document: dict, binary: memoryview | None) -> list[memoryview]:
+    """Every buffer's bytes, shared where they can be: a file named by several buffers is read
+    once (as much of it as the longest needs); external files are judged by
+    `contained.contained_file` (inside the glTF's folder, links followed, regular files)."""
+    wanted: list[tuple[int, Any]] = []
+    longest: dict[Path, int] = {}
     for i, buffer in enumerate(_list(path, document, "buffers")):
-        length = _int(path, buffer.get("byteLength") if isinstance(buffer, dict) else None, f"buffers[{i}].byteLength")
+        if not isinstance(buffer, dict):
+            raise SplatFileError(path, f"bad glTF: buffers[{i}] is not an object")
+        length = _int(path, buffer.get("byteLength"), f"buffers[{i}].byteLength")
         uri = buffer.get("uri")
+        if isinstance(uri, str) and not uri.startswith("data:"):
+            what = f"buffers[{i}].uri"
+            file = contained_file(path.parent, urllib.parse.unquote(uri), path, what)
+            size = file.stat().st_size
+            if size < length:
+                raise SplatFileError(path, f"buffers[{i}] declares {length} bytes, {uri!r} holds {size}")
+            uri = file.resolve()
+            longest[uri] = max(longest.get(uri, 0), length)
+        wanted.append((length, uri))
+    files = {file: memoryview(_read_bytes(file, path, f"buffer file {file.name!r}", limit))
+             for file, limit in longest.items()}
+    buffers = []
+    for i, (length, uri) in enumerate(wanted):
         if uri is None:
             if i != 0 or binary is None:
                 raise SplatFileError(path, f"buffers[{i}] has no uri and there is no .glb binary chunk")
             data = binary
+        elif isinstance(uri, Path):
+            data = files[uri]
         elif not isinstance(uri, str):
             raise SplatFileError(path, f"bad buffers[{i}].uri")
-        elif uri.startswith("data:"):
+        else:  # a data URI: its bytes are in the document, decoded once
             try:
-                data = base64.b64decode(uri.split(",", 1)[1], validate=True)
-            except (IndexError, ValueError):
+                data = memoryview(base64.b64decode(uri.split(",", 1)[1], validate=True))
+            except (IndexError, ValueError, binascii.Error):
                 raise SplatFileError(path, f"bad data URI in buffers[{i}]") from None
-        else:
-            pure = PurePosixPath(uri)
-            if pure.is_absolute() or ":" in uri:
-                raise SplatFileError(path, f"buffers[{i}].uri {uri!r}: only relative files and data URIs are read")
-            data = _read_bytes(path.parent / uri)
         if len(data) < length:
             raise SplatFileError(path, f"buffers[{i}] declares {length} bytes, holds {len(data)}")
         buffers.append(data[:length])
@@ -272,8 +304,9 @@ def _accessor(path: Path, document: dict, buffers: list[bytes], index: Any, name
     count, width = _int(path, accessor.get("count"), f"{name} count"), WIDTH[kind]
     dtype, size = COMPONENTS[component]
     element = width * size
-    if "bufferView" not in accessor:  # all zeros, by glTF's rule
-        return np.zeros((count, width))
+    if "bufferView" not in accessor:  # all zeros by glTF's rule: never splat data
+        raise SplatFileError(path, f"attribute {name}: an accessor without a bufferView (all zeros) "
+                                   f"holds no Gaussians; refused")
     view = _item(path, document, "bufferViews", accessor["bufferView"])
     buffer = _int(path, view.get("buffer"), f"{name} bufferView.buffer", len(buffers) - 1)
     view_offset = _int(path, view.get("byteOffset", 0), f"{name} bufferView.byteOffset")
@@ -368,27 +401,64 @@ def _node_matrix(path: Path, node: dict) -> np.ndarray:
     return m
 
 
-def _instances(path: Path, document: dict) -> list[tuple[int, np.ndarray]]:
-    """(mesh index, global matrix) of every mesh the default scene (or else every root) shows."""
+def _indices(path: Path, value: Any, name: str) -> list[int]:
+    if not isinstance(value, list):
+        raise SplatFileError(path, f"bad glTF: {name} is not a list")
+    return [_int(path, v, name) for v in value]
+
+
+def _instances(path: Path, document: dict) -> list[tuple[int, int, np.ndarray]]:
+    """(node index, mesh index, global matrix) of every mesh the default scene (or else every
+    root) shows. glTF nodes form trees (a node has one parent at most): each is visited once,
+    and one reached twice (a shared child, a cycle, a root listed twice) is refused, so the walk
+    is linear in the document whatever it declares."""
     nodes = _list(path, document, "nodes")
     scenes = _list(path, document, "scenes")
     if scenes:
         scene = _item(path, document, "scenes", document.get("scene", 0))
-        roots = scene.get("nodes", [])
+        roots = _indices(path, scene.get("nodes", []), "scene.nodes")
     else:
-        children = {c for n in nodes if isinstance(n, dict) for c in n.get("children", [])}
+        children = {c for i, n in enumerate(nodes) if isinstance(n, dict)
+                    for c in _indices(path, n.get("children", []), f"nodes[{i}].children")}
         roots = [i for i in range(len(nodes)) if i not in children]
-    found, stack = [], [(r, np.eye(4), 0) for r in roots]
+    visited: set[int] = set()
+    found, stack = [], [(r, np.eye(4), 0) for r in reversed(roots)]
     while stack:
         index, parent, depth = stack.pop()
         if depth > MAX_NODE_DEPTH:
             raise SplatFileError(path, f"bad glTF: node hierarchy deeper than {MAX_NODE_DEPTH}")
+        if index in visited:
+            raise SplatFileError(path, f"bad glTF: node {index} is reached twice (glTF nodes form "
+                                       f"trees: one parent each, no cycles)")
+        visited.add(index)
         node = _item(path, document, "nodes", index)
-        matrix = parent @ _node_matrix(path, node)
+        with np.errstate(over="ignore", invalid="ignore"):
+            matrix = parent @ _node_matrix(path, node)
+        if not np.isfinite(matrix).all():
+            raise SplatFileError(path, f"bad glTF: node {index}'s global transform overflows")
         if "mesh" in node:
-            found.append((_int(path, node["mesh"], "node.mesh"), matrix))
-        stack.extend((c, matrix, depth + 1) for c in node.get("children", []))
+            found.append((index, _int(path, node["mesh"], f"nodes[{index}].mesh"), matrix))
+        kids = _indices(path, node.get("children", []), f"nodes[{index}].children")
+        stack.extend((c, matrix, depth + 1) for c in reversed(kids))
     return found
+
+
+def _splat_primitives(path: Path, document: dict, mesh_index: int) -> list[tuple[int, dict]]:
+    mesh = _item(path, document, "meshes", mesh_index)
+    primitives = mesh.get("primitives", [])
+    if not isinstance(primitives, list):
+        raise SplatFileError(path, f"bad glTF: meshes[{mesh_index}].primitives is not a list")
+    return [(k, p) for k, p in enumerate(primitives)
+            if isinstance(p, dict) and isinstance(p.get("extensions"), dict) and EXTENSION in p["extensions"]]
+
+
+def _declared_count(path: Path, document: dict, primitive: dict) -> int:
+    """POSITION's count, from the accessor alone (nothing read)."""
+    attributes = primitive.get("attributes")
+    if not isinstance(attributes, dict) or "POSITION" not in attributes:
+        raise SplatFileError(path, "missing required attribute 'POSITION'")
+    accessor = _item(path, document, "accessors", attributes["POSITION"])
+    return _int(path, accessor.get("count"), "POSITION count")
 
 
 def load(path: str | os.PathLike) -> Gaussians:
@@ -413,19 +483,30 @@ def _load(path: Path) -> Gaussians:
     if unknown:
         raise SplatFileError(path, f"requires unsupported extension {unknown[0]}"
                                    + (" (a draft; not supported)" if unknown[0] == SPZ_EXTENSION else ""))
+    instances = _instances(path, document)
+    # Every instance's count, in total, against the limit before any buffer is read.
+    shown = [(node, mesh, matrix, _splat_primitives(path, document, mesh)) for node, mesh, matrix in instances]
+    total = sum(_declared_count(path, document, p) for *_, prims in shown for _, p in prims)
+    check_gaussian_count(path, total, "Gaussians in the scene's instances")
     buffers = _buffers(path, document, binary)
+    decoded: dict[tuple[int, int], Gaussians] = {}  # a mesh shown by several nodes is read once
     parts = []
-    for mesh_index, matrix in _instances(path, document):
-        mesh = _item(path, document, "meshes", mesh_index)
-        for primitive in mesh.get("primitives", []):
-            if isinstance(primitive, dict) and EXTENSION in (primitive.get("extensions") or {}):
-                g = _primitive_gaussians(path, document, buffers, primitive)
-                if not np.allclose(matrix, np.eye(4), rtol=0, atol=1e-12):
-                    try:
+    for node, mesh_index, matrix, primitives in shown:
+        for k, primitive in primitives:
+            if (mesh_index, k) not in decoded:
+                decoded[(mesh_index, k)] = _primitive_gaussians(path, document, buffers, primitive)
+            g = decoded[(mesh_index, k)]
+            if not np.allclose(matrix, np.eye(4), rtol=0, atol=1e-12):
+                try:
+                    with np.errstate(over="ignore", invalid="ignore"):
                         g = transform_gaussians(g, matrix)
-                    except ValueError as e:
-                        raise SplatFileError(path, f"bad node transform: {e}") from None
-                parts.append(rdf_to_rub(g))
+                except ValueError as e:
+                    raise SplatFileError(path, f"bad node transform: {e}") from None
+                bad = g.non_finite()
+                if bad is not None:
+                    raise SplatFileError(path, f"node {node}'s transform makes {bad} non-finite "
+                                               f"(values beyond float32)")
+            parts.append(rdf_to_rub(g))
     if not parts:
         raise SplatFileError(path, f"no {EXTENSION} primitive in the scene: not a Gaussian splat glTF")
     degree = max(p.degree for p in parts)

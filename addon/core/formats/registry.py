@@ -38,9 +38,7 @@ def _write_plain(module: str) -> Callable[[Gaussians, Path, bool], None]:
 
 
 def _read_spz(path: Path) -> tuple[Gaussians, bool]:
-    spz = _module("spz")
-    packed = spz.read_packed(path)
-    return spz.unpack(packed, path), bool(packed.antialiased)
+    return _module("spz").load_with_flag(path)
 
 
 def _write_spz(gaussians: Gaussians, path: Path, antialiased: bool) -> None:
@@ -148,7 +146,13 @@ def read(path: str | os.PathLike) -> tuple[Gaussians, bool]:
     fmt = format_for(path)
     if not fmt.can_read:
         raise SplatFileError(path, f"{fmt.name} files cannot be read")
-    return fmt.reader(_resolve(path))
+    try:
+        return fmt.reader(_resolve(path))
+    except MemoryError:  # each reader bounds what it allocates; this is the net under them
+        raise SplatFileError(path, f"not enough memory to load this {fmt.name} file "
+                                   f"(see formats.limits)") from None
+    except RecursionError:
+        raise SplatFileError(path, f"this {fmt.name} file nests too deeply to read") from None
 
 
 def write(gaussians: Gaussians, path: str | os.PathLike, *, antialiased: bool = False) -> list[str]:

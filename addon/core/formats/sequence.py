@@ -12,10 +12,16 @@ the previous frame, as image sequences do in Blender: `file_for(frame)`).
 `cache_frames` read (least recently used out), so memory stays bounded whatever the length and
 scrubbing back and forth over cached frames never reads a file again. Thread-safe.
 Counts may change from frame to frame. Blender-free: the Blender side drives it per frame.
+
+Every frame file is judged by `contained.contained_file`, as paths inside splat files are: a frame
+that is a link leading outside the sequence's folder, or not a regular file (a FIFO, a device, a
+folder), is refused with an error naming it, never followed (sequences often live on shared
+storage, where anyone may have put a link).
 """
 
 from __future__ import annotations
 
+import bisect
 import os
 import re
 import threading
@@ -25,6 +31,7 @@ from typing import Iterable
 
 from ..gaussians import Gaussians
 from . import registry
+from .contained import contained_file
 from .errors import SplatFileError
 
 __all__ = ["SplatSequence", "find_frames", "save_sequence"]
@@ -51,13 +58,17 @@ def find_frames(target: str | os.PathLike) -> dict[int, Path]:
     target = Path(target)
     if target.is_dir():
         frames: dict[int, Path] = {}
-        for path in sorted(target.iterdir()):
-            parts = _split(path.name) if path.is_file() and _is_splat(path) else None
+        try:
+            paths = sorted(target.iterdir())
+        except OSError as e:
+            raise SplatFileError(target, f"cannot list the folder: {e.strerror or e}") from None
+        for path in paths:
+            parts = _split(path.name) if _is_splat(path) else None
             if parts is not None:
                 if parts[1] in frames:
                     raise SplatFileError(target, f"two files for frame {parts[1]}: "
                                                  f"{frames[parts[1]].name} and {path.name}")
-                frames[parts[1]] = path
+                frames[parts[1]] = contained_file(target, path.name, target, f"frame {parts[1]}")
         if not frames:
             raise SplatFileError(target, "no numbered splat files in this folder")
         return dict(sorted(frames.items()))
@@ -79,12 +90,12 @@ def find_frames(target: str | os.PathLike) -> dict[int, Path]:
         raise SplatFileError(target, f"cannot list the folder: {e.strerror or e}") from None
     for file_name in names:
         match = pattern.match(file_name)
-        if match and (folder / file_name).is_file():
+        if match:
             number = int(match.group(1))
             if number in frames:
                 raise SplatFileError(target, f"two files for frame {number}: {frames[number].name} "
                                              f"and {file_name}")
-            frames[number] = folder / file_name
+            frames[number] = contained_file(folder, file_name, target, f"frame {number}")
     if not frames:
         raise SplatFileError(target, "no files match this sequence")
     return dict(sorted(frames.items()))
@@ -118,12 +129,8 @@ class SplatSequence:
     def number_for(self, frame: int) -> int:
         """The frame number whose file shows at `frame`: the latest at or before it (the first
         before the sequence starts)."""
-        best = self.numbers[0]
-        for number in self.numbers:
-            if number > frame:
-                break
-            best = number
-        return best
+        at = bisect.bisect_right(self.numbers, frame)
+        return self.numbers[max(at - 1, 0)]
 
     def file_for(self, frame: int) -> Path:
         return self.files[self.number_for(frame)]

@@ -46,10 +46,12 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -59,8 +61,10 @@ from ..sh import SH_C0
 from . import webp
 from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook
+from .contained import contained_file, is_contained_name
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
+from .limits import check_gaussian_count
 from .morton import morton_order
 from .quaternions import smallest_three
 
@@ -73,6 +77,11 @@ OPACITY_EPS = 1e-6  # opacity bytes 0 and 255 decode to these (as splat-transfor
 COEFFS = {1: 3, 2: 8, 3: 15}  # SH bands -> higher-order coefficients per colour channel
 MAX_MEMBER_BYTES = 1 << 30  # one image or meta.json inside a .sog bundle
 MAX_META_BYTES = 16 << 20
+# What a .sog may unpack in total: its members are WebP images (already compressed, so a ZIP
+# barely shrinks them) and one meta.json; 64 times the bundle's size is far beyond any real one,
+# and bounds a zip bomb's unpacking (to disk) by what the file can justify.
+MAX_UNPACK_RATIO = 64
+UNPACK_SLACK = 1 << 20
 GENERATOR = "Gaussian Splatting for Blender"
 
 
@@ -136,10 +145,9 @@ def _files(path: Path, meta: dict, key: str, count: int) -> list[str]:
     if not isinstance(names, list) or len(names) < count or not all(isinstance(n, str) for n in names[:count]):
         raise _fail(path, f"bad {key}.files in meta.json: expected {count} file names")
     for name in names[:count]:
-        pure = PurePosixPath(name)
-        if not name or pure.is_absolute() or ".." in pure.parts or "\\" in name:
-            raise _fail(path, f"bad file name {name!r} in meta.json: must be a relative path inside "
-                              f"the SOG folder")
+        if not is_contained_name(name):
+            raise _fail(path, f"bad file name {name[:200]!r} in meta.json: must be a relative path "
+                              f"inside the SOG folder")
     return names[:count]
 
 
@@ -148,65 +156,93 @@ def _files(path: Path, meta: dict, key: str, count: int) -> list[str]:
 
 
 class _Source:
-    """Where the images are: a folder, or a .sog bundle unpacked member by member on demand."""
+    """Where the images are: a folder, or a .sog bundle unpacked member by member on demand.
+    Member names are judged by `contained.contained_file` (folder) or `is_contained_name`
+    (bundle); a bundle's members go to scratch files named here, never after the member, and
+    all of them together unpack to at most `MAX_UNPACK_RATIO` times the bundle's size."""
 
     def __init__(self, path: Path, folder: Path, bundle: zipfile.ZipFile | None = None,
-                 scratch: Path | None = None) -> None:
+                 scratch: Path | None = None, budget: int = 0) -> None:
         self.path, self.folder, self.bundle, self.scratch = path, folder, bundle, scratch
         self.meta_name = "meta.json" if bundle is not None else path.name
+        self.budget = budget  # bytes a bundle may still unpack
+        self.unpacked: dict[str, Path] = {}
 
     def meta_bytes(self) -> bytes:
-        return self._bytes(self.meta_name, MAX_META_BYTES)
-
-    def _bytes(self, name: str, limit: int) -> bytes:
         if self.bundle is None:
-            try:
-                target = self.folder / name
-                if target.stat().st_size > limit:
-                    raise _fail(self.path, f"{name} is larger than {limit} bytes")
-                return target.read_bytes()
-            except OSError as e:
-                raise _fail(self.path, f"cannot read {name}: {e.strerror or e}") from None
-        info = self._member(name)
+            return _read_regular(self.path, self.path, "meta.json", MAX_META_BYTES)
+        return self._unpack("meta.json", MAX_META_BYTES)
+
+    def _unpack(self, name: str, limit: int) -> bytes:
+        if not is_contained_name(name):
+            raise _fail(self.path, f"bad member name {name[:200]!r} in the .sog bundle")
+        try:
+            info = self.bundle.getinfo(name)
+        except KeyError:
+            raise _fail(self.path, f"missing {name!r} in the .sog bundle") from None
+        limit = min(limit, self.budget)
         if info.file_size > limit:
-            raise _fail(self.path, f"{name} in the bundle is larger than {limit} bytes")
+            raise _fail(self.path, f"{name} in the bundle unpacks to {info.file_size} bytes, more than "
+                                   f"the {limit} this bundle can justify")
         try:
             with self.bundle.open(info) as f:
                 data = f.read(limit + 1)
-        except (zipfile.BadZipFile, OSError, EOFError, RuntimeError, NotImplementedError) as e:
+        except (zipfile.BadZipFile, zlib.error, OSError, EOFError, RuntimeError, NotImplementedError,
+                ValueError) as e:
             raise _fail(self.path, f"cannot unpack {name}: {e}") from None
         if len(data) > limit:
-            raise _fail(self.path, f"{name} in the bundle is larger than {limit} bytes")
+            raise _fail(self.path, f"{name} in the bundle unpacks to more than {limit} bytes")
+        self.budget -= len(data)
         return data
-
-    def _member(self, name: str) -> zipfile.ZipInfo:
-        try:
-            return self.bundle.getinfo(name)
-        except KeyError:
-            raise _fail(self.path, f"missing {name!r} in the .sog bundle") from None
 
     def image_path(self, name: str) -> Path:
         if self.bundle is None:
-            target = self.folder / name
-            if not target.is_file():
-                raise _fail(self.path, f"missing image {name!r} beside meta.json")
-            return target
-        target = self.scratch / name.replace("/", "_")
-        target.write_bytes(self._bytes(name, MAX_MEMBER_BYTES))
-        return target
+            return contained_file(self.folder, name, self.path, "image")
+        if name not in self.unpacked:
+            target = self.scratch / f"member-{len(self.unpacked)}.webp"
+            data = self._unpack(name, MAX_MEMBER_BYTES)
+            try:
+                target.write_bytes(data)
+            except OSError as e:
+                raise _fail(self.path, f"cannot unpack {name} to a temporary file: "
+                                       f"{e.strerror or e}") from None
+            self.unpacked[name] = target
+        return self.unpacked[name]
+
+    def read_size(self, name: str) -> tuple[int, int, int]:
+        return webp.read_size(self.image_path(name), self.path, name)
+
+    def read_rgba(self, name: str) -> np.ndarray:
+        return webp.read_rgba(self.image_path(name), self.path, name)
+
+
+def _read_regular(path: Path, shown: Path, what: str, limit: int) -> bytes:
+    """A regular file's bytes (a FIFO would block, a device never end), at most `limit`."""
+    try:
+        with open(path, "rb") as f:
+            info = os.fstat(f.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                raise _fail(shown, f"{what} is not a regular file")
+            if info.st_size > limit:
+                raise _fail(shown, f"{what} is larger than {limit} bytes")
+            return f.read(limit + 1)
+    except OSError as e:
+        raise _fail(shown, f"cannot read {what}: {e.strerror or e}") from None
 
 
 def _image(source: _Source, name: str, count: int, per_gaussian: bool = True) -> np.ndarray:
     """An image's pixels (H*W, 4) after checking its size from the header."""
-    path = source.image_path(name)
-    width, height, _ = webp.read_size(path)
+    width, height, _ = source.read_size(name)
     if per_gaussian and width * height < count:
         raise _fail(source.path, f"image {name} is {width}x{height}: too small for {count} Gaussians")
     if per_gaussian and width * height > 4 * count + 64 * (width + height) + 4096:
         # A writer pads at most a few rows; far more pixels than Gaussians is a corrupt header
         # (or a count that does not belong to these images), not worth decoding.
         raise _fail(source.path, f"image {name} is {width}x{height}: far larger than {count} Gaussians need")
-    pixels = webp.read_rgba(path)
+    pixels = source.read_rgba(name)
+    if pixels.shape[:2] != (height, width):
+        raise _fail(source.path, f"image {name} decodes to {pixels.shape[1]}x{pixels.shape[0]}, "
+                                 f"its header says {width}x{height}")
     return pixels.reshape(-1, 4)
 
 
@@ -275,7 +311,7 @@ def _decode_sh_rest(path: Path, meta: dict, source: _Source, count: int) -> np.n
     book = _codebook(path, meta, "shN")
     centroid_name, label_name = _files(path, meta, "shN", 2)
     coeffs = COEFFS[bands]
-    width, height, _ = webp.read_size(source.image_path(centroid_name))
+    width, height, _ = source.read_size(centroid_name)
     rows = -(-entries // 64)
     if width != 64 * coeffs or not rows <= height <= -(-MAX_PALETTE // 64):
         raise _fail(path, f"image {centroid_name} is {width}x{height}; a {entries}-entry palette of "
@@ -294,6 +330,7 @@ def _decode_sh_rest(path: Path, meta: dict, source: _Source, count: int) -> np.n
 def _decode(path: Path, source: _Source) -> tuple[Gaussians, SogInfo]:
     meta = _parse_meta(path, source.meta_bytes())
     count = _integer(path, _field(path, meta, "count"), "count", 0, MAX_COUNT)
+    check_gaussian_count(path, count)
     means = _decode_means(path, meta, source, count)
     quats = _decode_quats(path, meta, source, count)
     log_scales = _decode_scales(path, meta, source, count)
@@ -321,13 +358,23 @@ def _with_source(path: str | os.PathLike, action: Callable[[Path, _Source], Any]
         with malformed(path, "SOG"):
             return action(path, _Source(path, path.parent))
     try:
+        size = path.stat().st_size
+        if not path.is_file():
+            raise _fail(path, "not a regular file")
         bundle = zipfile.ZipFile(path)
     except FileNotFoundError:
         raise _fail(path, "no such file") from None
-    except (zipfile.BadZipFile, OSError, EOFError) as e:
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError, NotImplementedError,
+            RuntimeError) as e:
         raise _fail(path, f"not a .sog bundle (a ZIP file): {e}") from None
-    with bundle, tempfile.TemporaryDirectory(prefix="sog-") as scratch, malformed(path, "SOG"):
-        return action(path, _Source(path, path.parent, bundle, Path(scratch)))
+    budget = MAX_UNPACK_RATIO * size + UNPACK_SLACK
+    with bundle, malformed(path, "SOG"):
+        try:
+            scratch = tempfile.TemporaryDirectory(prefix="sog-")
+        except OSError as e:
+            raise _fail(path, f"cannot make a temporary folder to unpack into: {e.strerror or e}") from None
+        with scratch:
+            return action(path, _Source(path, path.parent, bundle, Path(scratch.name), budget))
 
 
 def load(path: str | os.PathLike) -> Gaussians:
@@ -345,18 +392,25 @@ def read_info(path: str | os.PathLike) -> SogInfo:
     def info(p: Path, source: _Source) -> SogInfo:
         meta = _parse_meta(p, source.meta_bytes())
         count = _integer(p, _field(p, meta, "count"), "count", 0, MAX_COUNT)
+        check_gaussian_count(p, count)
         sh = meta.get("shN")
         bands = _integer(p, _field(p, meta, "shN", "bands"), "shN.bands", 1, 3) if sh else 0
         return SogInfo(count, bands, bool(meta.get("antialias", False)), int(sh["count"]) if sh else 0)
     return _with_source(path, info)
 
 
-def load_chunk(meta_path: Path, root: Path) -> Gaussians:
-    """One chunk of a LOD set: a folder SOG whose meta.json is `meta_path`; errors name `root`."""
-    if not meta_path.is_file():
-        raise _fail(root, f"missing chunk {meta_path}")
+def load_chunk(meta_path: Path) -> Gaussians:
+    """One chunk of a LOD set: a folder SOG whose meta.json is `meta_path` (already judged by
+    `contained.contained_file`); errors name it."""
     with malformed(meta_path, "SOG"):
         return _decode(meta_path, _Source(meta_path, meta_path.parent))[0]
+
+
+def chunk_count(meta_path: Path) -> int:
+    """How many Gaussians a LOD chunk holds, from its meta.json alone."""
+    with malformed(meta_path, "SOG"):
+        meta = _parse_meta(meta_path, _Source(meta_path, meta_path.parent).meta_bytes())
+        return _integer(meta_path, _field(meta_path, meta, "count"), "count", 0, MAX_COUNT)
 
 
 # ------------------------------------------------------------------------------------------

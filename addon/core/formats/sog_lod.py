@@ -8,21 +8,29 @@ the union of its leaves' runs; an optional `environment` SOG (far background) be
 level.
 
 `load(path, level=0)` reads every chunk of one level and returns the runs in tree order (each
-chunk is read once, whatever number of runs it holds).
+chunk is read once, whatever number of runs it holds, and let go before the next is read).
+
+Bounds, all before anything is decoded: chunk names are judged by `contained.contained_file`
+(inside the set's folder, links followed, regular files); the tree is walked once, at most
+`MAX_TREE_NODES` nodes; the runs of the level must lie inside their chunk and not overlap, and
+together, like the chunks read for them, stay within `formats.limits.MAX_GAUSSIANS`.
 """
 
 from __future__ import annotations
 
 import os
-from pathlib import Path, PurePosixPath
+import stat
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..gaussians import Gaussians
+from .contained import contained_file, is_contained_name
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
-from .sog import MAX_COUNT, load_chunk
+from .limits import check_gaussian_count
+from .sog import MAX_COUNT, chunk_count, load_chunk
 
 __all__ = ["load", "levels", "LOD_META"]
 
@@ -34,9 +42,13 @@ READ_VERSION = 1
 
 def _read_index(path: Path) -> dict[str, Any]:
     try:
-        if path.stat().st_size > MAX_INDEX_BYTES:
-            raise SplatFileError(path, f"lod-meta.json is larger than {MAX_INDEX_BYTES} bytes")
-        text = path.read_bytes()
+        with open(path, "rb") as f:
+            info = os.fstat(f.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                raise SplatFileError(path, "not a regular file")
+            if info.st_size > MAX_INDEX_BYTES:
+                raise SplatFileError(path, f"lod-meta.json is larger than {MAX_INDEX_BYTES} bytes")
+            text = f.read(MAX_INDEX_BYTES + 1)
     except OSError as e:
         raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
     index = parse_object(path, text, "lod-meta.json")
@@ -49,10 +61,13 @@ def _read_index(path: Path) -> dict[str, Any]:
     names = index.get("filenames")
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise SplatFileError(path, "bad 'filenames': expected a list of paths")
-    for name in names + ([index["environment"]] if isinstance(index.get("environment"), str) else []):
-        pure = PurePosixPath(name)
-        if pure.is_absolute() or ".." in pure.parts or "\\" in name:
-            raise SplatFileError(path, f"bad chunk path {name!r}: must be relative, inside the set's folder")
+    environment = index.get("environment")
+    if environment is not None and not isinstance(environment, str):
+        raise SplatFileError(path, "bad 'environment': expected a path")
+    for name in names + ([environment] if environment is not None else []):
+        if not is_contained_name(name):
+            raise SplatFileError(path, f"bad chunk path {name[:200]!r}: must be relative, inside the "
+                                       f"set's folder")
     return index
 
 
@@ -76,7 +91,10 @@ def _runs(path: Path, index: dict[str, Any], level: int) -> list[tuple[int, int,
                 raise SplatFileError(path, "bad 'tree': 'children' must be a list")
             stack.extend(reversed(children))
             continue
-        run = (node.get("lods") or {}).get(str(level))
+        lods = node.get("lods") or {}
+        if not isinstance(lods, dict):
+            raise SplatFileError(path, "bad 'tree': 'lods' must be an object")
+        run = lods.get(str(level))
         if run is None:
             continue
         values = [run.get(k) if isinstance(run, dict) else None for k in ("file", "offset", "count")]
@@ -95,23 +113,53 @@ def load(path: str | os.PathLike, level: int = 0, *, environment: bool = True) -
         return _load(path, level, environment)
 
 
+def _check_runs(path: Path, names: list[str], runs: list[tuple[int, int, int]],
+                counts: dict[int, int]) -> None:
+    """Every run inside its chunk, no two overlapping (a tree repeating a leaf would otherwise
+    copy the same Gaussians again and again)."""
+    for file, offset, count in sorted(runs):
+        if offset + count > counts[file]:
+            raise SplatFileError(path, f"run of {count} at {offset} is beyond chunk "
+                                       f"{names[file]!r} of {counts[file]} Gaussians")
+    ordered = sorted(r for r in runs if r[2])
+    for (file, offset, count), (next_file, next_offset, _) in zip(ordered, ordered[1:]):
+        if file == next_file and next_offset < offset + count:
+            raise SplatFileError(path, f"runs at {offset} and {next_offset} of chunk {names[file]!r} "
+                                       f"overlap: a level holds each Gaussian once")
+
+
 def _load(path: Path, level: int, environment: bool) -> Gaussians:
     index = _read_index(path)
     if not 0 <= level < index["lodLevels"]:
         raise SplatFileError(path, f"no LOD level {level}: the set has levels 0..{index['lodLevels'] - 1}")
+    names = index["filenames"]
     runs = _runs(path, index, level)
-    chunks: dict[int, Gaussians] = {}
-    parts = []
-    for file, offset, count in runs:
-        if file not in chunks:
-            chunks[file] = load_chunk(path.parent / index["filenames"][file], path)
-        chunk = chunks[file]
-        if offset + count > len(chunk):
-            raise SplatFileError(path, f"run of {count} at {offset} is beyond chunk "
-                                       f"{index['filenames'][file]!r} of {len(chunk)} Gaussians")
-        parts.append(chunk.subset(slice(offset, offset + count)))
-    if environment and isinstance(index.get("environment"), str):
-        parts.append(load_chunk(path.parent / index["environment"], path))
+    check_gaussian_count(path, sum(count for _, _, count in runs), f"Gaussians at level {level}")
+    files = {file: contained_file(path.parent, names[file], path, f"chunk {file}")
+             for file, _, _ in runs}
+    env = index.get("environment") if environment else None
+    env_file = contained_file(path.parent, env, path, "environment") if env is not None else None
+    counts = {file: chunk_count(meta) for file, meta in files.items()}
+    _check_runs(path, names, runs, counts)
+    total = sum(count for _, _, count in runs) + (chunk_count(env_file) if env_file else 0)
+    check_gaussian_count(path, total, f"Gaussians at level {level} with the environment")
+    for file, meta in files.items():
+        check_gaussian_count(meta, counts[file])
+    by_file: dict[int, list[int]] = {}
+    for i, (file, _, _) in enumerate(runs):
+        by_file.setdefault(file, []).append(i)
+    parts: list[Gaussians | None] = [None] * len(runs)
+    for file, meta in files.items():  # one chunk in memory at a time
+        chunk = load_chunk(meta)
+        if len(chunk) != counts[file]:
+            raise SplatFileError(path, f"chunk {names[file]!r} changed while it was read")
+        for i in by_file[file]:
+            _, offset, count = runs[i]
+            parts[i] = chunk.subset(slice(offset, offset + count))
+        del chunk
+    parts = [p for p in parts if p is not None]
+    if env_file is not None:
+        parts.append(load_chunk(env_file))
     if not parts:
         return Gaussians.empty()
     degree = max(p.degree for p in parts)

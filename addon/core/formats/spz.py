@@ -72,7 +72,7 @@ from .errors import SplatFileError
 from .limits import check_gaussian_count
 from .splat import decode_alpha, encode_alpha
 
-__all__ = ["load", "save", "Packed", "read_packed", "unpack", "pack", "serialize",
+__all__ = ["load", "load_with_flag", "memory_needed", "save", "Packed", "read_packed", "unpack", "pack", "serialize",
            "LATEST_VERSION", "READ_VERSIONS"]
 
 MAGIC = 0x5053474E  # b"NGSP" little-endian
@@ -165,8 +165,11 @@ class _Gunzip:
         self._d = zlib.decompressobj(16 + zlib.MAX_WBITS)
         self._tail = data
         self._path = path
+        # ISIZE, the trailer's uncompressed size mod 2^32 (of a single-member stream, which is
+        # all SPZ writes and all this reader accepts)
+        self.declared_size = struct.unpack_from("<I", data, len(data) - 4)[0] if len(data) >= 18 else None
 
-    def read(self, size: int) -> bytes:
+    def read(self, size: int) -> bytearray:
         out = bytearray()
         try:
             while len(out) < size and not self._d.eof:
@@ -177,7 +180,7 @@ class _Gunzip:
                 out += chunk
         except zlib.error as error:
             raise SplatFileError(self._path, f"corrupt gzip stream: {error}") from None
-        return bytes(out)
+        return out  # not copied to bytes: the arrays are views of it
 
     @property
     def eof(self) -> bool:
@@ -248,7 +251,9 @@ def _parse_extensions(block: bytes, path: Path) -> int:
 
 
 def _packed_from_streams(path: Path, version: int, n: int, sh_degree: int, fractional_bits: int,
-                         flags: int, coordinate_system: int, streams: list[bytes]) -> Packed:
+                         flags: int, coordinate_system: int, streams: list) -> Packed:
+    """The arrays as views of `streams` (bytes-like; not copied, so a load holds the decompressed
+    data once)."""
     positions, alphas, colors, scales, rotations, sh = streams
     b = np.frombuffer(positions, np.uint8).reshape(n, 3, 3).astype(np.int32)
     fixed = b[..., 0] | (b[..., 1] << 8) | (b[..., 2] << 16)
@@ -256,13 +261,13 @@ def _packed_from_streams(path: Path, version: int, n: int, sh_degree: int, fract
     if version >= 3:
         rot = np.frombuffer(rotations, "<u4").astype(np.uint32)
     else:
-        rot = np.frombuffer(rotations, np.uint8).reshape(n, 3).copy()
+        rot = np.frombuffer(rotations, np.uint8).reshape(n, 3)
     return Packed(version=version, sh_degree=sh_degree, fractional_bits=fractional_bits,
                   antialiased=bool(flags & FLAG_ANTIALIASED), coordinate_system=coordinate_system,
-                  positions=fixed, alphas=np.frombuffer(alphas, np.uint8).copy(),
-                  colors=np.frombuffer(colors, np.uint8).reshape(n, 3).copy(),
-                  scales=np.frombuffer(scales, np.uint8).reshape(n, 3).copy(), rotations=rot,
-                  sh=np.frombuffer(sh, np.uint8).reshape(n, _SH_DIMS[sh_degree], 3).copy())
+                  positions=fixed, alphas=np.frombuffer(alphas, np.uint8),
+                  colors=np.frombuffer(colors, np.uint8).reshape(n, 3),
+                  scales=np.frombuffer(scales, np.uint8).reshape(n, 3), rotations=rot,
+                  sh=np.frombuffer(sh, np.uint8).reshape(n, _SH_DIMS[sh_degree], 3))
 
 
 def _read_legacy(stream: _Gunzip | bytes, compressed_size: int, path: Path) -> Packed:
@@ -280,8 +285,14 @@ def _read_legacy(stream: _Gunzip | bytes, compressed_size: int, path: Path) -> P
     if not plain and total > compressed_size * _DEFLATE_MAX_RATIO + 1024:
         raise SplatFileError(path, f"header claims {n} points ({total} bytes), more than a "
                                    f"{compressed_size}-byte gzip stream can hold")
+    if not plain and stream.declared_size is not None and 16 + total < 1 << 32 \
+            and stream.declared_size < 16 + total:
+        # The gzip trailer records what the stream decompresses to (mod 2^32): a header claiming
+        # more is refused before anything is decompressed.
+        raise SplatFileError(path, f"truncated: the header claims {n} points ({16 + total} bytes "
+                                   f"with the header), the gzip stream holds {stream.declared_size}")
     check_gaussian_count(path, n, "points")  # before decompressing: the ratio bounds too little
-    payload = stream[16:16 + total] if plain else stream.read(total)
+    payload = memoryview(stream)[16:16 + total] if plain else memoryview(stream.read(total))
     if len(payload) < total:
         raise SplatFileError(path, f"truncated: {len(payload)} of {total} data bytes for {n} points")
     coordinate_system = COORD_RUB
@@ -395,14 +406,38 @@ def unpack(packed: Packed, path: str | os.PathLike = "<memory>") -> Gaussians:
     k = (degree + 1) ** 2
     sh = np.empty((n, k, 3), np.float32)
     sh[:, 0, :] = (packed.colors / 255.0 - 0.5) / COLOR_SCALE
-    rest = (packed.sh[:, :k - 1, :].astype(np.float32) - 128.0) / 128.0
-    sh[:, 1:, :] = rest * _sh_signs(s)[:k - 1, None]
+    rest = sh[:, 1:, :]  # filled in place: no (N, K, 3) temporaries
+    rest[...] = packed.sh[:, :k - 1, :]
+    rest -= 128.0
+    rest *= (_sh_signs(s)[:k - 1, None] / 128.0).astype(np.float32)
     return Gaussians(means, log_scales, quats, decode_alpha(packed.alphas), sh)
+
+
+def memory_needed(n: int, sh_degree: int) -> int:
+    """About how many bytes loading `n` points of SH degree `sh_degree` peaks at: the
+    decompressed streams, the float32 result and the float64 working arrays (measured: a
+    6M-point degree-3 file peaks at about this, see test_spz_hardening)."""
+    streams = sum(_stream_sizes(n, 3, sh_degree))
+    result = 4 * n * (3 + 3 + 4 + 1 + 3 * (min(sh_degree, 3) + 1) ** 2)
+    return streams + result + 8 * n * 24
+
+
+def load_with_flag(path: str | os.PathLike) -> tuple[Gaussians, bool]:
+    """(Gaussians in the 3DGS .ply frame, the antialiased flag) of an SPZ file. Running out of
+    memory is a SplatFileError saying how much the file needs."""
+    packed = read_packed(path)
+    try:
+        return unpack(packed, path), bool(packed.antialiased)
+    except MemoryError:
+        n, degree = len(packed), packed.sh_degree
+        del packed  # let go of it before formatting the message
+        raise SplatFileError(path, f"not enough memory: loading {n} points of SH degree {degree} "
+                                   f"needs about {memory_needed(n, degree) / 2**30:.1f} GiB") from None
 
 
 def load(path: str | os.PathLike) -> Gaussians:
     """Read an SPZ file (v2, v3 or v4) into the 3DGS .ply frame."""
-    return unpack(read_packed(path), path)
+    return load_with_flag(path)[0]
 
 
 # ----------------------------------------------------------------------------- writing

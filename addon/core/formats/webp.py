@@ -34,20 +34,24 @@ def _oiio(path: Path) -> ModuleType:
     return oiio
 
 
-def _open(path: Path):
-    oiio = _oiio(path)
+def _open(path: Path, shown: str | os.PathLike, what: str):
+    oiio = _oiio(Path(shown))
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
     image = oiio.ImageInput.open(str(path), config)
-    if image is None:
-        raise SplatFileError(path, f"cannot read image: {oiio.geterror() or 'unknown format'}")
+    if image is None:  # OpenImageIO's message names `path`, which may be a temporary file
+        problem = (oiio.geterror() or "unknown format").replace(str(path), what)
+        raise SplatFileError(shown, f"cannot read image {what}: {problem}")
     return image
 
 
-def read_size(path: str | os.PathLike) -> tuple[int, int, int]:
-    """(width, height, channels) from the image header alone: nothing is decoded."""
+def read_size(path: str | os.PathLike, shown: str | os.PathLike | None = None,
+              what: str = "") -> tuple[int, int, int]:
+    """(width, height, channels) from the image header alone: nothing is decoded. Errors name
+    `shown` (the user's file; `path` by default) and `what` (the image inside it)."""
     path = Path(path)
-    image = _open(path)
+    shown, what = shown or path, what or path.name
+    image = _open(path, shown, what)
     try:
         spec = image.spec()
         return int(spec.width), int(spec.height), int(spec.nchannels)
@@ -55,18 +59,22 @@ def read_size(path: str | os.PathLike) -> tuple[int, int, int]:
         image.close()
 
 
-def read_rgba(path: str | os.PathLike) -> np.ndarray:
-    """The image as (H, W, 4) uint8, bytes as stored; a missing alpha channel reads as 255."""
+def read_rgba(path: str | os.PathLike, shown: str | os.PathLike | None = None,
+              what: str = "") -> np.ndarray:
+    """The image as (H, W, 4) uint8, bytes as stored; a missing alpha channel reads as 255.
+    Errors name `shown` and `what`, as `read_size`'s."""
     path = Path(path)
-    image = _open(path)
+    shown, what = shown or path, what or path.name
+    image = _open(path, shown, what)
     try:
         spec = image.spec()
         if not (0 < spec.width <= MAX_SIDE and 0 < spec.height <= MAX_SIDE) or spec.nchannels not in (3, 4):
-            raise SplatFileError(path, f"unsupported image: {spec.width}x{spec.height}, "
-                                       f"{spec.nchannels} channels (expected RGB or RGBA WebP)")
+            raise SplatFileError(shown, f"unsupported image {what}: {spec.width}x{spec.height}, "
+                                        f"{spec.nchannels} channels (expected RGB or RGBA WebP)")
         pixels = image.read_image(0, 0, 0, spec.nchannels, "uint8")
         if pixels is None:
-            raise SplatFileError(path, f"cannot decode image: {image.geterror()}")
+            problem = (image.geterror() or "unknown error").replace(str(path), what)
+            raise SplatFileError(shown, f"cannot decode image {what}: {problem}")
     finally:
         image.close()
     pixels = np.asarray(pixels, np.uint8).reshape(spec.height, spec.width, spec.nchannels)

@@ -306,7 +306,7 @@ def test_bad_files(tmp_path: Path) -> None:
         gltf.load(build(tmp_path, basic(), nodes=[{}]))
     with pytest.raises(SplatFileError, match="bad data URI"):
         gltf.load(build(tmp_path, basic(), name="u.gltf", uri="data:application/octet-stream;base64,@@@"))
-    with pytest.raises(SplatFileError, match="only relative files"):
+    with pytest.raises(SplatFileError, match="must be a relative path inside"):
         gltf.load(build(tmp_path, basic(), name="v.gltf", uri="/etc/passwd"))
 
 
@@ -320,7 +320,7 @@ def test_huge_count_is_refused_before_allocating(tmp_path: Path) -> None:
     path.write_bytes(struct.pack("<4sII", b"glTF", 2, 28 + len(text) + len(binary))
                      + struct.pack("<II", len(text), 0x4E4F534A) + text
                      + struct.pack("<II", len(binary), 0x004E4942) + binary)
-    with pytest.raises(SplatFileError, match="do not fit"):
+    with pytest.raises(SplatFileError, match="do not fit|more than the limit"):
         gltf.load(path)
 
 

@@ -406,7 +406,8 @@ def test_spz_truncated_and_corrupt_data(tmp_path: Path) -> None:
         "unexpected trailing data": whole4 + b"\0\0",
         "gzip stream is truncated": whole3[:-4],  # CRC/size trailer cut
         "corrupt gzip stream": whole3[:12] + bytes(b ^ 0x5A for b in whole3[12:]),
-        "truncated: 0 of 29 data bytes": spz_file(3, 1, 1, [], num_points=1),
+        "truncated: the header claims 1 points .45 bytes with the header., the gzip stream holds 16":
+            spz_file(3, 1, 1, [], num_points=1),
         "holds 2 bytes": spz_file(4, 1, 0, [b"\0" * 9, b"\0\0"] + hand_streams(4)[2:5]),
         "5 streams in the table of contents": spz_file(4, 1, 1, hand_streams(4)[:5]),
     }
@@ -429,9 +430,9 @@ def test_spz_headers_claiming_billions(tmp_path: Path) -> None:
         path.write_bytes(spz_file(version, 1, 3, hand_streams(version), num_points=4_000_000_000))
         with pytest.raises(SplatFileError, match="claims 4000000000 points"):
             spz.load(path)
-    # A claim the ratio check lets through still stops at the data really there.
+    # A claim the ratio check lets through is refused from the gzip trailer, before decompressing.
     path.write_bytes(spz_file(3, 1, 1, hand_streams(3), num_points=1000))
-    with pytest.raises(SplatFileError, match="truncated: 29 of 29000"):
+    with pytest.raises(SplatFileError, match="truncated: the header claims 1000 points .29016 bytes"):
         spz.load(path)
     header = struct.pack("<4sIIBBBBI12s", b"NGSP", 4, 10_000, 0, 12, 0, 5, 32, bytes(12))
     toc = b"".join(struct.pack("<QQ", 10, s) for s in (90_000, 10_000, 30_000, 30_000, 40_000))

@@ -1,0 +1,68 @@
+"""The one judge of paths written inside a splat file (glTF buffer `uri`s, SOG member names, LOD
+chunk names, sequence frames): a file from a stranger must never make us read outside the folder
+the user chose, nor block on or exhaust something that is not a file.
+
+A name is judged by the rules of every platform the extension ships for, whatever platform reads
+it (a file made on Linux is opened on Windows): refused when absolute in POSIX or Windows form
+(`/etc`, `C:/`, `C:\\`, `\\Windows`, `\\\\host\\share`, `//host/share`), drive-relative (`C:x`), when
+`..` (split on both `/` and `\\`) climbs above the folder, when a part holds `:` (a drive, a URL
+scheme, an NTFS stream) or NUL, or names a Windows device (`CON`, `NUL`, `COM1.txt`, ...). A name
+that passes must then, links followed, still lie inside the folder and be a regular file (not a
+FIFO, device, socket or folder).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path, PurePosixPath, PureWindowsPath
+
+from .errors import SplatFileError
+
+__all__ = ["is_contained_name", "contained_file", "MAX_NAME_CHARS"]
+
+MAX_NAME_CHARS = 4096  # longer than any path a platform opens
+_WINDOWS_DEVICES = {"CON", "PRN", "AUX", "NUL", "CONIN$", "CONOUT$"} | \
+    {f"{d}{i}" for d in ("COM", "LPT") for i in list("123456789") + ["¹", "²", "³"]}
+
+
+def is_contained_name(name: str) -> bool:
+    """Does the relative path `name` stay inside the folder it names into, on every platform?"""
+    if not isinstance(name, str) or not name or len(name) > MAX_NAME_CHARS or "\0" in name:
+        return False
+    for pure in (PurePosixPath(name), PureWindowsPath(name)):
+        if pure.is_absolute() or pure.drive or pure.root:
+            return False
+    depth = 0
+    for part in PureWindowsPath(name).parts:  # splits on both / and \
+        if ":" in part or part.split(".")[0].rstrip(" ").upper() in _WINDOWS_DEVICES:
+            return False
+        depth += -1 if part == ".." else 0 if part == "." else 1
+        if depth < 0:
+            return False
+    return depth > 0
+
+
+def contained_file(root: str | os.PathLike, name: str, file: str | os.PathLike, what: str) -> Path:
+    """`root / name` when `name` passes `is_contained_name`, the path (links followed) lies inside
+    `root` and it is a regular file; else a SplatFileError naming `file` (the user's file) and
+    `what` (the item: "buffers[0].uri", "chunk 3", ...)."""
+    if not is_contained_name(name):
+        shown = name if not isinstance(name, str) or len(name) <= 200 else name[:200] + "..."
+        raise SplatFileError(file, f"{what} {shown!r}: must be a relative path inside the folder "
+                                   f"{root}; refused")
+    path = Path(root) / name.replace("\\", "/")
+    try:
+        inside = path.resolve().is_relative_to(Path(root).resolve())
+        mode = os.stat(path).st_mode if inside else 0
+    except FileNotFoundError:
+        raise SplatFileError(file, f"missing {what} {name!r} in {root}") from None
+    except (OSError, RuntimeError, ValueError) as e:  # loops, name too long, not a folder
+        raise SplatFileError(file, f"{what} {name!r}: cannot open: "
+                                   f"{getattr(e, 'strerror', None) or e}") from None
+    if not inside:
+        raise SplatFileError(file, f"{what} {name!r}: leads outside the folder {root} "
+                                   f"(through a link); refused")
+    if not stat.S_ISREG(mode):
+        raise SplatFileError(file, f"{what} {name!r}: not a regular file; refused")
+    return path
