@@ -1,5 +1,5 @@
-"""Bad arguments raise TypeError or ValueError naming the problem, never crash (README, "Rendering
-from a script"): at the Python API (`addon.core.render.renderer`) and directly at `splatcore`, whose
+"""Bad arguments raise TypeError or ValueError naming the problem, never crash (docs/guide/
+scripts.md): at the Python API (`addon.core.render.renderer`) and directly at `splatcore`, whose
 positional signatures are what render.py passes."""
 
 from __future__ import annotations
