@@ -56,9 +56,9 @@ class TrainConfig:
     # 15 / 23 / 30 CPU s, mean of seeds 0, 1, 2: 27.23 / 27.83 / 28.07 dB against 26.36 / 27.38 /
     # 27.64; beer level or better at 10 to 40 s (docs/benchmarks/training.md, "Learning-rate
     # schedule"). 2x throughout no better than 1x by 23 s; 3 to 0.5 0.25 dB better on cup but
-    # 0.5 to 1.2 dB worse on beer from 25 s (its rates stay halved). 3 to 1 was level with 2 to 1 while "auto" grew 5 % an
-    # interval; with its 10 % (`auto_growth`) it is better on cup and beer (docs/benchmarks/
-    # training.md, "Issue 17's one-thread target").
+    # 0.5 to 1.2 dB worse on beer from 25 s (its rates stay halved). 3 to 1 was level with 2 to
+    # 1 while "auto" grew 5 % an interval; with its 10 % (`auto_growth`) it is better on cup and
+    # beer (docs/benchmarks/training.md, "Issue 17's one-thread target").
     lr_scale_start: float = 3.0
     lr_scale_end: float = 1.0
     lr_scale_steps: int = 2000

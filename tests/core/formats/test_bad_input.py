@@ -134,7 +134,7 @@ def test_native_project_rejects(splatcore, case):
 
 
 @pytest.mark.parametrize("case", list(COMMON_CASES))
-def test_native_render_rejects(splatcore, case):
+def test_native_render_rejects_common(splatcore, case):
     change, error, keyword = COMMON_CASES[case]
     with pytest.raises(error, match=keyword):
         splatcore.render(*render_args(**change))
