@@ -285,7 +285,13 @@ def _mutate_spz4(data: bytes, rnd: random.Random) -> bytes:
 
 def mutate(seed: Seed, rnd: random.Random) -> dict[str, bytes]:
     if seed.reader in FILE_READERS:
-        return fuzz_files.mutate(seed.reader, seed.files, seed.name, rnd, _spares())
+        try:
+            return fuzz_files.mutate(seed.reader, seed.files, seed.name, rnd, _spares())
+        except RecursionError:  # a mutation nested too deeply for copy/json: mutate bytes instead
+            files = dict(seed.files)
+            name = rnd.choice(sorted(n for n in files if not files[n].startswith(b"\0fuzz")))
+            files[name] = _mutate_bytes(files[name], rnd)
+            return files
     files = dict(seed.files)
     name = rnd.choice(sorted(files))
     data = files[name]

@@ -15,10 +15,11 @@ from __future__ import annotations
 import math
 import struct
 from functools import lru_cache
-from pathlib import Path, PurePosixPath, PureWindowsPath
+from pathlib import Path
 
 import numpy as np
 
+from ..formats.contained import is_contained_name  # the one judge of names inside files
 from .errors import ColmapError, import_pycolmap
 
 # Camera sides up to Blender's own resolution limit; COLMAP cameras are photos' sizes.
@@ -169,21 +170,6 @@ def check_text_cameras(path: Path) -> None:
             raise ColmapError(f"{path}: line {number}: camera {camera_id} ({words[1]}) needs {n} "
                               f"parameters, got {len(params)}")
         check_camera(path, camera_id, words[1], width, height, params, focal)
-
-
-def is_contained_name(name: str) -> bool:
-    """Does the relative path `name` (from a model file) stay inside the folder it names into?"""
-    if not name or "\0" in name:
-        return False
-    for pure in (PurePosixPath(name), PureWindowsPath(name)):
-        if pure.is_absolute() or pure.drive or pure.root:
-            return False
-    depth = 0
-    for part in PureWindowsPath(name).parts:  # splits on both / and \
-        depth += -1 if part == ".." else 0 if part == "." else 1
-        if depth < 0:
-            return False
-    return True
 
 
 def is_inside(root: Path, path: Path) -> bool:
