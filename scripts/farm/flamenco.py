@@ -231,16 +231,25 @@ variables:
             self.stop_worker(name)
         self.stop_worker("manager")
 
-    def wait_job(self, job_id: str, *, timeout: float, on_poll=None) -> dict:
-        """Poll the job until it reaches a final status or `timeout` seconds pass; `on_poll(job,
-        tasks)` is called on each poll (fault injection). Returns the last job record."""
+    def wait_job(self, job_id: str, *, timeout: float, on_poll=None) -> tuple[dict, list[dict]]:
+        """Poll the job until its render tasks are all done (completed, failed or canceled) or
+        `timeout` seconds pass; `on_poll(job, tasks)` is called on each poll (fault injection).
+        The job's "preview-video" task (FFmpeg) is left out: these workers have no FFmpeg (a
+        Flamenco release bundles one; a source build does not), so they do not offer the
+        task type and the task waits; the job is then cancelled. Returns (job, tasks)."""
         deadline = time.monotonic() + timeout
         while True:
-            job = self.api.job(job_id)
+            job, tasks = self.api.job(job_id), self.api.tasks(job_id)
             if on_poll is not None:
-                on_poll(job, self.api.tasks(job_id))
-            if job["status"] in ("completed", "failed", "canceled"):
-                return job
-            if time.monotonic() > deadline:
-                return job
+                on_poll(job, tasks)
+            render = [t for t in tasks if t["task_type"] != "ffmpeg"]
+            finished = job["status"] in ("completed", "failed", "canceled") or (
+                render and all(t["status"] in ("completed", "failed", "canceled") for t in render))
+            if finished or time.monotonic() > deadline:
+                break
             time.sleep(0.5)
+        if job["status"] not in ("completed", "failed", "canceled"):
+            self.api.call("POST", f"/api/v3/jobs/{job_id}/setstatus",
+                          {"status": "cancel-requested",
+                           "reason": "farm test: render tasks done; no FFmpeg worker for the preview video"})
+        return job, tasks
