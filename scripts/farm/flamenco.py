@@ -144,7 +144,7 @@ manager_name: splat farm test
 database: flamenco-manager.sqlite
 listen: 127.0.0.1:{self.port}
 autodiscoverable: false
-local_manager_storage_path: ./flamenco-manager-storage
+local_manager_storage_path: {cwd / "flamenco-manager-storage"}
 shared_storage_path: {self.storage}
 shaman:
   enabled: false
