@@ -97,7 +97,8 @@ class SplatRenderSettings(bpy.types.PropertyGroup):
         name="Near Plane", description="Splats closer to the camera than this are not drawn",
         default=0.01, min=1e-6, soft_max=1.0, precision=4, subtype="DISTANCE")
     threads: IntProperty(
-        name="Threads", description="Threads for the splat renderer (0: every core)",
+        name="Threads", description="Threads for the splat renderer (0: as many as Blender "
+                                     "renders with: Performance > Threads, or blender -t N)",
         default=0, min=0, max=1024)
     splat_passes: BoolProperty(
         name="Splat Passes",

@@ -130,6 +130,7 @@ def import_sequence(target: str | os.PathLike, *, name: str | None = None, colle
     obj.splat.sequence_frame_offset = int(frame_offset)
     sequence.adopt(obj, splat_sequence)
     sequence.mark_shown(obj, number)
+    sequence.record_numbers(obj, splat_sequence.numbers)
     obj.matrix_world = to_matrix(matrix)
     _select_only(obj, context.view_layer)
     return obj

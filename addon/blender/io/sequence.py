@@ -17,6 +17,7 @@ instead, so no frame is written with another frame's splats.
 
 from __future__ import annotations
 
+import re
 import sys
 import threading
 from pathlib import Path
@@ -33,6 +34,7 @@ from ..registration import module_registration
 
 CACHE_FRAMES = 3  # frames each sequence keeps in memory
 SHOWN_KEY = "splat_sequence_frame"  # on the mesh: the file number its splats come from
+NUMBERS_KEY = "splat_sequence_numbers"  # on the object: the file numbers seen at import ("1-6,9")
 
 # object session uid -> (absolute source, SplatSequence)
 _sequences: dict[int, tuple[str, SplatSequence]] = {}
@@ -80,12 +82,51 @@ def mark_shown(obj, number: int) -> None:
     obj.data[SHOWN_KEY] = int(number)
 
 
+def record_numbers(obj, numbers) -> None:
+    """Remember which file numbers the sequence had when it was imported (as ranges), so that a
+    machine that lacks one of them (a render farm worker whose copy is incomplete) fails that
+    frame instead of showing the previous file as a gap."""
+    numbers = sorted(set(int(n) for n in numbers))
+    ranges, start = [], None
+    for i, n in enumerate(numbers):
+        start = n if start is None else start
+        if i + 1 == len(numbers) or numbers[i + 1] != n + 1:
+            ranges.append(str(start) if start == n else f"{start}-{n}")
+            start = None
+    obj[NUMBERS_KEY] = ",".join(ranges)
+
+
+def recorded_numbers(obj) -> set[int]:
+    """The file numbers `record_numbers` kept (empty for objects imported before it existed)."""
+    found: set[int] = set()
+    for part in str(obj.get(NUMBERS_KEY, "")).split(","):
+        first, _, last = part.partition("-")
+        if first.strip().lstrip("-").isdigit():
+            found.update(range(int(first), int(last or first) + 1))
+    return found
+
+
+def _check_delivered(obj, sequence: SplatSequence, frame: int) -> None:
+    """During a final render: the file this frame should show was there at import; if it is not
+    here now, the render must not show the previous file in its place."""
+    wanted = frame + obj.splat.sequence_frame_offset
+    if wanted in sequence.files or wanted not in recorded_numbers(obj):
+        return
+    neighbour = sequence.files[sequence.number_for(wanted)]
+    name = re.sub(r"(\d+)(?!.*\d)", lambda m: str(wanted).zfill(len(m.group(1))), neighbour.name)
+    raise SplatFileError(neighbour.parent / name,
+                         f"frame {wanted}'s file is missing (the sequence had it at import; "
+                         f"this machine has {len(sequence)} of its files)")
+
+
 def show_frame(obj, frame: int) -> bool:
     """Make `obj`'s mesh hold the Gaussians of scene frame `frame`. True when it was rewritten.
     Raises SplatFileError (the source or the frame's file cannot be read)."""
     sequence = sequence_of(obj)
     if sequence is None or obj.data is None or obj.data.is_editmode:
         return False
+    if render_state.current.scene is not None:
+        _check_delivered(obj, sequence, frame)
     number = file_number(obj, sequence, frame)
     if obj.data.get(SHOWN_KEY) == number:
         return False

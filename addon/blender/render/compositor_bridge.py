@@ -6,7 +6,12 @@ Render Layers node points at, with that scene's engine, after the main engine an
 compositor runs. The bridge uses this:
 
 - a hidden helper scene (`.Splat Composite`) whose render engine is this add-on's
-  (`render_hooks.SplatRenderEngine`); it holds only a dummy camera;
+  (`render_hooks.SplatRenderEngine`); it holds nothing. Blender 5.1+ renders a compositor's
+  scene only when it has a camera, so the helper borrows one (`attach_camera`: a pointer to a
+  bridged scene's camera, no object of its own) while the add-on runs; files are saved without
+  it (`detach_cameras`, from save_pre), so that a Blender without the add-on (a render farm
+  worker that lacks it) fails the render ("no camera") instead of writing frames without
+  splats, and the add-on attaches it again when a file loads, a scene changes or a render starts;
 - in the scene's compositor, a Render Layers node for the helper scene (named "Splat
   Composite"), wired where the scene's own Render Layers "Image", "Alpha" and "Depth" outputs
   were wired (for a scene without a compositor: a new node tree, Render Layers -> Group Output).
@@ -52,7 +57,7 @@ def is_helper(scene) -> bool:
 
 
 def helper_scene(create: bool = True):
-    """The helper scene, created (with its dummy camera) when `create` and missing."""
+    """The helper scene, created when `create` and missing; its camera attached."""
     scene = next((s for s in bpy.data.scenes if is_helper(s)), None)
     if scene is None:
         if not create:
@@ -61,18 +66,59 @@ def helper_scene(create: bool = True):
         scene[HELPER_FLAG] = True
     if scene.render.engine != ENGINE_ID:
         scene.render.engine = ENGINE_ID
-    if scene.camera is None:
-        camera = bpy.data.objects.get(HELPER_CAMERA)
-        if camera is None or camera.type != "CAMERA":
-            camera = bpy.data.objects.new(HELPER_CAMERA, bpy.data.cameras.new(HELPER_CAMERA))
-        if camera.name not in scene.collection.objects:
-            scene.collection.objects.link(camera)
-        scene.camera = camera
-    scene.render.use_compositing = False
-    scene.render.use_sequencer = False
+    attach_camera(scene)
+    if scene.render.use_compositing:
+        scene.render.use_compositing = False
+    if scene.render.use_sequencer:
+        scene.render.use_sequencer = False
     for view_layer in scene.view_layers:
-        view_layer.use_pass_z = True
+        if not view_layer.use_pass_z:
+            view_layer.use_pass_z = True
     return scene
+
+
+def _borrowable_camera():
+    """A camera for the helper: a bridged scene's, else any scene's (None: no scene has one,
+    and then no scene renders anyway)."""
+    scenes = [s for s in bpy.data.scenes if not is_helper(s) and s.camera is not None]
+    scenes.sort(key=lambda s: bridge_node(s) is None)   # bridged scenes first
+    return scenes[0].camera if scenes else None
+
+
+def attach_camera(helper) -> bool:
+    """Give the helper scene a camera if it has none (see the module docstring). Only a
+    pointer changes: safe in render_init. True if it changed."""
+    if helper is None or helper.camera is not None:
+        return False
+    camera = _borrowable_camera()
+    if camera is None:
+        return False
+    helper.camera = camera
+    return True
+
+
+def detach_cameras() -> None:
+    """Before a file is saved: the helpers' borrowed cameras are not saved (see the module
+    docstring); `attach_camera` gives them back."""
+    for scene in bpy.data.scenes:
+        if is_helper(scene) and scene.camera is not None:
+            scene.camera = None
+
+
+def tidy_legacy_helpers() -> None:
+    """Files saved by earlier versions hold a helper camera object (`.Splat Composite
+    Camera`, in the helper scene): it goes, the helper borrows a camera instead. Not while
+    rendering."""
+    for scene in [s for s in bpy.data.scenes if is_helper(s)]:
+        for obj in list(scene.collection.objects):
+            if obj.name.startswith(HELPER_CAMERA) and obj.type == "CAMERA":
+                if scene.camera == obj:
+                    scene.camera = None
+                data = obj.data
+                bpy.data.objects.remove(obj)
+                if data is not None and data.users == 0:
+                    bpy.data.cameras.remove(data)
+        attach_camera(scene)
 
 
 def _collection_has_splats(collection, seen: set) -> bool:
@@ -227,7 +273,11 @@ def ensure_bridge(scene, view_layer: str | None = None) -> bool:
         changed = True
     tree = _tree(scene, create=True, layer_name=layer_name)
     if node is None:
-        node = tree.nodes.new("CompositorNodeRLayers")
+        # Made with the helper as the context's scene: a new Render Layers node points at the
+        # context's scene, and pointing it elsewhere afterwards leaves the user scene counted
+        # twice more (its Scene selector showed "3" after the first import).
+        with bpy.context.temp_override(scene=helper):
+            node = tree.nodes.new("CompositorNodeRLayers")
         node.name = node.label = BRIDGE_NODE
         node.use_custom_color = True
         node.color = (0.35, 0.45, 0.6)
@@ -262,8 +312,20 @@ def ensure_bridge(scene, view_layer: str | None = None) -> bool:
         keep.layer = layer_name
         keep.location = (node.location.x, node.location.y + 450)
         changed = True
+    changed |= _feed_unlinked_output(tree, node)
     node[BRIDGE_FLAG] = json.dumps(record)
     return changed
+
+
+def _feed_unlinked_output(tree, node) -> bool:
+    """A compositor whose output gets nothing (its bridge node was deleted, and the links it
+    had went with it) gets the bridge's image: what it had before."""
+    kinds = ("NodeGroupOutput",) if uses_node_groups() else ("CompositorNodeComposite",)
+    for output in [n for n in tree.nodes if n.bl_idname in kinds]:
+        if output.inputs and output.inputs[0].type == "RGBA" and not output.inputs[0].is_linked:
+            tree.links.new(node.outputs["Image"], output.inputs[0])
+            return True
+    return False
 
 
 def _restore_links(tree, node, record: dict) -> None:
@@ -302,15 +364,9 @@ def remove_bridge(scene) -> bool:
         else:
             scene.use_nodes = False
     if not any(bridge_node(s) is not None for s in bpy.data.scenes if not is_helper(s)):
-        helper = helper_scene(create=False)
+        helper = next((s for s in bpy.data.scenes if is_helper(s)), None)
         if helper is not None:
-            camera = helper.camera
             bpy.data.scenes.remove(helper)
-            if camera is not None and camera.users == 0:
-                data = camera.data
-                bpy.data.objects.remove(camera)
-                if data is not None and data.users == 0:
-                    bpy.data.cameras.remove(data)
     return True
 
 
@@ -327,6 +383,8 @@ def problems(scene) -> list[str]:
         found.append("the Splat Composite node is muted")
     if node.scene is None or not is_helper(node.scene):
         found.append("the Splat Composite node does not point at the helper scene")
+    elif node.scene.camera is None and bpy.app.version >= (5, 1, 0):
+        found.append("the helper scene has no camera (Blender 5.1+ needs one to render it)")
     layer = bridge_view_layer(scene)
     if layer is None or layer not in scene.view_layers:
         found.append(f"view layer {layer!r} is gone")

@@ -259,11 +259,12 @@ class SplatRenderEngine(bpy.types.RenderEngine):
 
 # ------------------------------------------------------------------------------- handlers
 # The bridge is set up before any render: when a file loads, and when a scene gains splats.
-# Render handlers leave the compositor alone (from Blender 5.1; see `_SET_UP_AT_RENDER`):
-# Blender 5.2 crashes (SIGSEGV in the compositor's worker threads, or an abort) when a Render
-# Layers node for another scene is added to the compositor from render_init. What they still
-# change is small and was tried on 5.2: `use_render_cache` (read after render_init) and, for a
-# failure, the scene's camera.
+# Render handlers do not make the helper scene (from Blender 5.1; see `_SET_UP_AT_RENDER`):
+# Blender 5.2 crashes (SIGSEGV) when render_init makes it. Repairing the bridge node, its links
+# and the helper's borrowed camera from render_init was tried on 5.2 and works, as do
+# `use_render_cache` (read after render_init) and, for a failure, the scene's camera. (The
+# segfaults 5.2.2 gave for saved scenes whose splat object was hidden or deleted came from
+# the helper scene holding a camera object of its own; it borrows one now.)
 
 @persistent
 def _on_render_init(scene, _depsgraph=None) -> None:
@@ -279,9 +280,12 @@ def _on_render_init(scene, _depsgraph=None) -> None:
     if not settings.enabled or scene.render.engine == ENGINE_ID:
         return
     try:
-        if bridge.bridge_node(scene) is None and not bridge.has_splats(scene):
+        node = bridge.bridge_node(scene)
+        if node is None and not bridge.has_splats(scene):
             return
-        if _SET_UP_AT_RENDER and bridge.ensure_bridge(scene):
+        if node is not None and bridge.is_helper(node.scene):
+            bridge.attach_camera(node.scene)  # a script emptied bpy.data.objects (a pointer)
+        if _can_set_up_at_render() and bridge.ensure_bridge(scene):
             print(f"Gaussian splats: compositor bridge set up for scene {scene.name!r}")
         blockers = render_blockers(scene)
         if blockers:
@@ -374,9 +378,14 @@ _object_counts: dict[str, int] = {}
 _helper_made_for: set[str] = set()   # scenes whose helper scene was made in the last update
 
 # Blender up to 5.0 takes the bridge being set up from render_init (a script that adds splats
-# and renders at once relies on it); 5.2 crashes (see the handlers' note), so from 5.1 on a
-# render finds the bridge ready or fails with what to do.
+# and renders at once relies on it); 5.2 crashes when render_init makes the helper scene, so
+# from 5.1 on a render repairs the bridge (its node, its links, the helper's camera) only when
+# the helper scene is there, and otherwise fails with what to do.
 _SET_UP_AT_RENDER = bpy.app.version < (5, 1, 0)
+
+
+def _can_set_up_at_render() -> bool:
+    return _SET_UP_AT_RENDER or bridge.helper_scene(create=False) is not None
 
 
 @persistent
@@ -389,13 +398,17 @@ def _on_depsgraph_update(scene, depsgraph) -> None:
     if bridge.is_helper(scene) or getattr(depsgraph, "mode", "VIEWPORT") != "VIEWPORT":
         return
     waiting = scene.name in _helper_made_for
+    if not waiting and _bridge_broken(scene):
+        _object_counts.pop(scene.name, None)   # repair it as if the scene had just gained splats
+        waiting = True
     if not waiting and not depsgraph.id_type_updated("OBJECT"):
         return
     count = len(scene.objects)
     if not waiting and _object_counts.get(scene.name) == count:
         return
     _object_counts[scene.name] = count
-    if not settings_of(scene).enabled or bridge.bridge_node(scene) is not None \
+    if not settings_of(scene).enabled or (bridge.bridge_node(scene) is not None
+                                          and not _bridge_broken(scene)) \
             or scene.render.engine == ENGINE_ID or not bridge.has_splats(scene):
         return
     if not bpy.app.background:
@@ -411,13 +424,28 @@ def _on_depsgraph_update(scene, depsgraph) -> None:
         set_up_bridge_later(scene.name)
 
 
+def _bridge_broken(scene) -> bool:
+    """The scene has a bridge whose helper data is gone: the helper scene deleted (the node
+    points nowhere) or its borrowed camera deleted (a script emptied `bpy.data.objects`).
+    Cheap: it runs on every viewport depsgraph update."""
+    node = bridge.bridge_node(scene)
+    if node is None or not settings_of(scene).enabled:
+        return False
+    if not bridge.is_helper(node.scene):
+        return True
+    if node.scene.camera is None:
+        bridge.attach_camera(node.scene)   # a pointer: no need to wait for a later update
+    return False
+
+
 def set_up_bridge_later(scene_name: str) -> None:
     scene = bpy.data.scenes.get(scene_name)
     if render_state.current.scene is not None or (hasattr(bpy.app, "is_job_running")
                                     and bpy.app.is_job_running("RENDER")):
         return 0.5  # never while a render runs: try again when it is done
-    if scene is not None and scene.render.engine != ENGINE_ID and bridge.has_splats(scene) \
-            and bridge.bridge_node(scene) is None and settings_of(scene).enabled:
+    if scene is not None and scene.render.engine != ENGINE_ID and settings_of(scene).enabled \
+            and (bridge.bridge_node(scene) is None or _bridge_broken(scene)) \
+            and bridge.has_splats(scene):
         try:
             bridge.ensure_bridge(scene)
         except Exception:
@@ -430,13 +458,32 @@ def _on_load_post(*_args) -> None:
     """A file opened (also `blender -b file.blend -a`, before it renders): bridge its scenes."""
     _object_counts.clear()
     _helper_made_for.clear()
+    try:
+        bridge.tidy_legacy_helpers()
+    except Exception:
+        traceback.print_exc()
     for scene in list(bpy.data.scenes):
         if not bridge.is_helper(scene):
             set_up_bridge_later(scene.name)
 
 
+@persistent
+def _on_save_pre(*_args) -> None:
+    """Files are saved without the helpers' borrowed cameras (see `compositor_bridge`)."""
+    bridge.detach_cameras()
+
+
+@persistent
+def _on_save_post(*_args) -> None:
+    for scene in bpy.data.scenes:
+        if bridge.is_helper(scene):
+            bridge.attach_camera(scene)
+
+
 _HANDLERS = (
     ("depsgraph_update_post", _on_depsgraph_update),
+    ("save_pre", _on_save_pre),
+    ("save_post", _on_save_post),
     ("load_post", _on_load_post),
     ("render_init", _on_render_init),
     ("render_pre", _on_render_pre),

@@ -10,7 +10,7 @@ splat object of the scene:
 - `antialiased`: 'OBJECT' (what the splat objects say), 'ON' or 'OFF' for all;
 - `sh_degree`: the most SH bands to evaluate (each object's own limit applies too);
 - `near`: the near plane in scene units (splats closer to the camera are culled);
-- `threads`: native threads, 0 for every core;
+- `threads`: native threads, 0 for as many as Blender renders with (`render.threads`);
 - `splat_passes`: add the splat layer to multilayer EXR files;
 - `viewport`, `viewport_coarse_pixels`, `viewport_resolution`: the viewport drawing
   (see `viewport`).

@@ -68,6 +68,15 @@ def render_border(render) -> tuple[float, float, float, float] | None:
     return (render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y)
 
 
+def render_threads(scene, settings) -> int:
+    """Threads for a final render's splats: the add-on's own setting, or with 0 as many as
+    Blender renders with (Render > Performance > Threads; `blender -t N` on a shared farm
+    machine), so that a worker limited to N threads composes its splats on N too."""
+    if settings.threads:
+        return settings.threads
+    return max(0, int(getattr(scene.render, "threads", 0)))
+
+
 def capture_frame(scene, depsgraph) -> FrameSplats:
     """Gather the splats and the camera a render depsgraph shows (see `render_hooks`)."""
     settings = settings_of(scene)
@@ -93,5 +102,6 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
     gaussians = result.gaussians
     return FrameSplats(scene.name, depsgraph.view_layer.name, scene.frame_current, gaussians,
                        camera, antialiased, color_space,
-                       min(settings.sh_degree, gaussians.degree), settings.near, settings.threads,
+                       min(settings.sh_degree, gaussians.degree), settings.near,
+                       render_threads(scene, settings),
                        1000 * (time.perf_counter() - start), warnings, result.cache_hits)

@@ -198,3 +198,34 @@ def test_a_frame_that_cannot_be_read_fails_the_render_not_shows_stale_splats(tmp
     except RuntimeError:
         pass  # the render failed, as it must
     assert not (tmp_path / "anim_0002.png").exists()  # never frame 1's splats under frame 2
+
+
+def test_a_frame_file_missing_on_another_machine_fails_that_frame(tmp_path):
+    """A render farm worker whose copy of the sequence lacks a file that was there at import:
+    that frame fails with a message naming the file, never shows the previous file's splats;
+    a gap the sequence had at import still holds the previous file."""
+    files = write_frames(tmp_path, COUNTS)
+    scene, _camera = _animation_scene(tmp_path, files)
+    obj = next(o for o in scene.objects if sequence.source_of(o))
+    assert sequence.recorded_numbers(obj) == {1, 2, 3} and obj[sequence.NUMBERS_KEY] == "1-3"
+    files[2].unlink()
+    sequence.forget_all()                       # a fresh worker process: the folder read again
+    try:
+        bpy.ops.render.render(animation=True)
+    except RuntimeError:
+        pass
+    from addon.blender.render import failures as render_failures
+    assert any("walk_0002.ply" in e and "missing" in e for e in render_failures.last_errors())
+    assert not (tmp_path / "anim_0002.png").exists()
+    # The same folder as imported with the gap: frame 2 holds frame 1, as image sequences do.
+    sequence.record_numbers(obj, [1, 3])
+    sequence.forget_all()
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    assert np.array_equal(read_png(tmp_path / "anim_0002.png"), read_png(tmp_path / "anim_0001.png"))
+
+
+def test_recorded_numbers_round_trip():
+    obj = bpy.data.objects.new("o", None)
+    sequence.record_numbers(obj, [5, 1, 2, 3, 9, 10, 7])
+    assert obj[sequence.NUMBERS_KEY] == "1-3,5,7,9-10"
+    assert sequence.recorded_numbers(obj) == {1, 2, 3, 5, 7, 9, 10}

@@ -1,0 +1,155 @@
+"""The compositor bridge's helper data heals itself and stays out of the user's way (bpy).
+
+Each piece the bridge needs is taken away in turn, as scripts and users do (a generation script
+emptying `bpy.data.objects`, the helper scene deleted or renamed, the Splat Composite node
+deleted or renamed), then F12 renders: the frame must equal the one rendered before, splats
+included. And: the user's scene is not counted as used more often than a plain compositor
+makes it, no helper object is in `bpy.data.objects`, files are saved without the helper's
+borrowed camera (so a Blender without the add-on refuses to render them; see
+`compositor_bridge`), and files from earlier versions lose their helper camera object on load.
+The same in real Blender 5.2, where a render cannot repair the bridge, is in scripts/test_farm.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import bpy_support as bs
+from bpy_support import bpy  # the shared bpy import
+import numpy as np
+import pytest
+
+from addon.blender import splat_object
+from addon.blender.render import compositor_bridge as bridge, failures as render_failures
+from scenes import random_gaussians
+from standard_view import read_png
+
+
+def _scene(rng):
+    bs.reset_scene()
+    for obj in list(bpy.data.objects):   # what generation scripts start with
+        bpy.data.objects.remove(obj)
+    scene = bpy.context.scene
+    splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
+    bpy.ops.mesh.primitive_cube_add(size=0.9, location=(0.35, -2.5, 0.15))
+    bs.add_camera(location=(0.0, -6.0, 0.0), rotation=(math.pi / 2, 0, 0), width=24, height=16)
+    scene.render.engine = "BLENDER_WORKBENCH"
+    settings = scene.render.image_settings
+    settings.media_type = "IMAGE"
+    settings.file_format = "PNG"
+    settings.color_mode = "RGBA"
+    scene.render.dither_intensity = 0.0
+    bridge.ensure_bridge(scene)
+    return scene
+
+
+def _render(scene, path) -> np.ndarray:
+    scene.render.filepath = str(path)
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}, render_failures.last_errors()
+    assert render_failures.last_errors() == []
+    return read_png(str(path) + ".png")
+
+
+def _without_splats(scene, path) -> np.ndarray:
+    scene.splat_render.enabled = False
+    try:
+        return _render(scene, path)
+    finally:
+        scene.splat_render.enabled = True
+
+
+def _delete_objects(scene):
+    """A script's first line, after the scene was set up: every object goes (the user's too),
+    then the script builds its scene again."""
+    camera = scene.camera
+    state = (camera.location.copy(), camera.rotation_euler.copy())
+    names = [o.name for o in scene.objects]
+    keep = {o.name: o.copy() for o in scene.objects}  # copies, not linked anywhere yet
+    for obj in list(bpy.data.objects):
+        if obj.name in names:
+            bpy.data.objects.remove(obj)
+    for name, obj in keep.items():
+        obj.name = name
+        scene.collection.objects.link(obj)
+        if obj.type == "CAMERA":
+            scene.camera = obj
+            obj.location, obj.rotation_euler = state
+
+
+def _delete_helper_scene(scene):
+    bpy.data.scenes.remove(bridge.helper_scene(create=False))
+
+
+def _rename_helper_scene(scene):
+    bridge.helper_scene(create=False).name = "Renamed by a script"
+
+
+def _delete_bridge_node(scene):
+    tree = scene.compositing_node_group
+    tree.nodes.remove(bridge.bridge_node(scene))
+
+
+def _rename_bridge_node(scene):
+    node = bridge.bridge_node(scene)
+    node.name = node.label = "Something else"
+
+
+def _clear_helper_camera(scene):
+    bridge.helper_scene(create=False).camera = None
+
+
+@pytest.mark.parametrize("damage", [_delete_objects, _delete_helper_scene, _rename_helper_scene,
+                                    _delete_bridge_node, _rename_bridge_node,
+                                    _clear_helper_camera])
+def test_the_render_repairs_what_was_taken(rng, tmp_path, damage):
+    scene = _scene(rng)
+    before = _render(scene, tmp_path / "before")
+    plain = _without_splats(scene, tmp_path / "plain")
+    assert np.abs(before - plain).max() > 40, "the splats did not show in the first place"
+    damage(scene)
+    after = _render(scene, tmp_path / "after")
+    assert np.abs(after - before).max() <= 1
+    node = bridge.bridge_node(scene)
+    assert node is not None and bridge.is_helper(node.scene) and bridge.problems(scene) == []
+    assert node.scene.camera is not None   # Blender 5.1+ refuses a compositor scene without one
+
+
+def test_the_helpers_stay_out_of_the_users_way(rng):
+    bs.reset_scene()
+    scene = bpy.context.scene
+    plain = bpy.data.node_groups.new("Plain", "CompositorNodeTree")
+    plain.nodes.new("CompositorNodeRLayers")       # what a user's own compositor costs
+    users_with_a_compositor = scene.users
+    bpy.data.node_groups.remove(plain)
+    scene = _scene(rng)
+    assert scene.users == users_with_a_compositor
+    assert not [o.name for o in bpy.data.objects if o.name.startswith(".")]
+    helper = bridge.helper_scene(create=False)
+    assert helper.name.startswith(".") and len(helper.objects) == 0
+    assert helper.camera == scene.camera     # borrowed: a pointer, no user, no object
+
+
+def test_files_are_saved_without_the_borrowed_camera(rng, tmp_path):
+    scene = _scene(rng)
+    helper_name = bridge.helper_scene(create=False).name
+    path = str(tmp_path / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
+    assert bridge.helper_scene(create=False).camera == scene.camera  # given back after saving
+    with bpy.data.libraries.load(path, link=True) as (source, target):
+        target.scenes = [helper_name]
+    linked = next(s for s in bpy.data.scenes if s.library is not None)
+    assert linked.camera is None and len(linked.objects) == 0
+
+
+def test_an_older_files_helper_camera_goes_on_load(rng, tmp_path):
+    scene = _scene(rng)
+    helper = bridge.helper_scene(create=False)
+    old = bpy.data.objects.new(bridge.HELPER_CAMERA, bpy.data.cameras.new(bridge.HELPER_CAMERA))
+    helper.collection.objects.link(old)
+    helper.camera = old
+    path = str(tmp_path / "old.blend")   # saved with it, as earlier versions saved
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)   # load_post tidies it
+    helper = bridge.helper_scene(create=False)
+    assert bridge.HELPER_CAMERA not in bpy.data.objects and len(helper.objects) == 0
+    assert helper.camera == bpy.context.scene.camera is not None

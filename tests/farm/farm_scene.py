@@ -1,0 +1,119 @@
+"""Runs inside a real Blender with the extension installed (for this user, as on an artist's
+machine): builds a farm test scene and saves it where the farm reads it.
+
+    blender -b --python farm_scene.py -- anim SPLATS.npz OUT.blend
+    blender -b --python farm_scene.py -- sequence FRAMES_PATTERN OUT.blend
+
+`anim`: random splats about the origin, a red cube in front, a blue plane behind, a camera that
+moves over frames 1-6 (64x48, Cycles on the CPU, emission materials). `sequence`: the same meshes
+and a still camera, and a splat sequence (one file per frame, FRAMES_PATTERN such as
+`.../frames/walk_####.ply`) stored relative to the .blend, so a worker that sees the .blend and its
+`frames/` folder in shared storage reads the same files. Both start, as generation scripts do,
+by emptying the file (`bpy.data.objects.remove` of every object). Then the settings Flamenco's
+add-on evaluates for "Simple Blender Render" are printed as one JSON line (`FARM_SETTINGS {...}`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import sys
+
+import bpy
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # scene_kit, copied beside this
+import scene_kit  # noqa: E402
+
+ADDON = "bl_ext.user_default.gaussian_splatting"
+
+
+def _empty_file() -> None:
+    for obj in list(bpy.data.objects):
+        bpy.data.objects.remove(obj)
+
+
+def _meshes_and_camera(scene):
+    bpy.ops.mesh.primitive_cube_add(size=0.9, location=(0.35, -2.5, 0.15))
+    bpy.context.active_object.data.materials.append(scene_kit.material(bpy, "Cube", (0.9, 0.3, 0.1)))
+    bpy.ops.mesh.primitive_plane_add(size=40, location=(0, 2.5, 0), rotation=(math.pi / 2, 0, 0))
+    bpy.context.active_object.data.materials.append(scene_kit.material(bpy, "Plane", (0.1, 0.35, 0.8)))
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    camera.location = (0.0, -6.0, 0.0)
+    camera.rotation_euler = (math.pi / 2, 0, 0)
+    camera.data.lens = 35
+    scene.camera = camera
+    return camera
+
+
+def _render_settings(scene) -> None:
+    scene.render.resolution_x, scene.render.resolution_y = 64, 48
+    scene.render.resolution_percentage = 100
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = 4
+    scene.cycles.use_denoising = False
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.max_bounces = 0
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = 1          # two workers share this machine's two cores
+    scene.splat_render.threads = 1
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.render.dither_intensity = 0.0
+    scene.frame_start, scene.frame_end = 1, 6
+    settings = scene.render.image_settings
+    settings.file_format = "PNG"
+    settings.color_mode = "RGBA"
+    settings.color_depth = "8"
+
+
+def flamenco_settings(scene) -> dict:
+    """What Flamenco's add-on evaluates for "Simple Blender Render" (its job type's `eval`s)."""
+    return {
+        "frames": f"{scene.frame_start}-{scene.frame_end}",
+        "fps": scene.render.fps / scene.render.fps_base,
+        "format": scene.render.image_settings.file_format,
+        "image_file_extension": scene.render.file_extension,
+        "has_previews": bool(getattr(scene.render.image_settings, "use_preview", False)),
+        "scene": scene.name,
+    }
+
+
+def main(kind: str, source: str, out: str) -> None:
+    addon = importlib.import_module(ADDON)
+    if not hasattr(bpy.types.Scene, "splat_render"):
+        addon.register()
+    bpy.ops.wm.read_homefile(use_empty=False)
+    _empty_file()
+    scene = bpy.context.scene
+    camera = _meshes_and_camera(scene)
+    _render_settings(scene)
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    if kind == "anim":
+        gaussians_mod = importlib.import_module(ADDON + ".core.gaussians")
+        splat_object = importlib.import_module(ADDON + ".blender.splat_object")
+        data = np.load(source)
+        g = gaussians_mod.Gaussians(data["means"], data["log_scales"], data["quats"],
+                                    data["opacity_logits"], data["sh"])
+        splat_object.create_splat_object(g, "Splats")
+        for frame, x, z in ((1, -0.8, -0.3), (6, 0.8, 0.4)):   # the camera moves
+            camera.location = (x, -6.0, z)
+            camera.keyframe_insert("location", frame=frame)
+    elif kind == "sequence":
+        operators = importlib.import_module(ADDON + ".blender.io.operators")
+        bpy.ops.wm.save_as_mainfile(filepath=out)           # a home for the relative path
+        obj = operators.import_sequence(source)
+        obj.splat.sequence_source = bpy.path.relpath(source)
+    else:
+        raise SystemExit(f"unknown scene kind {kind!r}")
+    bpy.ops.object.select_all(action="DESELECT")
+    bpy.ops.wm.save_as_mainfile(filepath=out)
+    print("FARM_SETTINGS " + json.dumps(flamenco_settings(scene)), flush=True)
+
+
+if __name__ == "__main__":
+    main(*sys.argv[sys.argv.index("--") + 1:])
