@@ -70,6 +70,8 @@ from ..job_runner import JobOperator, OperatorJob, draw_settings, registration
 COLMAP_KEY = "colmap_transform"
 OBJECT_KEY = "splat_object"
 CHECKPOINT_KEY = "splat_checkpoint"
+MODULES = ("splatcore", "OpenImageIO", "pycolmap")  # kernels, photos, the model
+FEATURE = "Training Gaussians"
 
 
 # -- the COLMAP collection ------------------------------------------------------------------------
@@ -205,8 +207,8 @@ def train_request(collection, config: TrainConfig | None = None, *, image_folder
                   compact: bool = True) -> TrainRequest:
     """Read the collection and check the inputs on the main thread; raises ValueError /
     FileNotFoundError, or MissingModule (an ImportError) for a module training needs."""
-    for module in ("splatcore", "OpenImageIO", "pycolmap"):  # kernels, photos, the model
-        dependencies.require(module, "Training Gaussians")
+    for module in MODULES:
+        dependencies.require(module, FEATURE)
     path = checkpoint_path(collection, str(checkpoint), resume=resume)
     return colmap_training.train_request(
         source_of(collection), path, config, resume=resume, image_folder=image_folder,
@@ -405,7 +407,12 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return any(is_colmap_collection(c) for c in bpy.data.collections)
+        if not dependencies.poll_unavailable(cls, MODULES, FEATURE):
+            return False
+        if not any(is_colmap_collection(c) for c in bpy.data.collections):
+            cls.poll_message_set("Import a COLMAP scene first (File > Import > COLMAP Scene)")
+            return False
+        return True
 
     def draw(self, context):
         draw_settings(self.layout, self, self.DIALOG)
