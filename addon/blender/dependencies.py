@@ -43,11 +43,11 @@ def python_version() -> str:
     return f"{sys.version_info.major}.{sys.version_info.minor}"
 
 
-def bundled_pythons(module: str, manifest: Path = MANIFEST) -> list[str] | None:
+def bundled_pythons(module: str, manifest: Path | None = None) -> list[str] | None:
     """The Python versions ("3.11", ...) the installed extension carries `module`'s wheels for;
     None when not running from an installed extension (no manifest listing wheels)."""
     try:
-        text = manifest.read_text(encoding="utf-8")
+        text = (manifest or MANIFEST).read_text(encoding="utf-8")
     except OSError:
         return None
     if "wheels" not in text:
@@ -97,11 +97,16 @@ def unavailable(modules, feature: str) -> str | None:
     or None. Cheap and without importing anything new: a refusal, or a module Python cannot
     find (whether a found module then imports is `require`'s to say)."""
     for module in ((modules,) if isinstance(modules, str) else modules):
+        loaded = sys.modules.get(module, False)
+        if loaded is None:  # imports of it are blocked
+            return _message(module, feature, f"this Blender cannot import it; {_hint(module)}")
+        if loaded is not False:
+            continue
         if module not in _cache:
             refusal = _refusal(module)
             if refusal is not None:
                 _cache[module] = refusal
-            elif module in sys.modules or importlib.util.find_spec(module) is not None:
+            elif importlib.util.find_spec(module) is not None:
                 _cache[module] = None
             else:
                 _cache[module] = f"this Blender cannot import it; {_hint(module)}"

@@ -2,9 +2,9 @@
 
 - The look (`use_photo_colours`): the add-on draws and composes splats in display sRGB, the
   photos' own encoding, which the "Standard" view transform shows unchanged. Blender's default,
-  AgX, tone-maps them: washed out, 3 dB further from the photos (camera 008 of the walkthrough:
-  20.2 dB under AgX, 23.2 dB under Standard). A COLMAP import sets Standard (look None, exposure
-  0, gamma 1) on its scene by default (its "Photo Colours" option).
+  AgX, tone-maps them: washed out, further from the photos (issue 27 measured the walkthrough's
+  camera 008 at 20.2 dB under AgX against 23.2 dB under Standard). A COLMAP import sets Standard
+  (look None, exposure 0, gamma 1) on its scene by default (its "Photo Colours" option).
 - The light (`add_mesh_light`): splats carry their own light, meshes do not; a scene without a
   World renders them black. A COLMAP import into a scene without a World gives it one (its
   "Light for Meshes" option): a uniform white light of strength 1 for every ray but camera rays,

@@ -246,6 +246,18 @@ class SceneBefore:
                 obj["splat_trained_steps"] = self.steps
 
 
+def without_unseen(gaussians: Gaussians, trainer) -> Gaussians:
+    """`gaussians` without those no photo's camera renders. A stopped training leaves a few
+    pushed far out (km away: the object's Dimensions and View Selected go with them) that
+    compaction would have removed; leaving them out changes no render from the photos' cameras
+    (`renderer.seen_by_any`). The checkpoint keeps them all, for Resume."""
+    from ...core.render.renderer import seen_by_any
+
+    seen = seen_by_any(gaussians, trainer.dataset.cameras,
+                       antialiased=trainer.config.antialiased)
+    return gaussians if seen.all() else gaussians.subset(seen)
+
+
 def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = True,
                     before: SceneBefore | None = None) -> tuple[str, str, object]:
     """Main thread, after the job: the object gets the final Gaussians (unless not `write`),
@@ -257,7 +269,10 @@ def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = Tr
         before.restore()
         obj = before.obj
     elif snapshot is not None and job.trainer is not None and write:
-        obj = write_splats(request.source.name, snapshot[1],
+        gaussians = snapshot[1]
+        if job.progress().phase == "cancelled":
+            gaussians = without_unseen(gaussians, job.trainer)
+        obj = write_splats(request.source.name, gaussians,
                            antialiased=job.trainer.config.antialiased, step=snapshot[0])
     else:
         obj = _alive(collection.get(OBJECT_KEY)) if collection is not None else None
