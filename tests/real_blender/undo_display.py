@@ -93,6 +93,7 @@ def set_up() -> None:
 
 def act(name: str):
     def run():
+        record["_step"] = name
         if name == "import":
             with override():
                 bpy.ops.splat.import_splats("EXEC_DEFAULT", True, filepath=PLY)
@@ -134,12 +135,12 @@ def wait_for_image():
     area.tag_redraw()
     state = viewport._views.get(region.as_pointer())
     image = viewport.renderer.result(region.as_pointer())
-    # (In Edit Mode every redraw gathers the edit mesh anew: a new key each time.)
-    current = state is not None and (image is not None and image.key == state.key
-                                      or bpy.context.mode == "EDIT_MESH")
-    if not current or image is None or image.coarse or viewport.renderer.busy():
+    # (Also in Edit Mode: an unchanged edit mesh keeps its key, so the view comes to rest.)
+    current = state is not None and image is not None and image.key == state.key
+    if not current or image.coarse or viewport.renderer.busy():
         if time.monotonic() - record.setdefault("_t0", time.monotonic()) > 60:
-            record["errors"].append("no full-resolution viewport image within 60 s")
+            record["errors"].append(f"{record.get('_step')}: no full-resolution viewport image "
+                                    f"within 60 s")
             record.pop("_t0", None)
             return None
         return 0.5
