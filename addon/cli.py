@@ -43,6 +43,10 @@ class CommandError(Exception):
     """A verb cannot do its work: the message says why (exit status 1)."""
 
 
+class BadArgument(CommandError):
+    """An argument only Blender can check is wrong (an engine id): exit status 2."""
+
+
 # -- shared pieces ---------------------------------------------------------------------------
 
 def _axis(text: str) -> str:
@@ -224,7 +228,12 @@ def _render(args: argparse.Namespace) -> None:
             raise CommandError(f"{args.blend}: no camera object named {args.camera!r}")
         scene.camera = camera
     if args.engine:
-        scene.render.engine = args.engine
+        try:
+            scene.render.engine = args.engine
+        except TypeError as error:  # Blender's message lists the engines there are
+            found = str(error).partition(" not found in ")[2]
+            raise BadArgument(f"--engine {args.engine}: not a render engine here"
+                              + (f" (engines: {found})" if found else "")) from None
     first, last = args.frames or (scene.frame_current, scene.frame_current)
     out = str(Path(args.out).resolve()) if args.out else scene.render.filepath
     # Frame by frame, as stills: each frame gets its own camera's output size (markers).
@@ -475,5 +484,5 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m addon") -> in
         message = str(error).strip() or type(error).__name__
         message = message.removeprefix("Error: ")  # bpy.ops' RuntimeError repeats the level
         print(f"{prog} {args.verb}: error: {message}", file=sys.stderr, flush=True)
-        return 1
+        return 2 if isinstance(error, BadArgument) else 1
     return 0

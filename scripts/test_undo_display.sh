@@ -25,7 +25,7 @@ blender --command extension install-file -r user_default -e $t/extension.zip > "
 blender -b --python-expr "import bpy; bpy.ops.wm.read_homefile(use_empty=True); \
 bpy.ops.wm.save_as_mainfile(filepath='$t/empty.blend')" > "$io/empty.log" 2>&1
 [ -f "$io/empty.blend" ] || { echo "test_undo_display: no empty.blend (see $io/empty.log)"; exit 1; }
-timeout 400 "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user sh -c \
+timeout 600 "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user sh -c \
     "xvfb-run -a -s '-screen 0 1600x900x24' blender --enable-event-simulate $t/empty.blend \
      --python $t/undo_display.py -- $t/undo_splats.ply $t/out > $t/ui.log 2>&1"
 [ -f "$io/out/steps.json" ] || { echo "test_undo_display: no steps.json (see $io/ui.log)"; exit 1; }

@@ -191,3 +191,14 @@ def test_an_operator_error_is_printed_once(tmp_path):
     assert "error:" in result.stderr
     line = result.stderr.strip().splitlines()[-1].split("error: ", 1)[1]
     assert both.count(line[:60]) == 1, both
+
+
+def test_an_unknown_render_engine_is_a_bad_argument(tmp_path):
+    scene = tmp_path / "empty.blend"
+    made = subprocess.run([sys.executable, "-c", "import bpy, sys; bpy.ops.wm.read_homefile("
+                           "use_empty=True); bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])",
+                           str(scene)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    result = run("render", str(scene), "--engine", "NO_SUCH_ENGINE", "--out", str(tmp_path / "f_"))
+    assert result.returncode == 2 and "NO_SUCH_ENGINE" in result.stderr
+    assert "CYCLES" in result.stderr  # what there is
