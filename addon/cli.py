@@ -13,7 +13,11 @@ Verbs (each has `--help`):
 Every verb but `convert` runs Blender's own operators (the ones the menus run, with their
 defaults: an option left out here is the operator's default), headless: long jobs print a
 line per stage and every few seconds. `convert` needs no Blender at all. Exit status: 0 done,
-1 the work failed (the reason on stderr), 2 bad arguments.
+1 the work failed (the reason on stderr, once), 2 bad arguments (an unknown verb or option, a
+bad value, an output name whose extension the verb cannot write).
+
+`python -m addon` needs this repository on Python's path: run it from the repository root, or
+anywhere after `scripts/bootstrap.sh`, which puts the repository on the venv's path.
 
 Parsing is Blender-free, so `--help` is instant; `bpy` is imported only by the verbs that need
 it (inside Blender that is Blender's own; in the venv the bpy wheel, with the add-on registered
@@ -23,6 +27,8 @@ from this package).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
@@ -35,6 +41,10 @@ COMMAND_ID = "gaussian_splatting"  # `blender -c gaussian_splatting ...` (the ex
 
 class CommandError(Exception):
     """A verb cannot do its work: the message says why (exit status 1)."""
+
+
+class BadArgument(CommandError):
+    """An argument only Blender can check is wrong (an engine id): exit status 2."""
 
 
 # -- shared pieces ---------------------------------------------------------------------------
@@ -84,6 +94,15 @@ def _empty_scene(bpy) -> None:
     # The factory startup, emptied (preferences, and so the enabled extensions, are kept).
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     _blender()
+
+
+def _check_available(modules, feature: str) -> None:
+    """The feature's modules before any work (one clear line, not the operator's failure)."""
+    from .blender import dependencies
+
+    reason = dependencies.unavailable(modules, feature)
+    if reason is not None:
+        raise CommandError(reason)
 
 
 def _open(bpy, path: Path) -> None:
@@ -138,9 +157,12 @@ def _activate(bpy, obj) -> None:
 
 def _import_colmap(args: argparse.Namespace) -> None:
     bpy = _blender()
+    from .blender.io import colmap_import
+    _check_available(colmap_import.MODULES, colmap_import.FEATURE)
     _empty_scene(bpy)
     options = _options(args, ("image_folder", "align", "scene_size", "points", "render_points",
-                              "backgrounds", "animated_camera", "cache_dir"))
+                              "backgrounds", "animated_camera", "cache_dir", "photo_colours",
+                              "mesh_light"))
     if args.up_from is not None:
         options["up_axis"] = args.up_from.upper()
     bpy.ops.splat.import_colmap(directory=str(Path(args.folder).resolve()), **options)
@@ -149,6 +171,8 @@ def _import_colmap(args: argparse.Namespace) -> None:
 
 def _train(args: argparse.Namespace) -> None:
     bpy = _blender()
+    from .blender.train import operator as train_operator
+    _check_available(train_operator.MODULES, train_operator.FEATURE)
     source = Path(args.source)
     if source.suffix.lower() == ".blend":
         _open(bpy, source)
@@ -156,8 +180,6 @@ def _train(args: argparse.Namespace) -> None:
         _empty_scene(bpy)
         bpy.ops.splat.import_colmap(directory=str(source.resolve()),
                                     **_options(args, ("image_folder",)))
-    from .blender.train import operator as train_operator
-
     collection = train_operator.find_colmap_collection(bpy.context, args.collection or "")
     if collection is None:
         raise CommandError(f"{source}: no single COLMAP scene to train (name it with "
@@ -197,7 +219,12 @@ def _render(args: argparse.Namespace) -> None:
             raise CommandError(f"{args.blend}: no camera object named {args.camera!r}")
         scene.camera = camera
     if args.engine:
-        scene.render.engine = args.engine
+        try:
+            scene.render.engine = args.engine
+        except TypeError as error:  # Blender's message lists the engines there are
+            found = str(error).partition(" not found in ")[2]
+            raise BadArgument(f"--engine {args.engine}: not a render engine here"
+                              + (f" (engines: {found})" if found else "")) from None
     first, last = args.frames or (scene.frame_current, scene.frame_current)
     out = str(Path(args.out).resolve()) if args.out else scene.render.filepath
     # Frame by frame, as stills: each frame gets its own camera's output size (markers).
@@ -217,6 +244,8 @@ def _render(args: argparse.Namespace) -> None:
 
 def _convert_to_mesh(args: argparse.Namespace) -> None:
     bpy = _blender()
+    from .blender import mesh_convert
+    _check_available(mesh_convert.MODULE, mesh_convert.FEATURE)
     obj = _splat_object(bpy, Path(args.source), args.object, args.forward, args.up)
     _activate(bpy, obj)
     options = _options(args, ("resolution", "max_triangles", "texture_size", "cameras",
@@ -284,6 +313,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--animated-camera", action="store_true", default=None,
                    help="also a camera that follows the photos, one frame each")
     p.add_argument("--cache-dir", help="where undistorted photos go")
+    p.add_argument("--keep-view-transform", dest="photo_colours", action="store_false",
+                   default=None, help="keep Blender's default view transform (AgX) instead of "
+                   "Standard, which shows the splats with the photos' colours")
+    p.add_argument("--no-mesh-light", dest="mesh_light", action="store_false", default=None,
+                   help="no World lighting meshes (default: one, invisible to the camera)")
     p.set_defaults(run=_import_colmap)
 
     p = verbs.add_parser("train", help="train Gaussians from a COLMAP scene",
@@ -378,6 +412,51 @@ def _join_negative_axes(argv: list[str]) -> list[str]:
 KNOWN_ERRORS: tuple[type[BaseException], ...] = (CommandError, ValueError, OSError, RuntimeError)
 
 
+def _splat_extension(path: str, *, write: bool) -> str | None:
+    """Why `path`'s name is no splat format this can read (write), or None."""
+    from .core.formats import registry
+    try:
+        fmt = registry.format_for(Path(path))
+    except ValueError:
+        fmt = None
+    if fmt is None or (write and not fmt.can_write):
+        formats = registry.export_formats() if write else registry.FORMATS
+        names = ", ".join(dict.fromkeys(e for f in formats for e in f.endings))
+        return (f"{path}: no splat format {'writes' if write else 'reads'} "
+                f"{Path(path).suffix or 'a name without extension'!r} (expected {names})")
+    return None
+
+
+def _output_errors(args: argparse.Namespace) -> str | None:
+    """Output names a verb cannot write: bad arguments (exit 2), found before any work."""
+    if args.verb in ("import-colmap", "convert-to-mesh"):
+        if Path(args.out).suffix.lower() != ".blend":
+            return f"--out {args.out}: expected a .blend file"
+    elif args.verb == "train":
+        if Path(args.out).suffix.lower() != ".blend":
+            return _splat_extension(args.out, write=True)
+    elif args.verb == "convert":
+        return _splat_extension(args.output, write=True)
+    return None
+
+
+class _WithoutErrorReports(io.TextIOBase):
+    """Blender writes an operator's reports to stdout ("Error: ..."), and the same error comes
+    back as the exception this command prints to stderr: the copy on stdout is left out, so the
+    reason is printed once. Everything else passes straight through (progress lines)."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        if not text.startswith("Error: "):
+            self.stream.write(text)
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
 def main(argv: Sequence[str] | None = None, prog: str = "python -m addon") -> int:
     """Run one verb; returns the exit status (never raises for bad input or a failed job)."""
     parser = build_parser(prog)
@@ -385,12 +464,17 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m addon") -> in
         args = parser.parse_args(_join_negative_axes(list(sys.argv[1:] if argv is None else argv)))
     except SystemExit as exit_:  # --help (0) or bad arguments (2): argparse printed why
         return int(exit_.code or 0)
+    bad_output = _output_errors(args)
+    if bad_output is not None:
+        print(f"{prog} {args.verb}: error: {bad_output}", file=sys.stderr, flush=True)
+        return 2
     run: Callable[[argparse.Namespace], None] = args.run
     try:
-        run(args)
+        with contextlib.redirect_stdout(_WithoutErrorReports(sys.stdout)):
+            run(args)
     except KNOWN_ERRORS as error:
         message = str(error).strip() or type(error).__name__
         message = message.removeprefix("Error: ")  # bpy.ops' RuntimeError repeats the level
         print(f"{prog} {args.verb}: error: {message}", file=sys.stderr, flush=True)
-        return 1
+        return 2 if isinstance(error, BadArgument) else 1
     return 0

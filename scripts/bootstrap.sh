@@ -35,3 +35,10 @@ if [ "$(cat .venv/.native-stamp 2>/dev/null)" != "$wanted" ] || ! .venv/bin/pyth
     rm -rf native/build native/*.egg-info
     echo "$wanted" > .venv/.native-stamp
 fi
+
+# `python -m addon ...` from any folder: the repository on the venv's path (a .pth file). Not
+# for a .venv that is a link to another checkout's (that checkout's path is the one it holds).
+if [ ! -L .venv ]; then
+    site=$(.venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+    pwd > "$site/gaussian_splatting_checkout.pth"
+fi

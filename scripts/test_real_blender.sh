@@ -14,8 +14,9 @@
 # be gathered, a native error), each of which must fail the render with a non-zero exit code and
 # no file; and the UI under Xvfb: F12 as a user presses it (tests/real_blender/ui_f12.py, the
 # Render Result held against the native composite), Solid and Material Preview screenshots of the viewport held
-# against the native render (tests/real_blender/viewport_figures.py). Exits non-zero on any
-# failure, after a summary table.
+# against the native render (tests/real_blender/viewport_figures.py), and the splat object's
+# display through import, Clean Up, undo and redo (scripts/test_undo_display.sh). Exits non-zero
+# on any failure, after a summary table.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 RB=${REAL_BLENDER_SCRIPTS:-$(cd ../shared/real-blender 2>/dev/null && pwd)}
@@ -124,6 +125,13 @@ for suite in $SUITES; do
             "$io/ui/view.json"; then
         note "$suite" "viewport errors" FAIL "the draw handler raised (see above)"
     fi
+
+    # Import, Clean Up, Ctrl+Z, Ctrl+Shift+Z, an Edit Mode delete, Ctrl+Z: splats and no vertex
+    # dots in a screenshot after each (scripts/test_undo_display.sh, its own io folder).
+    scripts/test_undo_display.sh "$suite" "$zip" splat-test-undo > "$io/undo.log" 2>&1
+    rc=$?; cat "$io/undo.log"
+    note "$suite" "display through undo" "$([ $rc = 0 ] && echo ok || echo FAIL)" \
+        "$(grep -c '^FAIL' "$io/undo.log") failures, $(grep -c 'display BOUNDS' "$io/undo.log") steps with Bounds"
 done
 
 echo

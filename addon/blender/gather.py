@@ -53,6 +53,10 @@ from . import splat_object
 _generations: dict[int, int] = {}
 _world_cache: dict[tuple, tuple[tuple, Gaussians, tuple]] = {}  # key, world, contents
 _combined_cache: dict[str, tuple[tuple, Gaussians]] = {}
+# Objects in Edit Mode: the last Gaussians read, handed out again while the edit mesh reads the
+# same (else every redraw would be new Gaussians, and the viewport would render them again and
+# again, a core busy for as long as Edit Mode lasts).
+_edit_cache: dict[tuple, tuple[tuple, Gaussians]] = {}
 
 
 @dataclass
@@ -107,6 +111,13 @@ def _on_load(*_args) -> None:
 def clear_cache() -> None:
     _world_cache.clear()
     _combined_cache.clear()
+    _edit_cache.clear()
+
+
+def _same_gaussians(a: Gaussians, b: Gaussians) -> bool:
+    return all(x.shape == y.shape and np.array_equal(x, y) for x, y in zip(
+        (a.means, a.log_scales, a.quats, a.opacity_logits, a.sh),
+        (b.means, b.log_scales, b.quats, b.opacity_logits, b.sh)))
     _generations.clear()
 
 
@@ -278,6 +289,13 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
                 if local_key is not None:
                     local_this_call[local_key] = local
             world = transform_gaussians(local, matrix)
+            if use_cache and edit_mode:
+                previous = _edit_cache.get(identity)
+                if previous is not None and previous[0] == world_key \
+                        and _same_gaussians(previous[1], world):
+                    world = previous[1]
+                    cached = world
+                _edit_cache[identity] = (world_key, world)
             if use_cache and fingerprint is not None:
                 if contents is None:  # only moved (same data): its contents are known
                     contents = entry[2] if entry is not None and entry[0][0] == fingerprint \
@@ -290,6 +308,8 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
     if use_cache and objects is None:
         for identity in [k for k in _world_cache if k not in seen]:
             del _world_cache[identity]
+        for identity in [k for k in _edit_cache if k not in seen]:
+            del _edit_cache[identity]
     if len({b.antialiased for b in batches}) > 1:
         warnings.append("splat objects disagree on the antialiased option: rendering "
                         "without it")

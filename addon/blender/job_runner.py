@@ -210,7 +210,7 @@ class JobOperator:
         printer = ProgressPrinter(job.title) if bpy.app.background else None
 
         def on_progress(p: Progress) -> None:
-            if printer is not None:
+            if printer is not None and p.phase != "failed":  # `finish` reports it, once
                 printer(p)
             if window:
                 wm.progress_update(int(1000 * p.fraction))

@@ -53,6 +53,9 @@ from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, wants_background
 from .registration import module_registration
 
+MODULE = "xatlas"  # the UV atlas
+FEATURE = "Converting splats to a mesh (its UV atlas)"
+
 CAMERA_MODES = ("AUTO", "COLMAP", "SPHERE")
 SOURCE_KEY = "splat_source"
 PROXY_KEY = "splat_proxy_of"
@@ -118,7 +121,7 @@ def _check(obj, resolution, max_triangles, texture_size) -> None:
     if not 16 <= texture_size <= 16384:
         raise ConversionError(f"texture_size must be 16..16384, got {texture_size}")
     try:
-        dependencies.require("xatlas", "Converting splats to a mesh (its UV atlas)")
+        dependencies.require(MODULE, FEATURE)
     except dependencies.MissingModule as error:
         raise ConversionError(str(error)) from error
 
@@ -378,7 +381,7 @@ class SPLAT_OT_convert_to_mesh(JobOperator, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.mode == "OBJECT"
+        return dependencies.poll_unavailable(cls, MODULE, FEATURE) and context.mode == "OBJECT"
 
     def _kwargs(self):
         return dict(resolution=self.resolution, max_triangles=self.max_triangles,

@@ -207,6 +207,8 @@ def replace_gaussians(obj, gaussians: Gaussians) -> None:
     if settings.sh_degree > gaussians.degree or not settings.is_splat:
         settings.sh_degree = gaussians.degree
     settings.is_splat = True
+    if bpy.context.scene is not None:
+        sync_display(obj, bpy.context.scene)
 
 
 def create_splat_object(gaussians: Gaussians, name: str = "Splats", *, collection=None,
@@ -230,11 +232,63 @@ def create_splat_object(gaussians: Gaussians, name: str = "Splats", *, collectio
         if collection is None:
             collection = bpy.context.scene.collection
         collection.objects.link(obj)
+        if bpy.context.scene is not None:
+            sync_display(obj, bpy.context.scene)
     except BaseException:
         bpy.data.objects.remove(obj)
         bpy.data.meshes.remove(mesh)
         raise
     return obj
+
+
+# --------------------------------------------------------------------------------------------
+# How Blender itself draws the object
+#
+# Blender draws a mesh without faces as dots, one per vertex, on top of everything drawn from
+# Python (overlays are merged after the add-on's POST_VIEW image): 125k dots over the splats. A
+# splat object the add-on draws is displayed as its bounding box instead (`display_type =
+# 'BOUNDS'`: a few lines to see and click it, no dots); Edit Mode still shows and selects every
+# point. When the add-on stops drawing it (its or the scene's "Show in Viewport" off), the dots
+# come back. The display is set where the object is made (so the undo step of the operator that
+# made it holds it); `viewport` re-syncs it after undo, redo, load, append and duplicate.
+
+BOUNDS_FLAG = "splat_bounds_display"   # ID property: this add-on set the bounds display
+
+
+def drawn_by_addon(obj, scene) -> bool:
+    settings = getattr(scene, "splat_render", None)
+    return (getattr(obj, "splat", None) is not None and obj.splat.is_splat
+            and obj.splat.show_in_viewport and (settings is None or settings.viewport))
+
+
+def sync_display(obj, scene) -> bool:
+    """Bounds display while the add-on draws the splats, Blender's own otherwise. True if it
+    changed anything.
+
+    A display the user picked is left alone: Wire, or Textured/Solid on an object the add-on
+    had already given Bounds (it still carries BOUNDS_FLAG). Linked (library) objects are
+    read-only and left as their file has them."""
+    if not getattr(getattr(obj, "splat", None), "is_splat", False) or obj.library is not None:
+        return False
+    if drawn_by_addon(obj, scene):
+        if obj.display_type in ("TEXTURED", "SOLID") and not obj.get(BOUNDS_FLAG):
+            obj.display_type = "BOUNDS"
+            obj[BOUNDS_FLAG] = True
+            return True
+    elif obj.display_type == "BOUNDS" and obj.get(BOUNDS_FLAG):
+        obj.display_type = "TEXTURED"
+        del obj[BOUNDS_FLAG]
+        return True
+    return False
+
+
+def needs_sync(obj, scene) -> bool:
+    """Whether `sync_display` would change `obj` (cheap: no data written)."""
+    if not getattr(getattr(obj, "splat", None), "is_splat", False) or obj.library is not None:
+        return False
+    if drawn_by_addon(obj, scene):
+        return obj.display_type in ("TEXTURED", "SOLID") and not obj.get(BOUNDS_FLAG)
+    return obj.display_type == "BOUNDS" and bool(obj.get(BOUNDS_FLAG))
 
 
 # --------------------------------------------------------------------------------------------

@@ -38,6 +38,7 @@ from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
 from ..core.render.renderer import render
 from . import gather
+from .splat_object import BOUNDS_FLAG, drawn_by_addon, needs_sync, sync_display  # noqa: F401
 
 REST_SECONDS = 0.15
 
@@ -439,39 +440,18 @@ def _ensure_timer() -> None:
 
 
 # ------------------------------------------------------------------ the object's own drawing
-#
-# Blender draws a mesh without faces as dots, one per vertex, on top of everything drawn from
-# Python (overlays are merged after POST_VIEW): 125k black dots over the splats. A splat object
-# the add-on draws is displayed as its bounding box instead (`display_type = 'BOUNDS'`: a few
-# lines to see and click it, no dots); Edit Mode still shows and selects every point. When the
-# add-on stops drawing it (its or the scene's "Show in Viewport" off), the dots come back.
-
-BOUNDS_FLAG = "splat_bounds_display"   # ID property: this add-on set the bounds display
+# (`splat_object`: a splat object the add-on draws shows as its bounds, not one dot per splat;
+# here: keeping that right whatever brings objects back)
 
 
-def drawn_by_addon(obj, scene) -> bool:
-    settings = getattr(scene, "splat_render", None)
-    return (getattr(obj, "splat", None) is not None and obj.splat.is_splat
-            and obj.splat.show_in_viewport and (settings is None or settings.viewport))
+def sync_scene(scene) -> int:
+    """`sync_display` for every object of `scene`; how many changed."""
+    return sum(sync_display(obj, scene) for obj in scene.objects)
 
 
-def sync_display(obj, scene) -> None:
-    """Bounds display while the add-on draws the splats, Blender's own otherwise (a display
-    type the user picked, such as Wire, is left alone)."""
-    if not getattr(getattr(obj, "splat", None), "is_splat", False):
-        return
-    if drawn_by_addon(obj, scene):
-        if obj.display_type in ("TEXTURED", "SOLID"):
-            obj.display_type = "BOUNDS"
-            obj[BOUNDS_FLAG] = True
-    elif obj.display_type == "BOUNDS" and obj.get(BOUNDS_FLAG):
-        obj.display_type = "TEXTURED"
-        del obj[BOUNDS_FLAG]
-
-
-def sync_scene(scene) -> None:
-    for obj in scene.objects:
-        sync_display(obj, scene)
+def sync_all() -> int:
+    """`sync_display` for every scene of the file; how many objects changed."""
+    return sum(sync_scene(scene) for scene in bpy.data.scenes)
 
 
 def on_switch_changed(_settings, context) -> None:
@@ -480,24 +460,44 @@ def on_switch_changed(_settings, context) -> None:
         sync_scene(context.scene)
 
 
-_object_counts: dict[str, int] = {}
+# When the display is set. A splat object gets it where it is made (`create_splat_object`, inside
+# the operator, so the operator's undo step holds it); everything that brings objects back from
+# stored state without running that code re-syncs here:
+# - undo and redo (memfile steps of files made before, or of objects whose flag changed),
+#   and opening a file: `undo_post`, `redo_post`, `load_post`, at once (outside any evaluation);
+# - duplicate, append, link, paste, scripts: the objects the depsgraph reports as updated are
+#   checked (no data written unless one is wrong); in the UI the fix runs from a timer, since
+#   data must not be written during the depsgraph update; in background at once.
+
+
+def _wrong_objects(scene, depsgraph) -> bool:
+    if not depsgraph.id_type_updated("OBJECT"):
+        return False
+    for update in depsgraph.updates:
+        original = getattr(update.id, "original", None)
+        if isinstance(original, bpy.types.Object) and needs_sync(original, scene):
+            return True
+    return False
+
+
+_sync_pending: set[str] = set()
 
 
 @persistent
 def _on_depsgraph_update(scene, depsgraph) -> None:
-    """New objects in a scene: give splat objects the bounds display (in the UI through a
-    timer, outside the depsgraph update; in background at once)."""
-    if not depsgraph.id_type_updated("OBJECT") or _object_counts.get(scene.name) == len(scene.objects):
+    """Objects new or changed in a scene: splat objects get the bounds display."""
+    if scene.name in _sync_pending or not _wrong_objects(scene, depsgraph):
         return
-    _object_counts[scene.name] = len(scene.objects)
     if bpy.app.background:
         sync_scene(scene)
     else:
         name = scene.name
+        _sync_pending.add(name)
         bpy.app.timers.register(lambda: _sync_later(name), first_interval=0.0)
 
 
 def _sync_later(scene_name: str) -> None:
+    _sync_pending.discard(scene_name)
     scene = bpy.data.scenes.get(scene_name)
     if scene is not None:
         sync_scene(scene)
@@ -505,13 +505,16 @@ def _sync_later(scene_name: str) -> None:
 
 
 @persistent
-def _on_load_post(*_args) -> None:
-    _object_counts.clear()
-    for scene in bpy.data.scenes:
-        sync_scene(scene)
+def _on_stored_state(*_args) -> None:
+    """After undo, redo and file load: the objects are as stored; put their display right."""
+    _sync_pending.clear()
+    sync_all()
 
 
-_HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_load_post))
+_on_load_post = _on_stored_state  # (the name the tests and older callers use)
+
+_HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_stored_state),
+             ("undo_post", _on_stored_state), ("redo_post", _on_stored_state))
 _handle = None
 
 

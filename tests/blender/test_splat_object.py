@@ -411,6 +411,28 @@ def test_edit_mode_delete_and_hide_remove_splats_from_renders(rng):
     assert bs.gaussians_equal(gathered().gaussians, kept)
 
 
+def test_edit_mode_gathers_the_same_gaussians_until_an_edit(rng):
+    """In Edit Mode nothing is cached by data address, yet an unchanged edit mesh must give the
+    same Gaussians object: the viewport keys its image on it, and would otherwise render the
+    same view again at every redraw, for as long as Edit Mode lasts."""
+    g, obj, _ = scene_with_camera(rng, n=60)
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        first, second = gathered().gaussians, gathered().gaussians
+        assert second is first and bs.gaussians_equal(first, g)
+        bpy.ops.mesh.select_all(action="DESELECT")
+        bpy.ops.object.mode_set(mode="OBJECT")
+        select_vertices(obj, np.arange(60) < 5)
+        bpy.ops.object.mode_set(mode="EDIT")
+        bpy.ops.mesh.delete(type="VERT")
+        edited = gathered().gaussians
+        assert edited is not first and len(edited) == 55
+        assert gathered().gaussians is edited
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+
+
 def test_separate_and_join_keep_every_attribute(rng):
     g, obj, _ = scene_with_camera(rng, n=50)
     obj.data.attributes.new("my_weight", "FLOAT", "POINT").data.foreach_set(

@@ -154,3 +154,51 @@ def test_train_leaves_the_training_defaults_to_the_operator():
     assert cli._options(args, names) == {"steps": 7000, "strategy": "default",  # noqa: SLF001
                                          "compact": False}
     assert cli.main(["train", "scene", "--out", "o.ply", "--strategy", "nope"]) == 2
+
+
+@pytest.mark.parametrize("argv", [
+    ["convert", "a.ply", "b.xyz"],                        # no format writes .xyz
+    ["convert", "a.ply", "b"],                            # no extension
+    ["train", "folder", "--out", "splats.txt"],
+    ["import-colmap", "folder", "--out", "scene.ply"],    # a .blend is what it writes
+    ["convert-to-mesh", "in.ply", "--out", "mesh.obj"],
+])
+def test_an_output_name_the_verb_cannot_write_is_a_bad_argument(argv, capsys):
+    """Exit 2 (bad arguments), before any work: nothing is read, Blender is not started."""
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("error:") == 1 and argv[-1] in err
+
+
+def test_python_m_addon_works_from_any_folder_with_the_repository_on_the_path(tmp_path):
+    """From another folder, `python -m addon` finds the package once the repository is on the
+    path (what scripts/bootstrap.sh's .pth file does for the venv; here PYTHONPATH)."""
+    import os
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    result = subprocess.run([sys.executable, "-m", "addon", "convert", "--help"], cwd=tmp_path,
+                            text=True, capture_output=True, timeout=60, env=env)
+    assert result.returncode == 0 and "usage:" in result.stdout, result.stderr
+
+
+def test_an_operator_error_is_printed_once(tmp_path):
+    """Blender writes an operator's error report to stdout and raises it: the command prints
+    it once, on stderr."""
+    (tmp_path / "sparse").mkdir()
+    result = run("import-colmap", str(tmp_path), "--out", str(tmp_path / "x.blend"))
+    assert result.returncode == 1
+    both = result.stdout + result.stderr
+    assert "error:" in result.stderr
+    line = result.stderr.strip().splitlines()[-1].split("error: ", 1)[1]
+    assert both.count(line[:60]) == 1, both
+
+
+def test_an_unknown_render_engine_is_a_bad_argument(tmp_path):
+    scene = tmp_path / "empty.blend"
+    made = subprocess.run([sys.executable, "-c", "import bpy, sys; bpy.ops.wm.read_homefile("
+                           "use_empty=True); bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])",
+                           str(scene)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    result = run("render", str(scene), "--engine", "NO_SUCH_ENGINE", "--out", str(tmp_path / "f_"))
+    assert result.returncode == 2 and "NO_SUCH_ENGINE" in result.stderr
+    assert "CYCLES" in result.stderr  # what there is

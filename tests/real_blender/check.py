@@ -4,6 +4,8 @@ and holds what a real Blender wrote against the native composite computed here.
     python tests/real_blender/check.py make SPLATS.npz
     python tests/real_blender/check.py render WRITTEN.png MESHES.exr SPLATS.npz
     python tests/real_blender/check.py viewport SPLATS_SHOT.png PLAIN_SHOT.png VIEW.json SPLATS.npz
+    python tests/real_blender/check.py undo-splats SPLATS.ply
+    python tests/real_blender/check.py undo OUT_DIR
 
 `render`: WRITTEN (an 8-bit PNG from F12 or `-a`) must equal, within 1/255, the splats composed
 by the native compositor with the meshes Blender rendered alone (MESHES, a multilayer EXR of the
@@ -13,6 +15,9 @@ The camera is the one `scene.py` builds.
 `viewport`: screenshots of the UI (`viewport_shot.py`: with the add-on's drawing and without)
 against the native render at the viewport's own camera (VIEW: what the UI recorded). Prints
 the figures; fails when they are off (see `viewport_figures`).
+
+`undo`: the screenshots `undo_display.py` took through import, Clean Up, undo and redo, each held
+against the native render of what the viewport showed (see `undo_figures`): no vertex dots.
 """
 
 from __future__ import annotations
@@ -38,6 +43,20 @@ WIDTH, HEIGHT = 64, 48
 def make(path: str) -> None:
     g = random_gaussians(np.random.default_rng(20261124), 400, 1, radius=1.0, stray=0.0)
     np.savez(path, **g.arrays())
+
+
+def make_undo_splats(path: str) -> None:
+    """A dense, mostly opaque ball (dots over it are easy to see) and transparent floaters that
+    Clean Up removes, as a .ply (the import's 3DGS frame: y down, z forward)."""
+    from addon.core.formats import registry
+
+    rng = np.random.default_rng(20261127)
+    g = random_gaussians(rng, 6000, 1, radius=0.8, stray=0.0)
+    g.log_scales[:] = rng.uniform(np.log(0.03), np.log(0.08), size=(6000, 1)) + \
+        rng.normal(scale=0.2, size=(6000, 3))
+    g.opacity_logits[:] = rng.normal(3.0, 1.0, size=6000)
+    g.opacity_logits[:600] = -8.0
+    registry.write(g, path)
 
 
 def load(path: str) -> Gaussians:
@@ -87,6 +106,12 @@ if __name__ == "__main__":
         code = 0
     elif command == "render":
         code = check_render(*args)
+    elif command == "undo-splats":
+        make_undo_splats(*args)
+        code = 0
+    elif command == "undo":
+        from undo_figures import check_undo  # noqa: E402
+        code = check_undo(*args)
     elif command == "viewport":
         from viewport_figures import check_viewport  # noqa: E402
         code = check_viewport(*args)

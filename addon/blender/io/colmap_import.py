@@ -60,6 +60,7 @@ from ..camera_adapter import (
     to_matrix,
 )
 from ..job_runner import JobOperator, OperatorJob, wants_background
+from . import photo_scene
 from ..registration import module_registration
 
 SENSOR_WIDTH = 36.0
@@ -318,11 +319,15 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
         return done.value
 
 
+MODULES = ("pycolmap", "OpenImageIO")  # the model, the photos
+FEATURE = "Importing a COLMAP scene"
+
+
 def require_modules() -> None:
     """MissingModule unless what an import needs loads: pycolmap (the model), OpenImageIO
     (the photos)."""
-    for module in ("pycolmap", "OpenImageIO"):
-        dependencies.require(module, "Importing a COLMAP scene")
+    for module in MODULES:
+        dependencies.require(module, FEATURE)
 
 
 def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
@@ -331,11 +336,13 @@ def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
                  cache_dir: str | os.PathLike | None = None, points: bool = True,
                  render_points: bool = False, backgrounds: bool = True,
                  animated_camera: bool = False, set_scene_camera: bool = True,
-                 copy_photos: bool = True, scene: bpy.types.Scene | None = None):
+                 copy_photos: bool = True, scene: bpy.types.Scene | None = None,
+                 photo_colours: bool = True, mesh_light: bool = True):
     """The import as a generator of (stage, fraction) steps (`STAGES`) for `job_runner`; its
     return value is the new collection. The Blender-free reading (model, photos, undistortion)
     runs on a worker thread meanwhile; closing the generator stops it at its next photo and
-    removes whatever was built. The other arguments are those of `colmap.read_colmap`."""
+    removes whatever was built. `photo_colours` and `mesh_light`: see `photo_scene`. The other
+    arguments are those of `colmap.read_colmap`."""
     scene = scene if scene is not None else bpy.context.scene
     state = {"fraction": 0.0, "cancel": False}
     outcome: dict = {}
@@ -372,6 +379,11 @@ def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
     except BaseException:
         built.remove_all()
         raise
+    # The scene's look and light, once nothing can fail any more (undo restores them).
+    if photo_colours:
+        photo_scene.use_photo_colours(scene)
+    if mesh_light:
+        photo_scene.add_mesh_light(scene)
     return collection
 
 
@@ -471,6 +483,15 @@ class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
                               description="Show each photo as its camera's background")
     animated_camera: BoolProperty(name="Animated Camera", default=False,
                                   description="A camera that follows the images, a frame each")
+    photo_colours: BoolProperty(
+        name="Photo Colours", default=True,
+        description="Set the scene's view transform to Standard, so renders show splats and "
+                    "photos with the photos' colours (AgX, Blender's default, washes them out)")
+    mesh_light: BoolProperty(
+        name="Light for Meshes", default=True,
+        description="If the scene has no World, add one that lights meshes with a uniform white "
+                    "light but looks black to the camera: meshes made from the splats (Convert "
+                    "to Mesh) render with their colours; splats carry their own light")
     cache_dir: StringProperty(name="Cache Folder", subtype="DIR_PATH", default="",
                               description="Where undistorted photos go (empty: beside the "
                                           "input if writable, else a user cache folder)")
@@ -478,6 +499,10 @@ class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
     interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"},
                               description="Read on a worker thread with a modal timer (set by "
                                           "invoke; scripts get a blocking run)")
+
+    @classmethod
+    def poll(cls, context):
+        return dependencies.poll_unavailable(cls, MODULES, FEATURE)
 
     def invoke(self, context, event):
         self.interactive = wants_background(context)
@@ -494,7 +519,8 @@ class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
             self.directory, self.image_folder, align=self.align, up=self.up_axis.lower(),
             scene_size=self.scene_size, cache_dir=self.cache_dir or None, points=self.points,
             render_points=self.render_points, backgrounds=self.backgrounds,
-            animated_camera=self.animated_camera, scene=context.scene)
+            animated_camera=self.animated_camera, scene=context.scene,
+            photo_colours=self.photo_colours, mesh_light=self.mesh_light)
         image_folder = self.image_folder
 
         def finish(running, write):

@@ -224,6 +224,8 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             rgba = apply_shadow_catcher(rgba, shadow)
         before_write = time.perf_counter()
         write_result(self, rgba, depth if bridge.uses_depth(main) else None, origin, full, region)
+        if main.render.engine == ENGINE_ID:
+            return  # the splats were rendered (and counted) by the scene's own render
         stats["result_ms"] = 1000 * (time.perf_counter() - before_write)
         stats["total_ms"] = 1000 * (time.perf_counter() - start)
         last_stats.clear()
@@ -255,6 +257,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         last_stats.update(width=target.width, height=target.height,
                           gaussians=len(frame.gaussians), gather_ms=frame.gather_ms,
                           total_ms=1000 * (time.perf_counter() - start))
+        _print_stats(last_stats)
 
 
 # ------------------------------------------------------------------------------- handlers

@@ -71,6 +71,8 @@ from ..registration import module_registration
 COLMAP_KEY = "colmap_transform"
 OBJECT_KEY = "splat_object"
 CHECKPOINT_KEY = "splat_checkpoint"
+MODULES = ("splatcore", "OpenImageIO", "pycolmap")  # kernels, photos, the model
+FEATURE = "Training Gaussians"
 
 
 # -- the COLMAP collection ------------------------------------------------------------------------
@@ -206,8 +208,8 @@ def train_request(collection, config: TrainConfig | None = None, *, image_folder
                   compact: bool = True) -> TrainRequest:
     """Read the collection and check the inputs on the main thread; raises ValueError /
     FileNotFoundError, or MissingModule (an ImportError) for a module training needs."""
-    for module in ("splatcore", "OpenImageIO", "pycolmap"):  # kernels, photos, the model
-        dependencies.require(module, "Training Gaussians")
+    for module in MODULES:
+        dependencies.require(module, FEATURE)
     path = checkpoint_path(collection, str(checkpoint), resume=resume)
     return colmap_training.train_request(
         source_of(collection), path, config, resume=resume, image_folder=image_folder,
@@ -245,6 +247,18 @@ class SceneBefore:
                 obj["splat_trained_steps"] = self.steps
 
 
+def without_unseen(gaussians: Gaussians, trainer) -> Gaussians:
+    """`gaussians` without those no photo's camera renders. A stopped training leaves a few
+    pushed far out (km away: the object's Dimensions and View Selected go with them) that
+    compaction would have removed; leaving them out changes no render from the photos' cameras
+    (`renderer.seen_by_any`). The checkpoint keeps them all, for Resume."""
+    from ...core.render.renderer import seen_by_any
+
+    seen = seen_by_any(gaussians, trainer.dataset.cameras,
+                       antialiased=trainer.config.antialiased)
+    return gaussians if seen.all() else gaussians.subset(seen)
+
+
 def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = True,
                     before: SceneBefore | None = None) -> tuple[str, str, object]:
     """Main thread, after the job: the object gets the final Gaussians (unless not `write`),
@@ -256,7 +270,10 @@ def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = Tr
         before.restore()
         obj = before.obj
     elif snapshot is not None and job.trainer is not None and write:
-        obj = write_splats(request.source.name, snapshot[1],
+        gaussians = snapshot[1]
+        if job.progress().phase == "cancelled":
+            gaussians = without_unseen(gaussians, job.trainer)
+        obj = write_splats(request.source.name, gaussians,
                            antialiased=job.trainer.config.antialiased, step=snapshot[0])
     else:
         obj = _alive(collection.get(OBJECT_KEY)) if collection is not None else None
@@ -406,7 +423,12 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return any(is_colmap_collection(c) for c in bpy.data.collections)
+        if not dependencies.poll_unavailable(cls, MODULES, FEATURE):
+            return False
+        if not any(is_colmap_collection(c) for c in bpy.data.collections):
+            cls.poll_message_set("Import a COLMAP scene first (File > Import > COLMAP Scene)")
+            return False
+        return True
 
     def draw(self, context):
         draw_settings(self.layout, self, self.DIALOG)

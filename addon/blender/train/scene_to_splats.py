@@ -81,6 +81,8 @@ GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "CURVES", "POINTCL
                   "GREASEPENCIL"}
 SURFACE_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
 GREY = 0.8  # linear grey for surfaces without a material
+MODULES = ("splatcore", "OpenImageIO")  # kernels, the rendered views
+FEATURE = "Baking a scene to splats"
 
 
 class SceneToSplatsError(ValueError):
@@ -355,8 +357,8 @@ def prepare_scene_to_splats(context, *, cameras: int = 64, resolution=(256, 256)
     """Pick the targets, place the cameras, render the views and build the dataset (main
     thread: this is where Cycles runs). Raises SceneToSplatsError, or MissingModule (an
     ImportError) for a module it needs."""
-    for module in ("splatcore", "OpenImageIO"):  # kernels, the rendered views
-        dependencies.require(module, "Baking a scene to splats")
+    for module in MODULES:
+        dependencies.require(module, FEATURE)
     scene = context.scene
     targets = targets_of(context)
     if not targets:
@@ -519,7 +521,8 @@ class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator)
 
     @classmethod
     def poll(cls, context):
-        return context.scene is not None and getattr(context, "view_layer", None) is not None
+        return (dependencies.poll_unavailable(cls, MODULES, FEATURE) and context.scene is not None
+                and getattr(context, "view_layer", None) is not None)
 
     def draw(self, context):
         draw_settings(self.layout, self, self.DIALOG)

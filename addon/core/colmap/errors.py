@@ -24,13 +24,21 @@ def _shared_gflags_loaded() -> bool:
         return False
 
 
-def import_pycolmap() -> ModuleType:
-    """pycolmap, or a ColmapError saying why it cannot be had here."""
+def pycolmap_refusal() -> str | None:
+    """Why pycolmap must not be imported in this process (None: it may be tried)."""
     if "pycolmap" not in sys.modules and _shared_gflags_loaded():
-        raise ColmapError(
-            "COLMAP import and training need pycolmap, which cannot be loaded in this Blender: "
-            "it uses the system's glog/gflags libraries (a Linux distribution's build), and "
-            "loading pycolmap beside them would close Blender. Use Blender from blender.org")
+        return ("it cannot be loaded in this Blender, which uses the system's glog/gflags "
+                "libraries (a Linux distribution's build): loading pycolmap beside them would "
+                "close Blender. Use a Blender from blender.org")
+    return None
+
+
+def import_pycolmap() -> ModuleType:
+    """pycolmap, or a ColmapError saying why it cannot be had here (the ImportError, if any,
+    as its cause)."""
+    refusal = pycolmap_refusal()
+    if refusal is not None:
+        raise ColmapError(f"COLMAP import and training need pycolmap: {refusal}")
     try:
         import pycolmap
     except ImportError as error:

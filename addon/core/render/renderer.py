@@ -102,3 +102,30 @@ def release_buffers() -> None:
     """Give the working buffers renders keep for the next frame back to the system (after a
     render job: a viewport draw or the next F12 allocates them again)."""
     native.release_buffers()
+
+
+def seen_by_any(gaussians: Gaussians, cameras, *, antialiased: bool = False,
+                near: float = 0.01, threads: int = 0) -> np.ndarray:
+    """(N,) bool: True where some camera of `cameras` renders the Gaussian. The others are
+    culled in every one of them (behind the near plane, or with their whole footprint, out to
+    where their alpha falls below the renderer's 1/255, outside the image, or too transparent
+    to show at all): leaving them out changes no render from those cameras."""
+    n = len(gaussians)
+    seen = np.zeros(n, bool)
+    for camera in cameras:
+        p = project(gaussians, camera, antialiased=antialiased, near=near, sh_degree=0,
+                    threads=threads)
+        visible = p.valid & (p.opacity * 255.0 > 1.0)
+        a, b, c = p.conic[:, 0].astype(np.float64), p.conic[:, 1], p.conic[:, 2]
+        det = a * c - b * b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # The ellipse where alpha >= 1/255: q <= 2 ln(255 opacity), q the conic's form; its
+            # bounding box's half sizes are sqrt(r2 cov_xx), sqrt(r2 cov_yy), cov = inverse conic.
+            r2 = 2.0 * np.log(np.maximum(p.opacity * 255.0, 1.0))
+            half_x = np.sqrt(np.maximum(r2 * c / det, 0.0)) + 1.0
+            half_y = np.sqrt(np.maximum(r2 * a / det, 0.0)) + 1.0
+        x, y = p.xy[:, 0], p.xy[:, 1]
+        inside = ((x + half_x >= 0) & (x - half_x <= camera.width)
+                  & (y + half_y >= 0) & (y - half_y <= camera.height))
+        seen |= visible & (inside | ~np.isfinite(half_x) | ~np.isfinite(half_y))
+    return seen

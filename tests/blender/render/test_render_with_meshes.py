@@ -349,15 +349,21 @@ def test_render_cache_path_gives_the_same_image(rng, tmp_path):
     assert np.array_equal(cached, normal)
 
 
-def test_render_splats_only_engine(rng, tmp_path):
+def test_render_splats_only_engine(rng, tmp_path, capfd):
     scene, splats, cube, plane, camera = build_scene(rng, "BLENDER_WORKBENCH")
     scene.render.film_transparent = True
     bpy.ops.splat.render_splats_only(enable=True)
     assert scene.render.engine == compositor_bridge.ENGINE_ID
+    capfd.readouterr()
     written = read_png(render_still(scene, tmp_path / "quick"))
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    reference = render(bs.gather.gather(depsgraph).gaussians, bs.camera_of(camera, depsgraph))
+    gaussians = bs.gather.gather(depsgraph).gaussians
+    reference = render(gaussians, bs.camera_of(camera, depsgraph))
     assert_close_8bit(written[..., 3], np.round(reference.alpha * 255), "alpha")
+    # The log counts the splats rendered (the bridge's pass-through of them counts none).
+    logged = [line for line in capfd.readouterr().out.splitlines()
+              if line.startswith("Gaussian splats: ")]
+    assert logged and all(f"{len(gaussians):,} splats" in line for line in logged), logged
     bpy.ops.splat.render_splats_only(enable=False)
     assert scene.render.engine == "BLENDER_WORKBENCH"
 
