@@ -149,10 +149,14 @@ def gaussians_from_attributes(arrays: Mapping[str, np.ndarray], *,
         warnings.append(f"{source}: {dropped} of {n} splats hold NaN or Inf and were left out")
 
     log_scales = np.log(np.maximum(np.abs(scales.astype(np.float64)), _SCALE_MIN))
-    opacity = np.clip(base[:, 3].astype(np.float64), _OPACITY_MIN, _OPACITY_MAX)
-    logits = np.log(opacity) - np.log1p(-opacity)
-    gaussians = Gaussians(means, log_scales, quats, logits, sh)
+    gaussians = Gaussians(means, log_scales, quats, opacity_logits(base[:, 3]), sh)
     return Conversion(gaussians, dropped, kept, source_degree, warnings)
+
+
+def opacity_logits(opacity: np.ndarray) -> np.ndarray:
+    """Logits of Blender's opacities (radiance:base w), clamped so that 0 and 1 stay finite."""
+    clipped = np.clip(np.asarray(opacity, np.float64), _OPACITY_MIN, _OPACITY_MAX)
+    return (np.log(clipped) - np.log1p(-clipped)).astype(np.float32)
 
 
 def attributes_from_gaussians(gaussians: Gaussians) -> dict[str, np.ndarray]:
