@@ -118,11 +118,11 @@ def _is_splat_file(path: Path) -> bool:
 def _splat_object(bpy, source: Path, object_name: str | None, forward: str, up: str):
     """A splat object: imported from a splat file, or named (or the only one) in a .blend."""
     from .blender.io import operators as io_operators
-    from .blender import splat_object
+    from .blender.blender_splats import any_splats
 
     if source.suffix.lower() == ".blend":
         _open(bpy, source)
-        candidates = [o for o in bpy.context.scene.objects if splat_object.is_splat_object(o)]
+        candidates = [o for o in bpy.context.scene.objects if any_splats.is_splat_source(o)]
         if object_name:
             candidates = [o for o in candidates if o.name == object_name]
         if len(candidates) != 1:

@@ -20,6 +20,7 @@ MODULE_NAMES: list[str] = [
     "train.panel",  # 3D View sidebar: start training, follow its progress
     "mesh_convert",  # splats to a textured mesh: splat.convert_to_mesh
     "cli_command",  # blender -c gaussian_splatting <verb> (addon.cli)
+    "blender_splats.convert",  # Blender 5.3's own splat point clouds: ownership, conversion
 ]
 
 

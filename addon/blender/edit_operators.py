@@ -1,7 +1,8 @@
 """Editing operators for splat objects: crop, select by a measure, clean up floaters.
 
 They act on the splat objects being edited (Edit Mode) or the selected splat objects (Object
-Mode), on their original mesh data (modifiers stay on top), with every measure taken in world
+Mode), Blender 5.3's own splat point clouds included (crop, select by, clean up; join and apply
+transform are for the add-on's objects), on their original mesh data (modifiers stay on top), with every measure taken in world
 space (the object's transform applied). Each is undoable and reports what it did.
 
 - `bpy.ops.splat.crop(shape='BOX'|'SPHERE', volume="", center, size, radius, invert)`: removes the
@@ -39,19 +40,22 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProp
 from ..core.cleanup import FloaterMasks, floater_masks, sigmoid
 from ..core.transform import transform_gaussians
 from . import splat_object
+from .blender_splats import any_splats
+from .blender_splats import data as blender_data
 from .registration import module_registration
 
 
 def target_objects(context) -> list:
-    """Splat objects in Edit Mode, or else the selected splat objects (and the active one)."""
-    if context.mode == "EDIT_MESH":
+    """Splat objects in Edit Mode, or else the selected splat objects (and the active one):
+    the add-on's and Blender 5.3's own splat point clouds."""
+    if context.mode in ("EDIT_MESH", "EDIT_POINTCLOUD"):
         objects = list(getattr(context, "objects_in_mode", []) or [context.edit_object])
     else:
         objects = list(getattr(context, "selected_objects", []))
         active = context.active_object
         if active is not None and active not in objects:
             objects.append(active)
-    return [o for o in objects if splat_object.is_splat_object(o)]
+    return [o for o in objects if any_splats.is_splat_source(o)]
 
 
 def _matrix(obj) -> np.ndarray:
@@ -59,7 +63,7 @@ def _matrix(obj) -> np.ndarray:
 
 
 def _read_points(mesh, name: str, width: int, key: str) -> np.ndarray:
-    n = len(mesh.vertices)
+    n = splat_object.point_count(mesh)
     out = np.empty(n * width, np.float32)
     attribute = mesh.attributes.get(name)
     if attribute is None:
@@ -81,17 +85,23 @@ def uniform_scale(obj) -> float:
 
 def world_sizes(obj) -> np.ndarray:
     """Largest standard deviation of each splat, times the object's uniform scale."""
-    log_scales = _read_points(obj.data, splat_object.LOG_SCALE, 3, "vector")
-    return np.exp(log_scales.max(axis=1).astype(np.float64)) * uniform_scale(obj)
+    return np.exp(_log_scales(obj).max(axis=1).astype(np.float64)) * uniform_scale(obj)
+
+
+def _log_scales(obj) -> np.ndarray:
+    if blender_data.is_blender_splat_object(obj):
+        return blender_data.raw_log_scales(obj.data)
+    return _read_points(obj.data, splat_object.LOG_SCALE, 3, "vector")
+
+
+def _logits(obj) -> np.ndarray:
+    if blender_data.is_blender_splat_object(obj):
+        return blender_data.raw_logits(obj.data)
+    return _read_points(obj.data, splat_object.OPACITY_LOGIT, 1, "value")
 
 
 def opacities(obj) -> np.ndarray:
-    return sigmoid(_read_points(obj.data, splat_object.OPACITY_LOGIT, 1, "value"))
-
-
-def _hidden(mesh) -> np.ndarray:
-    hide = splat_object.hidden_mask(mesh)
-    return np.zeros(len(mesh.vertices), bool) if hide is None else hide
+    return sigmoid(_logits(obj))
 
 
 # --------------------------------------------------------------------------------------------
@@ -195,7 +205,7 @@ class SPLAT_OT_crop(bpy.types.Operator):
                     return {"CANCELLED"}
                 keep = ~inside if self.invert else inside
                 total += len(keep)
-                removed += splat_object.remove_points(obj, keep)
+                removed += any_splats.remove_points(obj, keep)
         self.report({"INFO"}, f"Removed {removed:,} of {total:,} splats")
         return {"FINISHED"}
 
@@ -250,24 +260,19 @@ class SPLAT_OT_select_by(bpy.types.Operator):
         count = 0
         with splat_object.ObjectModeFor(context) as mode:
             for obj in targets:
-                mesh = obj.data
                 values = measure(obj, self.criterion, cursor)
                 hit = values < self.threshold if self.compare == "BELOW" else values > self.threshold
-                current = np.zeros(len(mesh.vertices), bool)
-                if len(current):
-                    mesh.vertices.foreach_get("select", current)
+                current = any_splats.selection(obj)
                 if self.action == "SET":
                     selected = hit
                 elif self.action == "EXTEND":
                     selected = current | hit
                 else:
                     selected = current & ~hit
-                selected &= ~_hidden(mesh)
-                if len(selected):
-                    mesh.vertices.foreach_set("select", selected)
-                mesh.update()
+                selected &= ~any_splats.hidden(obj)
+                any_splats.set_selection(obj, selected)
                 count += int(selected.sum())
-            if mode.was_edit:
+            if mode.was_edit and context.mode == "EDIT_MESH":
                 context.tool_settings.mesh_select_mode = (True, False, False)
         self.report({"INFO"}, f"{count:,} splats selected")
         return {"FINISHED"}
@@ -280,9 +285,8 @@ def find_floaters(obj, *, min_opacity: float | None = 0.01, min_size_fraction: f
                   radius: float | None = None, min_neighbours: int | None = 3) -> FloaterMasks:
     """Floater masks of `obj`'s splats (original mesh data, world space); None turns a test off,
     `radius=None` picks it automatically (see `addon.core.cleanup`)."""
-    mesh = obj.data
-    log_scales = _read_points(mesh, splat_object.LOG_SCALE, 3, "vector")
-    logits = _read_points(mesh, splat_object.OPACITY_LOGIT, 1, "value")
+    log_scales = _log_scales(obj)
+    logits = _logits(obj)
     return floater_masks(world_positions(obj), log_scales, logits, min_opacity=min_opacity,
                          min_size_fraction=min_size_fraction, radius=radius,
                          min_neighbours=min_neighbours)
@@ -331,7 +335,7 @@ class SPLAT_OT_clean_up(bpy.types.Operator):
         """Counts of what would go, for the dialog; cached on the settings and the meshes."""
         targets = target_objects(context)
         key = (tuple(sorted(self._params().items(), key=lambda kv: kv[0])),
-               tuple((o.name, len(o.data.vertices), tuple(map(tuple, o.matrix_world)))
+               tuple((o.name, any_splats.point_count(o), tuple(map(tuple, o.matrix_world)))
                      for o in targets))
         cache = SPLAT_OT_clean_up._preview
         if cache.get("key") != key:
@@ -384,14 +388,10 @@ class SPLAT_OT_clean_up(bpy.types.Operator):
                     totals[name] += value
                 count += len(masks.any)
                 if self.select_only:
-                    mesh = obj.data
-                    selected = masks.any & ~_hidden(mesh)
-                    if len(selected):
-                        mesh.vertices.foreach_set("select", selected)
-                    mesh.update()
+                    any_splats.set_selection(obj, masks.any & ~any_splats.hidden(obj))
                 else:
-                    splat_object.remove_points(obj, ~masks.any)
-            if self.select_only and mode.was_edit:
+                    any_splats.remove_points(obj, ~masks.any)
+            if self.select_only and mode.was_edit and context.mode == "EDIT_MESH":
                 context.tool_settings.mesh_select_mode = (True, False, False)
         verb = "Selected" if self.select_only else "Removed"
         self.report({"INFO"}, f"{verb} {totals['total']:,} of {count:,} splats "

@@ -48,7 +48,9 @@ from ..core import native
 from ..core.axes import snap
 from ..core.gaussians import Gaussians
 from ..core.transform import transform_gaussians
+from ..core.blender_splats import attributes as blender_convention
 from . import splat_object
+from .blender_splats import data as blender_data
 
 _generations: dict[int, int] = {}
 _world_cache: dict[tuple, tuple[tuple, Gaussians, tuple]] = {}  # key, world, contents
@@ -114,10 +116,16 @@ def _generation(id_data) -> int:
     return 0 if id_data is None else _generations.get(id_data.session_uid, 0)
 
 
-def _attribute_addresses(data, degree: int) -> tuple:
+def _read_names(data, degree: int, blender: bool) -> tuple[str, ...]:
+    """The attributes the Gaussians of `data` are read from (the add-on's or Blender's)."""
+    if blender:
+        return blender_data.read_names(data)
+    return (splat_object.POSITION, splat_object.ROTATION, splat_object.LOG_SCALE,
+            splat_object.OPACITY_LOGIT, splat_object.HIDE) + splat_object.SH_NAMES[:(degree + 1) ** 2]
+
+
+def _attribute_addresses(data, names: tuple[str, ...]) -> tuple:
     attributes = data.attributes
-    names = (splat_object.POSITION, splat_object.ROTATION, splat_object.LOG_SCALE,
-             splat_object.OPACITY_LOGIT, splat_object.HIDE) + splat_object.SH_NAMES[:(degree + 1) ** 2]
     addresses = []
     for name in names:
         attribute = attributes.get(name)
@@ -128,7 +136,8 @@ def _attribute_addresses(data, degree: int) -> tuple:
 
 # Attribute data type -> (foreach_get property, values per point, dtype).
 _RAW = {"FLOAT_VECTOR": ("vector", 3, np.float32), "QUATERNION": ("value", 4, np.float32),
-        "FLOAT": ("value", 1, np.float32), "BOOLEAN": ("value", 1, np.bool_)}
+        "FLOAT": ("value", 1, np.float32), "BOOLEAN": ("value", 1, np.bool_),
+        "FLOAT4": ("value", 4, np.float32), "FLOAT_COLOR": ("color", 4, np.float32)}
 
 
 def _stored_values(attribute, count: int, stride: int):
@@ -142,8 +151,9 @@ def _stored_values(attribute, count: int, stride: int):
     return (ctypes.c_char * (count * stride)).from_address(first)
 
 
-def _contents(data, degree: int) -> tuple:
-    """A checksum of what `splat_object.gaussians_from_data` reads from `data` (the splat
+def _contents(data, names: tuple[str, ...]) -> tuple:
+    """A checksum of what `splat_object.gaussians_from_data` (or, for Blender's splats,
+    `blender_splats.data.read_conversion`) reads from `data` (the `names` attributes: the splat
     attributes and the hidden flags): per attribute its type, domain and size, and
     `splatcore.checksum` of its values, read where Blender stores them (through `foreach_get`
     when they are not one array). A change within any 193 consecutive bits of an attribute (one
@@ -151,8 +161,6 @@ def _contents(data, degree: int) -> tuple:
     unnoticed only if four 64-bit sums all come out the same."""
     checksum = native.splatcore().checksum
     attributes = data.attributes
-    names = (splat_object.POSITION, splat_object.ROTATION, splat_object.LOG_SCALE,
-             splat_object.OPACITY_LOGIT, splat_object.HIDE) + splat_object.SH_NAMES[:(degree + 1) ** 2]
     sums, shapes = [], []
     for name in names:
         attribute = attributes.get(name)
@@ -200,19 +208,32 @@ def edit_mode_gaussians(evaluated) -> Gaussians:
 
 def _settings_for(evaluated, owner):
     for candidate in (evaluated.original, owner):
-        if splat_object.is_splat_object(candidate):
+        if splat_object.is_splat_object(candidate) or blender_data.is_blender_splat_object(candidate):
             return candidate.splat
     return None
 
 
+def _blender_renders(evaluated, owner) -> bool:
+    """A Blender splat point cloud handed back to Blender's own renderer (per object)."""
+    for candidate in (evaluated.original, owner):
+        if blender_data.is_blender_splat_object(candidate):
+            return bool(candidate.splat.render_by_blender)
+    return False
+
+
 def gather(depsgraph, *, objects=None, use_cache: bool = True,
-           all_sh_bands: bool = False, space: np.ndarray | None = None) -> GatherResult:
+           all_sh_bands: bool = False, space: np.ndarray | None = None,
+           include_blender_rendered: bool = False) -> GatherResult:
     """World-space splats of every visible splat geometry in `depsgraph` (or of `objects` and
     the instances they make). See the module docstring for what is read and what is cached.
     `all_sh_bands` keeps every SH band the data holds, ignoring the objects' `sh_degree`.
     `space` (4x4, export's axis conversion) is applied after each world matrix, in the same
     one transform; the product is snapped (`core.axes.snap`) so an import's axis conversion
-    undone comes back as the exact identity and the data unchanged, bit for bit."""
+    undone comes back as the exact identity and the data unchanged, bit for bit.
+
+    Blender 5.3's own splat point clouds (type 'GAUSSIAN_SPLAT', `blender_splats.data`) are
+    gathered as the add-on's objects are, except those handed back to Blender's renderer
+    (`Object.splat.render_by_blender`) unless `include_blender_rendered` (export)."""
     start = time.perf_counter()
     wanted = None if objects is None else {o.original.session_uid for o in objects}
     batches: list[SplatBatch] = []
@@ -230,9 +251,19 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
                 and evaluated.original.session_uid not in wanted:
             continue
         data = evaluated.data
-        degree = splat_object.data_sh_degree(data)
+        blender = evaluated.type == "POINTCLOUD" and blender_data.is_blender_splat_data(data)
+        if blender:
+            if not include_blender_rendered and _blender_renders(evaluated, owner):
+                continue
+            source_degree, notes = blender_convention.degree_of(
+                frozenset(blender_data.attribute_names(data)))
+            degree = min(source_degree, blender_convention.RENDER_MAX_DEGREE)
+            warnings.extend(f"{owner.name}: {note}" for note in notes if note not in warnings)
+        else:
+            degree = splat_object.data_sh_degree(data)
         if degree is None:
             continue
+        names = _read_names(data, degree, blender)
         settings = _settings_for(evaluated, owner)
         sh_degree = degree if settings is None or all_sh_bands else min(settings.sh_degree, degree)
         antialiased = False if settings is None else settings.antialiased
@@ -248,7 +279,7 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
         if not edit_mode:
             fingerprint = (_generation(evaluated.original), _generation(evaluated.original.data),
                            _generation(owner), data.as_pointer(), splat_object.point_count(data),
-                           _attribute_addresses(data, degree))
+                           _attribute_addresses(data, names))
         world_key = (matrix.tobytes(), sh_degree)
 
         cached = None
@@ -259,7 +290,7 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
             if entry is not None and entry[0] == (fingerprint, world_key):
                 cached = entry[1]
             elif entry is not None and entry[0][1] == world_key:
-                contents = _contents(data, degree)
+                contents = _contents(data, names)
                 if contents == entry[2]:  # a new depsgraph or an edit undone: same Gaussians
                     cached = entry[1]
                     _world_cache[identity] = ((fingerprint, world_key), cached, contents)
@@ -271,6 +302,11 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
             if local is None:
                 if edit_mode:
                     local = edit_mode_gaussians(evaluated)
+                elif blender:
+                    conversion = blender_data.read_conversion(data)
+                    local = conversion.gaussians
+                    warnings.extend(w for w in conversion.warnings if w not in warnings
+                                    and "degree" not in w)
                 else:
                     local = splat_object.gaussians_from_data(data)
                 if sh_degree < local.degree:
@@ -281,7 +317,7 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
             if use_cache and fingerprint is not None:
                 if contents is None:  # only moved (same data): its contents are known
                     contents = entry[2] if entry is not None and entry[0][0] == fingerprint \
-                        else _contents(data, degree)
+                        else _contents(data, names)
                 _world_cache[identity] = ((fingerprint, world_key), world, contents)
         seen.add(identity)
         batches.append(SplatBatch(owner.name, world, matrix, antialiased, sh_degree, color_space,

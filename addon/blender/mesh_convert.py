@@ -49,6 +49,7 @@ from ..core.mesh import surface, texture as mesh_texture
 from ..core.mesh.surface import Cancelled
 from ..core.jobs import StagedJob
 from . import dependencies, gather, splat_object
+from .blender_splats import any_splats
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, wants_background
 from .registration import module_registration
@@ -108,7 +109,7 @@ def choose_cameras(obj, mode: str, scene, view_size: int) -> list[Camera] | None
 # -- the job -------------------------------------------------------------------------------------
 
 def _check(obj, resolution, max_triangles, texture_size) -> None:
-    if obj is None or not splat_object.is_splat_object(obj):
+    if obj is None or not any_splats.is_splat_source(obj):
         name = "nothing" if obj is None else f"'{obj.name}'"
         raise ConversionError(f"{name} is not a splat object")
     if not 8 <= resolution <= 1024:
@@ -228,7 +229,8 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
     stats = {} if stats is None else stats
     t0 = time.perf_counter()
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    gathered = gather.gather(depsgraph, objects=[obj], use_cache=False)
+    gathered = gather.gather(depsgraph, objects=[obj], use_cache=False,
+                             include_blender_rendered=True)
     gaussians = gathered.gaussians
     if len(gaussians) == 0:
         raise ConversionError(f"'{obj.name}' has no visible splats")

@@ -31,6 +31,12 @@ COLOR_SPACES = [
 ]
 
 
+def _render_owner_switch(settings, context) -> None:
+    """A Blender splat point cloud's ray visibility follows who renders it."""
+    from .blender_splats import ownership
+    ownership.on_setting_changed(settings, context)
+
+
 def _viewport_switch(settings, context) -> None:
     """The splat object's own display follows whether the add-on draws it (`viewport`)."""
     from . import viewport
@@ -72,6 +78,14 @@ class SplatObjectSettings(bpy.types.PropertyGroup):
         description="Draw these splats in the 3D viewport (Solid and Material Preview); final "
                     "renders follow the object's render visibility",
         default=True)
+    render_by_blender: BoolProperty(
+        name="Render with Blender", update=_render_owner_switch,
+        description="Blender 5.3 splat point clouds: let Blender's own renderer draw this object "
+                    "(Cycles path-traces it with stochastic transparency: lighting, shadows and "
+                    "motion blur, but grainy and many times slower, and not the reference 3DGS "
+                    "image; EEVEE draws billboards) instead of the add-on's exact composite. Off: "
+                    "the add-on composes it exactly and hides it from Blender's rays",
+        default=False)
 
 
 class SplatRenderSettings(bpy.types.PropertyGroup):
@@ -128,8 +142,11 @@ class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
+        from .blender_splats import data
+
         obj = context.object
-        return obj is not None and obj.type == "MESH" and obj.splat.is_splat
+        return obj is not None and (obj.type == "MESH" and obj.splat.is_splat
+                                    or data.is_blender_splat_object(obj))
 
     def draw(self, context):
         from . import splat_object
@@ -138,6 +155,9 @@ class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
+        if obj.type == "POINTCLOUD":
+            self.draw_blender_splats(obj, layout)
+            return
         settings = obj.splat
         mesh = obj.data
         degree = splat_object.data_sh_degree(mesh)
@@ -156,6 +176,25 @@ class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
         if settings.sequence_source:
             col.prop(settings, "sequence_source")
             col.prop(settings, "sequence_frame_offset")
+
+    @staticmethod
+    def draw_blender_splats(obj, layout) -> None:
+        """Blender 5.3's own splat point cloud: who renders it, and the add-on's options."""
+        from ..core.blender_splats import attributes as convention
+        from .blender_splats import data
+
+        settings = obj.splat
+        degree, _ = convention.degree_of(frozenset(data.attribute_names(obj.data)))
+        col = layout.column()
+        col.label(text=f"Blender splats: {data.point_count(obj.data):,}, SH degree {degree}"
+                       + (" (read as 3)" if degree > convention.RENDER_MAX_DEGREE else ""))
+        col.prop(settings, "render_by_blender")
+        sub = col.column()
+        sub.active = not settings.render_by_blender
+        sub.prop(settings, "antialiased")
+        sub.prop(settings, "sh_degree")
+        sub.prop(settings, "color_space")
+        col.operator("splat.convert_from_blender_splats", icon="OUTLINER_OB_POINTCLOUD")
 
 
 CLASSES = (SplatObjectSettings, SplatRenderSettings, OBJECT_PT_splat)

@@ -346,7 +346,7 @@ class ObjectModeFor:
 
     def __init__(self, context) -> None:
         self.context = context
-        self.was_edit = context.mode == "EDIT_MESH"
+        self.was_edit = context.mode in ("EDIT_MESH", "EDIT_POINTCLOUD")
 
     def __enter__(self):
         if self.was_edit:

@@ -45,6 +45,9 @@ from ...core.formats.sequence import SplatSequence, save_sequence
 from ...core.gaussians import Gaussians
 from ...core.transform import transform_gaussians
 from .. import gather, splat_object
+from ..blender_splats import any_splats
+from ..blender_splats import data as blender_data
+from ..blender_splats import ownership
 from . import sequence
 from ..camera_adapter import to_matrix
 from ..job_runner import preparing
@@ -73,22 +76,52 @@ def file_axes(filepath: str | os.PathLike, forward_axis: str | None = "AUTO",
 
 def import_splats(filepath: str | os.PathLike, *, name: str | None = None, collection=None,
                   context=None, forward_axis: str | None = "AUTO",
-                  up_axis: str | None = "AUTO") -> bpy.types.Object:
+                  up_axis: str | None = "AUTO",
+                  blender_splats: bool | None = None) -> bpy.types.Object:
     """Load a splat file into a new splat object (in `collection`, by default the active one),
     deselect everything else and make it active; the axis conversion becomes the object's
-    transform (see the module docstring). Raises SplatFileError for a bad file (ValueError
-    for bad axes), with the scene unchanged."""
+    transform (see the module docstring). `blender_splats=True` makes Blender 5.3's own splat
+    point cloud instead of the add-on's object (None: `default_blender_splats()`); before 5.3
+    it raises BlenderSplatsUnsupported. Raises SplatFileError for a bad file (ValueError for
+    bad axes), with the scene unchanged."""
     context = context or bpy.context
     path = Path(filepath)
+    if blender_splats is None:
+        blender_splats = default_blender_splats()
+    elif blender_splats:
+        blender_data.require_support()
     matrix = file_axes(path, forward_axis, up_axis)
     gaussians, antialiased = read_splat_file(path)
     if collection is None:
         collection = getattr(context, "collection", None) or context.scene.collection
-    obj = splat_object.create_splat_object(
-        gaussians, name or path.stem, collection=collection, antialiased=antialiased,
-        source_path=str(path))
+    obj = make_object(gaussians, name or path.stem, collection, antialiased, str(path),
+                      blender_splats)
     obj.matrix_world = to_matrix(matrix)
     _select_only(obj, context.view_layer)
+    return obj
+
+
+# What File > Import makes in Blender 5.3+ when not told (see docs/benchmarks/blender_splats.md).
+DEFAULT_BLENDER_SPLATS = False
+
+
+def default_blender_splats() -> bool:
+    """Whether imports make Blender's own splat point clouds when not told: only where this
+    Blender has them, and then `DEFAULT_BLENDER_SPLATS`."""
+    return DEFAULT_BLENDER_SPLATS and blender_data.supported()
+
+
+def make_object(gaussians: Gaussians, name: str, collection, antialiased: bool, source: str,
+                blender_splats: bool):
+    """A new splat object of either kind holding `gaussians` in its local space."""
+    if not blender_splats:
+        return splat_object.create_splat_object(
+            gaussians, name, collection=collection, antialiased=antialiased, source_path=source)
+    obj = blender_data.create_object(gaussians, name, collection=collection)
+    obj.splat.antialiased = bool(antialiased)
+    obj.splat.sh_degree = gaussians.degree
+    obj.splat.source_path = source
+    ownership.sync_object(obj)
     return obj
 
 
@@ -145,10 +178,10 @@ def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True,
         if evaluated.type == "MESH" and evaluated.data.is_editmode:
             local = gather.edit_mode_gaussians(evaluated)
         else:
-            local = splat_object.gaussians_from_data(evaluated.data)
+            local = any_splats.data_gaussians(evaluated.data)
         return local if space is None else transform_gaussians(local, axes.snap(space))
     result = gather.gather(depsgraph, objects=[obj], use_cache=False, all_sh_bands=True,
-                           space=space)
+                           space=space, include_blender_rendered=True)
     if not result.batches:
         raise splat_object.SplatDataError(
             f"{obj.name!r} shows no splats (is it hidden, or do its modifiers remove the splat "
@@ -243,6 +276,15 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
         "Import as Sequence", "The chosen file and its numbered siblings (walk_0001.ply, "
                               "walk_0002.ply, ...) as one splat object whose splats change with "
                               "the frame")
+    representation: EnumProperty(
+        name="Make", default="DEFAULT", options={"SKIP_SAVE"},
+        items=[("DEFAULT", "Default", "Blender 5.3 and later: see the add-on's default; before "
+                                      "5.3: the add-on's splat object"),
+               ("ADDON", "Splat Object (add-on)", "The add-on's splat object: a mesh, one vertex "
+                                                  "per splat, edited with Blender's mesh tools"),
+               ("BLENDER", "Blender Splat Point Cloud",
+                "Blender 5.3's own Gaussian splat point cloud (what File > Import > PLY makes); "
+                "the add-on still renders, edits and exports it. Needs Blender 5.3")])
 
     def paths(self) -> list[Path]:
         names = [f.name for f in self.files if f.name]
@@ -253,8 +295,28 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
     def invoke(self, context, event):
         return self.invoke_popup(context)
 
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(self, "forward_axis")
+        layout.prop(self, "up_axis")
+        layout.prop(self, "sequence")
+        row = layout.row()
+        row.enabled = blender_data.supported() and not self.sequence
+        row.prop(self, "representation")
+
+    def blender_splats(self) -> bool:
+        if self.representation == "BLENDER":
+            return True
+        return self.representation == "DEFAULT" and default_blender_splats()
+
     def execute(self, context):
         paths = self.paths()
+        if self.representation == "BLENDER" and not blender_data.supported():
+            self.report({"ERROR"}, f"Blender {bpy.app.version_string} has no Gaussian splat "
+                                   f"point clouds (Blender 5.3 and later)")
+            return {"CANCELLED"}
         if not paths:
             self.report({"ERROR"}, "No file given")
             return {"CANCELLED"}
@@ -276,16 +338,17 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
         objects = []
         try:
             for path, gaussians, antialiased, matrix in loaded:
-                obj = splat_object.create_splat_object(
-                    gaussians, path.stem, collection=context.collection or context.scene.collection,
-                    antialiased=antialiased, source_path=str(path))
+                obj = make_object(gaussians, path.stem,
+                                  context.collection or context.scene.collection, antialiased,
+                                  str(path), self.blender_splats())
                 objects.append(obj)
                 obj.matrix_world = to_matrix(matrix)
         except Exception as error:  # nothing half made: remove what this call created
             for obj in objects:
-                mesh = obj.data
+                geometry = obj.data
                 bpy.data.objects.remove(obj)
-                bpy.data.meshes.remove(mesh)
+                (bpy.data.meshes if isinstance(geometry, bpy.types.Mesh)
+                 else bpy.data.pointclouds).remove(geometry)
             self.report({"ERROR"}, f"Cannot import: {error}")
             return {"CANCELLED"}
         view_layer = context.view_layer
@@ -334,7 +397,7 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
 
     @classmethod
     def poll(cls, context):
-        return splat_object.is_splat_object(context.active_object)
+        return any_splats.is_splat_source(context.active_object)
 
     def check(self, context):
         # Keep any ending a format writes (".sog", "meta.json", ...); add .ply otherwise.
@@ -347,7 +410,7 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
 
     def execute(self, context):
         obj = context.active_object
-        if not splat_object.is_splat_object(obj):
+        if not any_splats.is_splat_source(obj):
             self.report({"ERROR"}, "The active object is not a splat object")
             return {"CANCELLED"}
         if self.sequence:

@@ -30,6 +30,7 @@ import json
 import bpy
 
 from .. import splat_object
+from ..blender_splats import data as blender_data
 
 ENGINE_ID = "SPLAT_GAUSSIANS"          # the add-on's RenderEngine (render_hooks.SplatRenderEngine)
 HELPER_SCENE = ".Splat Composite"      # a leading dot hides the scene from Blender's scene lists
@@ -86,7 +87,7 @@ def _collection_has_splats(collection, seen: set) -> bool:
 
 
 def _object_has_splats(obj, seen: set) -> bool:
-    if splat_object.is_splat_object(obj):
+    if splat_object.is_splat_object(obj) or blender_data.is_blender_splat_object(obj):
         return True
     if obj.type == "MESH" and splat_object.data_sh_degree(obj.data) is not None:
         return True

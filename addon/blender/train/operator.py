@@ -64,6 +64,7 @@ from ...core.jobs import Progress, TrainingJob, compaction_note
 from ...core.train.trainer import TrainConfig
 from ...core.train.config import STRATEGY_NAMES
 from .. import dependencies, job_runner, splat_object
+from ..blender_splats import any_splats
 from ..camera_adapter import camera_of
 from ..job_runner import JobOperator, OperatorJob, draw_settings, registration
 
@@ -185,8 +186,8 @@ def write_splats(collection_name: str, gaussians: Gaussians, *, antialiased: boo
     there is none. Returns the object. Main thread only."""
     collection = bpy.data.collections.get(collection_name)
     obj = _alive(collection.get(OBJECT_KEY)) if collection is not None else None
-    if obj is not None and splat_object.is_splat_object(obj) and obj.users:
-        splat_object.replace_gaussians(obj, gaussians)
+    if obj is not None and any_splats.is_splat_source(obj) and obj.users:
+        any_splats.replace_gaussians(obj, gaussians)  # either kind: a Blender splat cloud stays one
     else:
         target = collection if collection is not None else bpy.context.scene.collection
         obj = splat_object.create_splat_object(
@@ -222,8 +223,8 @@ class SceneBefore:
         self.name = collection_name
         collection = bpy.data.collections.get(collection_name)
         obj = _alive(collection.get(OBJECT_KEY)) if collection is not None else None
-        self.obj = obj if obj is not None and splat_object.is_splat_object(obj) else None
-        self.gaussians = (splat_object.gaussians_from_data(obj.data, drop_hidden=False)
+        self.obj = obj if obj is not None and any_splats.is_splat_source(obj) else None
+        self.gaussians = (any_splats.object_gaussians(obj, drop_hidden=False)
                           if self.obj is not None else None)
         self.steps = self.obj.get("splat_trained_steps") if self.obj is not None else None
 
@@ -237,7 +238,7 @@ class SceneBefore:
                 bpy.data.meshes.remove(mesh)
             del collection[OBJECT_KEY]
         elif obj is not None and self.gaussians is not None:
-            splat_object.replace_gaussians(obj, self.gaussians)
+            any_splats.replace_gaussians(obj, self.gaussians)
             if self.steps is None:
                 obj.pop("splat_trained_steps", None)
             else:

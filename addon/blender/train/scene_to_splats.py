@@ -72,6 +72,7 @@ from ...core.train.scene_to_splats import (
 )
 from ...core.train.trainer import Trainer, TrainConfig
 from .. import dependencies, splat_object
+from ..blender_splats import any_splats
 from ..camera_adapter import set_camera
 from ..job_runner import (
     JobOperator,
@@ -96,7 +97,7 @@ class SceneToSplatsError(ValueError):
 # -- what to bake ---------------------------------------------------------------------------------
 
 def _has_geometry(obj) -> bool:
-    return obj.type in GEOMETRY_TYPES and not splat_object.is_splat_object(obj)
+    return obj.type in GEOMETRY_TYPES and not any_splats.is_splat_source(obj)
 
 
 def targets_of(context) -> list:
@@ -380,7 +381,7 @@ def prepare_scene_to_splats(context, *, cameras: int = 64, resolution=(256, 256)
     if only_selected:
         chosen = set(targets)
         hide = [o for o in scene.objects if o.type in GEOMETRY_TYPES and o not in chosen]
-    hide += [o for o in scene.objects if splat_object.is_splat_object(o) and o not in hide]
+    hide += [o for o in scene.objects if any_splats.is_splat_source(o) and o not in hide]
     images = render_views(scene, views, samples=samples, denoise=denoise, hide=hide,
                           progress=progress)
     dataset = ImageDataset(views, images, points, test_every=hold_out)
@@ -408,7 +409,7 @@ def write_splats(request: SceneToSplatsRequest, gaussians, obj=None, *, final: b
     except ReferenceError:
         alive = False
     if alive:
-        splat_object.replace_gaussians(obj, gaussians)
+        any_splats.replace_gaussians(obj, gaussians)  # an object converted to Blender's splats stays one
     else:
         obj = splat_object.create_splat_object(
             gaussians, request.name, collection=_collection(request.collection_name),

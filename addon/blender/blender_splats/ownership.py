@@ -1,0 +1,145 @@
+"""One renderer per splat object: who draws a Blender splat point cloud, Blender or the add-on.
+
+By default the add-on composes Blender's splat point clouds exactly (F12, `-a`, viewport), so
+Blender must not also path-trace or draw them: for each such object the add-on turns its ray
+visibility off (camera, diffuse, glossy, transmission, volume scatter, shadow: Cycles and EEVEE
+then neither show nor trace it, and Cycles leaves it out of its BVH) and shows it as its bounding
+box in the viewport (no EEVEE/Workbench billboards under the add-on's drawing). The user's own
+values are kept in an ID property on the object and put back when the object is handed back to
+Blender (`Object.splat.render_by_blender`), when it stops being a splat point cloud, or when
+the add-on is disabled. The object stays render-visible, so the render depsgraph (and `gather`)
+still sees it.
+
+`sync_scene(scene)` runs on file load, when objects are added (depsgraph update), at render
+init and when the per-object setting changes.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.app.handlers import persistent
+
+from . import data
+
+RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
+                  "visible_volume_scatter", "visible_shadow")
+SAVED = "splat_blender_visibility"   # ID property: the user's values while the add-on owns it
+DISPLAY_SAVED = "splat_blender_display"
+
+
+def rendered_by_addon(obj) -> bool:
+    """A Blender splat object that the add-on renders (not handed back to Blender)."""
+    return data.is_blender_splat_object(obj) and not getattr(
+        getattr(obj, "splat", None), "render_by_blender", False)
+
+
+def _take(obj) -> None:
+    if SAVED not in obj:
+        obj[SAVED] = {name: bool(getattr(obj, name)) for name in RAY_VISIBILITY
+                      if hasattr(obj, name)}
+    for name in RAY_VISIBILITY:
+        if hasattr(obj, name) and getattr(obj, name):
+            setattr(obj, name, False)
+    if DISPLAY_SAVED not in obj and obj.display_type in ("TEXTURED", "SOLID"):
+        obj[DISPLAY_SAVED] = obj.display_type
+        obj.display_type = "BOUNDS"
+
+
+def give_back(obj) -> None:
+    """Put the user's ray visibility and display type back (Blender renders it again)."""
+    saved = obj.get(SAVED)
+    if saved is not None:
+        for name, value in dict(saved).items():
+            if hasattr(obj, name) and getattr(obj, name) != bool(value):
+                setattr(obj, name, bool(value))
+        del obj[SAVED]
+    display = obj.get(DISPLAY_SAVED)
+    if display is not None:
+        if obj.display_type == "BOUNDS":
+            obj.display_type = str(display)
+        del obj[DISPLAY_SAVED]
+
+
+def sync_object(obj) -> None:
+    if rendered_by_addon(obj):
+        _take(obj)
+    elif SAVED in obj or DISPLAY_SAVED in obj:
+        give_back(obj)
+
+
+def sync_scene(scene) -> None:
+    if not data.supported():
+        return
+    for obj in scene.objects:
+        if obj.type == "POINTCLOUD" and (obj.library is None and obj.override_library is None):
+            sync_object(obj)
+
+
+def on_setting_changed(settings, context) -> None:
+    """Update callback of `Object.splat.render_by_blender`."""
+    obj = settings.id_data
+    if isinstance(obj, bpy.types.Object):
+        sync_object(obj)
+
+
+_counts: dict[str, int] = {}
+
+
+@persistent
+def _on_depsgraph_update(scene, depsgraph) -> None:
+    if getattr(depsgraph, "mode", "VIEWPORT") != "VIEWPORT" or not data.supported():
+        return
+    if not depsgraph.id_type_updated("OBJECT") and not depsgraph.id_type_updated("POINTCLOUD"):
+        return
+    counts = len(scene.objects)
+    if _counts.get(scene.name) == counts and not depsgraph.id_type_updated("POINTCLOUD"):
+        return
+    _counts[scene.name] = counts
+    if bpy.app.background:
+        sync_scene(scene)
+    else:  # never write ID properties inside the update itself in the UI
+        name = scene.name
+        bpy.app.timers.register(lambda: _sync_later(name), first_interval=0.0)
+
+
+def _sync_later(scene_name: str) -> None:
+    scene = bpy.data.scenes.get(scene_name)
+    if scene is not None:
+        sync_scene(scene)
+
+
+@persistent
+def _on_load_post(*_args) -> None:
+    _counts.clear()
+    for scene in bpy.data.scenes:
+        sync_scene(scene)
+
+
+@persistent
+def _on_render_init(scene, _depsgraph=None) -> None:
+    sync_scene(scene)
+
+
+_HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_load_post),
+             ("render_init", _on_render_init))
+
+
+def register() -> None:
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler not in handlers:
+            handlers.append(handler)
+
+
+def unregister() -> None:
+    for name, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if handler in handlers:
+            handlers.remove(handler)
+    _counts.clear()
+    try:
+        for obj in bpy.data.objects:
+            if SAVED in obj or DISPLAY_SAVED in obj:
+                give_back(obj)
+    except AttributeError:  # restricted context (unregister during file load): leave them
+        pass
