@@ -402,11 +402,21 @@ def ext_module(name: str):
 
 
 def clear_scene(bpy) -> None:
-    # Not factory settings: they would also switch the extension off.
+    # Not factory settings: they would also switch the extension off. Hidden data (a name with
+    # a leading dot: the add-on's compositor helper scene and its camera, which Blender 5.1+
+    # gets as soon as a scene has splats) stays, as a user's deleting would leave it.
     for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.materials, bpy.data.cameras,
                        bpy.data.lights, bpy.data.images, bpy.data.collections):
         for item in list(collection):
-            collection.remove(item)
+            if not item.name.startswith("."):
+                collection.remove(item)
+
+
+def new_scene_objects(bpy, before: set) -> list:
+    """The objects made since `before` that the current scene shows (not the add-on's
+    helper scene's)."""
+    scene_objects = set(bpy.context.scene.objects)
+    return [o for o in set(bpy.data.objects) - before if o in scene_objects]
 
 
 def stage_install(bpy, zip_path: Path) -> None:
@@ -448,7 +458,7 @@ def import_file(bpy, path: Path):
     before = set(bpy.data.objects)
     result = bpy.ops.splat.import_splats(filepath=str(path))
     assert result == {"FINISHED"}, result
-    (obj,) = set(bpy.data.objects) - before
+    (obj,) = new_scene_objects(bpy, before)
     return obj
 
 
@@ -624,7 +634,7 @@ def stage_colmap(bpy, work: Path, data: Path) -> None:
                                      update_every=0, checkpoint_every=0,
                                      checkpoint=str(work / "train.ckpt"))
         assert result == {"FINISHED"}, result
-        new = [o for o in set(bpy.data.objects) - before if splat_count_or_none(o)]
+        new = [o for o in new_scene_objects(bpy, before) if splat_count_or_none(o)]
         assert len(new) == 1, f"{len(new)} new splat objects"
         trained = new[0]
         assert trained.get("splat_trained_steps") == 100, dict(trained.items())

@@ -1,8 +1,8 @@
 """Side by side: Blender 5.3's own splats in Cycles against the add-on, time and PSNR.
 
-    .venv/bin/python examples/bench_blender_splats.py [--splats FILE] [--size 640x480]
+    .venv/bin/python examples/bench_blender_splats_cycles.py [--splats FILE] [--size 640x480]
         [--samples 4 16 64] [--bpy 5.3.0] [--zip FILE] [--reference-size 64x48] [--eevee]
-    blender -b --python examples/bench_blender_splats.py -- --inside --out DIR [options]
+    blender -b --python examples/bench_blender_splats_cycles.py -- --inside --out DIR [options]
 
 The same .ply, the same camera (looking at the splats' bounding box, as the installed-extension
 checks place it), 16-bit PNGs under the "Standard" view transform over a black world:
@@ -101,14 +101,17 @@ def clear_scene(bpy) -> None:
     for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.pointclouds,
                        bpy.data.materials, bpy.data.cameras, bpy.data.lights, bpy.data.images):
         for item in list(collection):
-            collection.remove(item)
+            if not item.name.startswith("."):  # the add-on's hidden compositor helper stays
+                collection.remove(item)
 
 
 def new_objects(bpy, run) -> list:
+    """The objects `run` adds to the current scene."""
     before = set(bpy.data.objects)
     result = run()
     assert result == {"FINISHED"}, result
-    return list(set(bpy.data.objects) - before)
+    shown = set(bpy.context.scene.objects)
+    return [o for o in set(bpy.data.objects) - before if o in shown]
 
 
 def build_scene(bpy, blender_obj, size: tuple[int, int]):
@@ -414,7 +417,7 @@ def driver(args: argparse.Namespace, argv: list[str]) -> int:
         results = json.loads((out / "results.json").read_text())
         print()
         print(reference_check(out, results, size_of(args.reference_size)))
-        print(f"command: .venv/bin/python examples/bench_blender_splats.py {' '.join(argv)}")
+        print(f"command: .venv/bin/python examples/bench_blender_splats_cycles.py {' '.join(argv)}")
         return 0
     finally:
         if "done" in locals() and done.returncode == 0:
