@@ -40,7 +40,10 @@ def _render_owner_switch(settings, context) -> None:
 def _viewport_switch(settings, context) -> None:
     """The splat object's own display follows whether the add-on draws it (`viewport`)."""
     from . import viewport
+    from .blender_splats import ownership
     viewport.on_switch_changed(settings, context)
+    if context.scene is not None:
+        ownership.sync_scene(context.scene)
 
 
 class SplatObjectSettings(bpy.types.PropertyGroup):

@@ -4,7 +4,8 @@ By default the add-on composes Blender's splat point clouds exactly (F12, `-a`, 
 Blender must not also path-trace or draw them: for each such object the add-on turns its ray
 visibility off (camera, diffuse, glossy, transmission, volume scatter, shadow: Cycles and EEVEE
 then neither show nor trace it, and Cycles leaves it out of its BVH) and shows it as its bounding
-box in the viewport (no EEVEE/Workbench billboards under the add-on's drawing). The user's own
+box in the viewport while the add-on draws it (no EEVEE/Workbench billboards under the
+add-on's drawing; with the object's or the scene's "Show in Viewport" off, Blender draws it). The user's own
 values are kept in an ID property on the object and put back when the object is handed back to
 Blender (`Object.splat.render_by_blender`), when it stops being a splat point cloud, or when
 the add-on is disabled. The object stays render-visible, so the render depsgraph (and `gather`)
@@ -33,26 +34,31 @@ def rendered_by_addon(obj) -> bool:
         getattr(obj, "splat", None), "render_by_blender", False)
 
 
-def _take(obj) -> None:
+def _take_rays(obj) -> None:
     if SAVED not in obj:
         obj[SAVED] = {name: bool(getattr(obj, name)) for name in RAY_VISIBILITY
                       if hasattr(obj, name)}
     for name in RAY_VISIBILITY:
         if hasattr(obj, name) and getattr(obj, name):
             setattr(obj, name, False)
-    if DISPLAY_SAVED not in obj and obj.display_type in ("TEXTURED", "SOLID"):
-        obj[DISPLAY_SAVED] = obj.display_type
-        obj.display_type = "BOUNDS"
 
 
-def give_back(obj) -> None:
-    """Put the user's ray visibility and display type back (Blender renders it again)."""
+def _give_rays_back(obj) -> None:
     saved = obj.get(SAVED)
     if saved is not None:
         for name, value in dict(saved).items():
             if hasattr(obj, name) and getattr(obj, name) != bool(value):
                 setattr(obj, name, bool(value))
         del obj[SAVED]
+
+
+def _show_bounds(obj) -> None:
+    if DISPLAY_SAVED not in obj and obj.display_type in ("TEXTURED", "SOLID"):
+        obj[DISPLAY_SAVED] = obj.display_type
+        obj.display_type = "BOUNDS"
+
+
+def _restore_display(obj) -> None:
     display = obj.get(DISPLAY_SAVED)
     if display is not None:
         if obj.display_type == "BOUNDS":
@@ -60,11 +66,29 @@ def give_back(obj) -> None:
         del obj[DISPLAY_SAVED]
 
 
-def sync_object(obj) -> None:
+def give_back(obj) -> None:
+    """Put the user's ray visibility and display type back (Blender renders it again)."""
+    _give_rays_back(obj)
+    _restore_display(obj)
+
+
+def drawn_by_addon(obj, scene=None) -> bool:
+    """The add-on draws it in the viewport (its and the scene's viewport switches on)."""
+    settings = getattr(scene, "splat_render", None) if scene is not None else None
+    return rendered_by_addon(obj) and obj.splat.show_in_viewport and (
+        settings is None or settings.viewport)
+
+
+def sync_object(obj, scene=None) -> None:
+    """Rays off while the add-on renders it; bounds display while the add-on draws it."""
     if rendered_by_addon(obj):
-        _take(obj)
-    elif SAVED in obj or DISPLAY_SAVED in obj:
-        give_back(obj)
+        _take_rays(obj)
+    elif SAVED in obj:
+        _give_rays_back(obj)
+    if drawn_by_addon(obj, scene):
+        _show_bounds(obj)
+    elif DISPLAY_SAVED in obj:
+        _restore_display(obj)
 
 
 def sync_scene(scene) -> None:
@@ -72,14 +96,14 @@ def sync_scene(scene) -> None:
         return
     for obj in scene.objects:
         if obj.type == "POINTCLOUD" and (obj.library is None and obj.override_library is None):
-            sync_object(obj)
+            sync_object(obj, scene)
 
 
 def on_setting_changed(settings, context) -> None:
     """Update callback of `Object.splat.render_by_blender`."""
     obj = settings.id_data
     if isinstance(obj, bpy.types.Object):
-        sync_object(obj)
+        sync_object(obj, context.scene)
 
 
 _counts: dict[str, int] = {}

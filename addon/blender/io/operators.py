@@ -447,7 +447,8 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
 
 class SPLAT_FH_splats(bpy.types.FileHandler):
     bl_idname = "SPLAT_FH_splats"
-    bl_label = "Gaussian Splats"
+    # Blender 5.3 offers its own PLY/SPZ importers for the same drop: say what this one does.
+    bl_label = "Gaussian Splats - add-on importer (all splat formats)"
     bl_import_operator = "splat.import_splats"
     bl_file_extensions = registry.file_extensions()  # .json: format_for then decides
 

@@ -195,3 +195,16 @@ def test_ownership_hides_blender_splats_from_blenders_rays(stand_in, rng, monkey
     assert obj.display_type == "TEXTURED" and ownership.SAVED not in obj
     obj.splat.render_by_blender = False
     assert not obj.visible_camera and obj.display_type == "BOUNDS"
+
+
+def test_convert_to_mesh_takes_a_blender_cloud(stand_in):
+    from addon.blender import mesh_convert
+    from scenes import sphere_gaussians
+
+    obj = _stand_in_cloud(sphere_gaussians(1.0, 1500, 0.07), "Ball")
+    obj.location = (2.0, 0.0, 1.0)
+    new = mesh_convert.convert_to_mesh(obj, cameras="SPHERE", resolution=24, max_triangles=600,
+                                       texture_size=64, view_count=16, view_size=48)
+    assert new.type == "MESH" and len(new.data.polygons) > 0
+    centre = np.mean([new.matrix_world @ v.co for v in new.data.vertices], axis=0)
+    np.testing.assert_allclose(centre, (2.0, 0.0, 1.0), atol=0.1)  # the cloud's transform applies

@@ -1,0 +1,438 @@
+"""Blender 5.3's own splat point clouds and the add-on, in the official bpy 5.3.0 (issue 24).
+
+Runs inside a bpy 5.3 Python with nothing but bpy; the add-on comes from the extension zip:
+
+    ROOT=$(../shared/real-blender/root.sh py313); mkdir -p $ROOT/io/splats53
+    cp -r ../shared/data/splats $ROOT/io/splats53/ && cp tests/real_blender/splats53.py \\
+        dist/gaussian_splatting-*-linux_x64.zip $ROOT/io/splats53/
+    ../shared/real-blender/bpy313.sh 5.3.0 python /io/splats53/splats53.py \\
+        --zip /io/splats53/gaussian_splatting-0.1.0-linux_x64.zip --data /io/splats53/splats \\
+        --work /io/splats53/work
+
+(`--installed` skips the install when the extension is already in the user folder; the user
+folder is `--work`/user, fresh unless kept.) Each check prints `PASS name: figures` or
+`FAIL name: why`; the exit status is 1 when any failed. The checks:
+
+  convention   Blender's own PLY importer (playbot) and SPZ importer (biker) against the add-on's
+               importer of the same file, in world space (the object matrix applied, SH rotated):
+               centres, covariances, opacities, SH. Pins which conventions agree.
+  round trip   every file in the data folder: the add-on's object -> Blender's splat cloud ->
+               the add-on's object (and Blender's import -> ours -> Blender's), exact up to
+               float32 rounding; transform, name and materials carried over.
+  importer     the add-on's importer option makes Blender's splat clouds for every format.
+  export       Blender's PLY import of playbot, exported by the add-on: equals the source file
+               (<= 1e-4; opacity compared after the sigmoid, the form Blender stores).
+  F12          Cycles, a cube in front: Blender's import (the add-on renders it, Blender does
+               not) equals the add-on's render of its own object of the same file, 1/255 at the
+               median and 3/255 at the 99th percentile, in at most 3 times that object's time.
+  edit         crop, select and clean up on Blender's import.
+  drop         the file handlers a .ply/.spz drop offers, with their labels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+
+EXTENSION = "bl_ext.user_default.gaussian_splatting"
+FAILURES: list[str] = []
+WIDTH, HEIGHT = 200, 150
+
+
+class check:
+    """`with check("name") as c:` prints PASS name: c.detail or FAIL name: the error."""
+
+    def __init__(self, name: str):
+        self.name, self.detail = name, ""
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, kind, error, tb):
+        seconds = f"{time.perf_counter() - self.t0:.1f} s"
+        if error is None:
+            print(f"PASS {self.name}: {self.detail + ', ' if self.detail else ''}{seconds}", flush=True)
+        else:
+            FAILURES.append(self.name)
+            print(f"FAIL {self.name}: {kind.__name__}: {' '.join(str(error).split())[:800]}", flush=True)
+            traceback.print_exception(kind, error, tb)
+        return True
+
+
+def ext(name: str):
+    import importlib
+
+    return importlib.import_module(f"{EXTENSION}.{name}")
+
+
+def install(bpy, zip_path: Path) -> None:
+    with check("install the zip"):
+        result = bpy.ops.extensions.package_install_files(
+            filepath=str(zip_path), repo="user_default", enable_on_install=True)
+        assert result == {"FINISHED"}, result
+        assert EXTENSION in bpy.context.preferences.addons, "not enabled after installing"
+
+
+def clear(bpy) -> None:
+    for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.pointclouds, bpy.data.materials,
+                       bpy.data.cameras, bpy.data.lights, bpy.data.collections):
+        for item in list(collection):
+            collection.remove(item)
+    ext("blender.gather").clear_cache()
+
+
+def new_objects(bpy, before: set) -> list:
+    return [o for o in bpy.data.objects if o not in before]
+
+
+def blender_import(bpy, path: Path):
+    """Blender's own importer (File > Import > PLY / SPZ)."""
+    before = set(bpy.data.objects)
+    if path.suffix == ".ply":
+        result = bpy.ops.wm.ply_import(filepath=str(path))
+    else:
+        result = bpy.ops.wm.spz_import(filepath=str(path))
+    assert result == {"FINISHED"}, result
+    (obj,) = new_objects(bpy, before)
+    return obj
+
+
+def addon_import(bpy, path: Path, **options):
+    return ext("blender.io.operators").import_splats(path, **options)
+
+
+def world(obj):
+    """World-space Gaussians of an object of either kind (its own data, all SH bands)."""
+    import numpy as np
+
+    any_splats = ext("blender.blender_splats.any_splats")
+    transform = ext("core.transform")
+    local = any_splats.object_gaussians(obj, drop_hidden=False)
+    return transform.transform_gaussians(local, np.array(obj.matrix_world, np.float64))
+
+
+def differences(a, b) -> dict:
+    """Largest differences between two sets of Gaussians (same order) in world space."""
+    import numpy as np
+
+    transform = ext("core.transform")
+    assert len(a) == len(b), f"{len(a)} vs {len(b)} splats"
+    sig = lambda x: 1 / (1 + np.exp(-x.astype(np.float64)))  # noqa: E731
+    ca, cb = transform.covariances(a), transform.covariances(b)
+    scale = np.maximum(np.abs(ca).max(axis=(1, 2)), 1e-30)
+    k = min(a.sh.shape[1], b.sh.shape[1])
+    extent = float(np.ptp(a.means, axis=0).max())
+    return dict(means=float(np.abs(a.means - b.means).max()) / extent,
+                covariance=float((np.abs(ca - cb).max(axis=(1, 2)) / scale).max()),
+                opacity=float(np.abs(sig(a.opacity_logits) - sig(b.opacity_logits)).max()),
+                sh=float(np.abs(a.sh[:, :k] - b.sh[:, :k]).max()))
+
+
+def describe(d: dict) -> str:
+    return ", ".join(f"{k} {v:.2g}" for k, v in d.items())
+
+
+# ------------------------------------------------------------------------------ the checks
+
+def probe(bpy) -> None:
+    """What this Blender's API offers (printed for the record)."""
+    pc = bpy.types.PointCloud.bl_rna
+    print("PointCloud properties:", [p.identifier for p in pc.properties])
+    print("PointCloud functions:", list(pc.functions.keys()))
+    print("PointCloud.type items:", list(pc.properties["type"].enum_items.keys())
+          if "type" in pc.properties else None)
+    print("attribute types:", [e.identifier for e in
+                               bpy.types.Attribute.bl_rna.properties["data_type"].enum_items])
+    handlers = [getattr(bpy.types, n) for n in dir(bpy.types)
+                if n.startswith(("IO_FH", "SPLAT_FH")) or n.endswith("_FH_ply")]
+    print("file handlers:", [(getattr(h, "bl_idname", h.__name__), getattr(h, "bl_label", ""),
+                               getattr(h, "bl_file_extensions", "")) for h in handlers])
+
+
+def check_convention(bpy, data: Path) -> None:
+    for name in ("playbot_125k_sh2.ply", "biker.spz"):
+        with check(f"convention: Blender's importer vs the add-on's, {name}") as c:
+            clear(bpy)
+            theirs = blender_import(bpy, data / name)
+            assert theirs.type == "POINTCLOUD" and theirs.data.type == "GAUSSIAN_SPLAT", \
+                (theirs.type, getattr(theirs.data, "type", None))
+            attrs = sorted((a.name, a.data_type) for a in theirs.data.attributes
+                           if not a.name.startswith("."))
+            print(f"  {name}: Blender's attributes {attrs[:6]} ... ({len(attrs)}), matrix "
+                  f"{[list(map(lambda v: round(v, 4), r)) for r in theirs.matrix_world]}")
+            ours = addon_import(bpy, data / name, blender_splats=False)
+            d = differences(world(ours), world(theirs))
+            c.detail = describe(d)
+            assert d["means"] < 1e-5 and d["covariance"] < 1e-4 and d["opacity"] < 1e-6 \
+                and d["sh"] < 1e-5, d
+
+
+def check_round_trips(bpy, data: Path) -> None:
+    import numpy as np
+
+    convert = ext("blender.blender_splats.convert")
+    any_splats = ext("blender.blender_splats.any_splats")
+    files = sorted(p for p in data.iterdir() if p.is_file()) + [data / "playbot_sog" / "lod-meta.json"]
+    for path in files:
+        with check(f"round trip ours -> Blender's -> ours, {path.name}") as c:
+            clear(bpy)
+            ours = addon_import(bpy, path, blender_splats=False)
+            mat = bpy.data.materials.new("M")
+            ours.data.materials.append(mat)
+            ours.location = (0.5, -1.0, 2.0)
+            ours.scale = (1.5, 1.5, 1.5)
+            ours.hide_render = True
+            original = any_splats.object_gaussians(ours, drop_hidden=False)
+            name, matrix = ours.name, np.array(ours.matrix_world)
+            cloud = convert.to_blender_splats(ours)
+            assert cloud.data.type == "GAUSSIAN_SPLAT" and cloud.name == name
+            assert list(cloud.data.materials) == [mat] and cloud.hide_render
+            back, warnings = convert.from_blender_splats(cloud)
+            assert back.name == name and np.array_equal(np.array(back.matrix_world), matrix)
+            assert list(back.data.materials) == [mat] and back.hide_render
+            g = any_splats.object_gaussians(back, drop_hidden=False)
+            sig = lambda x: 1 / (1 + np.exp(-x.astype(np.float64)))  # noqa: E731
+            exact = all(np.array_equal(getattr(g, n), getattr(original, n))
+                        for n in ("means", "quats", "sh"))
+            scale_error = float(np.abs(g.log_scales - original.log_scales).max())
+            opacity_error = float(np.abs(sig(g.opacity_logits) - sig(original.opacity_logits)).max())
+            c.detail = (f"{len(g):,} splats, SH {g.degree}, centres/rotations/SH bit-exact "
+                        f"{exact}, log-scale {scale_error:.2g}, opacity {opacity_error:.2g}")
+            assert exact and scale_error <= 5e-7 and opacity_error <= 1.2e-7 and not warnings
+    for name in ("playbot_125k_sh2.ply", "biker.spz"):
+        with check(f"round trip Blender's -> ours -> Blender's, {name}") as c:
+            clear(bpy)
+            theirs = blender_import(bpy, data / name)
+            data_mod = ext("blender.blender_splats.data")
+            before = {a.name: data_mod.read_attribute(a, len(theirs.data.points))
+                      for a in theirs.data.attributes if a.name in data_mod.convention.REQUIRED
+                      or a.name.startswith("radiance:sh_")}
+            ours, _ = convert.from_blender_splats(theirs)
+            again = convert.to_blender_splats(ours)
+            worst = {}
+            for key, values in before.items():
+                after = data_mod.read_attribute(again.data.attributes[key], len(again.data.points))
+                worst[key] = float(np.abs(after - values).max() / max(np.abs(values).max(), 1e-30))
+            c.detail = f"largest relative change {max(worst.values()):.2g} ({max(worst, key=worst.get)})"
+            assert max(worst.values()) <= 2.5e-7, worst
+
+
+def check_importer(bpy, data: Path) -> None:
+    files = sorted(p for p in data.iterdir() if p.is_file()) + [data / "playbot_sog" / "lod-meta.json"]
+    for path in files:
+        with check(f"importer makes Blender's splats, {path.name}") as c:
+            clear(bpy)
+            cloud = addon_import(bpy, path, blender_splats=True)
+            assert cloud.type == "POINTCLOUD" and cloud.data.type == "GAUSSIAN_SPLAT"
+            assert not cloud.visible_camera, "Blender would render it a second time"
+            ours = addon_import(bpy, path, blender_splats=False)
+            d = differences(world(ours), world(cloud))
+            c.detail = f"{len(cloud.data.points):,} points; " + describe(d)
+            assert d["means"] == 0 and d["sh"] == 0 and d["covariance"] < 1e-5 and d["opacity"] < 1.2e-7, d
+
+
+def check_export(bpy, data: Path, work: Path) -> None:
+    import numpy as np
+
+    splat_io = ext("core.splat_io")
+    for name in ("playbot_125k_sh2.ply", "biker.spz"):
+        with check(f"export of Blender's import equals the source, {name}") as c:
+            clear(bpy)
+            theirs = blender_import(bpy, data / name)
+            bpy.context.view_layer.objects.active = theirs
+            out = work / f"exported_{Path(name).stem}{Path(name).suffix}"
+            result = bpy.ops.splat.export_splats(filepath=str(out))
+            assert result == {"FINISHED"}, result
+            a, b = splat_io.load(data / name), splat_io.load(out)
+            sig = lambda x: 1 / (1 + np.exp(-x.astype(np.float64)))  # noqa: E731
+            qa = a.quats / np.linalg.norm(a.quats, axis=1, keepdims=True)
+            qb = b.quats / np.linalg.norm(b.quats, axis=1, keepdims=True)
+            q = np.minimum(np.abs(qa - qb).max(1), np.abs(qa + qb).max(1)).max()
+            errors = dict(means=np.abs(a.means - b.means).max(), log_scales=np.abs(a.log_scales - b.log_scales).max(),
+                          rotations=q, opacity=np.abs(sig(a.opacity_logits) - sig(b.opacity_logits)).max(),
+                          sh=np.abs(a.sh - b.sh).max())
+            c.detail = ", ".join(f"{k} {float(v):.2g}" for k, v in errors.items())
+            assert max(errors.values()) <= 1e-4, errors
+
+
+def build_scene(bpy, obj, engine: str):
+    """A cube in front of the splats, a plane behind, a camera along +Y."""
+    import math
+
+    import numpy as np
+    from mathutils import Vector
+
+    scene = bpy.context.scene
+    corners = np.array([obj.matrix_world @ Vector(c) for c in obj.bound_box])
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    centre, radius = (low + high) / 2, float(np.linalg.norm(high - low)) / 2
+    bpy.ops.mesh.primitive_cube_add(size=0.35 * radius, location=(
+        centre[0] + 0.25 * radius, low[1] - 0.4 * radius, centre[2]))
+    cube = bpy.context.active_object
+    mat = bpy.data.materials.new("Cube")
+    nodes = mat.node_tree.nodes
+    nodes.clear()
+    emission = nodes.new("ShaderNodeEmission")
+    emission.inputs["Color"].default_value = (0.9, 0.3, 0.1, 1.0)
+    out = nodes.new("ShaderNodeOutputMaterial")
+    mat.node_tree.links.new(emission.outputs[0], out.inputs["Surface"])
+    mat.diffuse_color = (0.9, 0.3, 0.1, 1.0)
+    cube.data.materials.append(mat)
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    camera.location = (centre[0], centre[1] - 2.2 * radius, centre[2])
+    camera.rotation_euler = (math.pi / 2, 0, 0)
+    scene.camera = camera
+    render = scene.render
+    render.resolution_x, render.resolution_y, render.resolution_percentage = WIDTH, HEIGHT, 100
+    render.engine = engine
+    if engine == "CYCLES":
+        scene.cycles.device, scene.cycles.samples = "CPU", 4
+        scene.cycles.use_denoising = scene.cycles.use_adaptive_sampling = False
+        scene.cycles.max_bounces = 0
+    render.threads_mode, render.threads = "FIXED", 2
+    view = scene.view_settings
+    view.view_transform, view.look, view.exposure, view.gamma = "Standard", "None", 0.0, 1.0
+    render.dither_intensity = 0.0
+    settings = render.image_settings
+    if hasattr(settings, "media_type"):
+        settings.media_type = "IMAGE"
+    settings.file_format, settings.color_mode, settings.color_depth = "PNG", "RGBA", "8"
+    bpy.context.view_layer.update()
+    ext("blender.render.compositor_bridge").ensure_bridge(scene)
+    bpy.context.view_layer.update()
+    return scene
+
+
+def f12(bpy, scene, path: Path) -> tuple[float, object]:
+    import numpy as np
+
+    scene.render.filepath = str(path)
+    start = time.perf_counter()
+    result = bpy.ops.render.render(write_still=True)
+    seconds = time.perf_counter() - start
+    assert result == {"FINISHED"}, result
+    image = bpy.data.images.load(str(path))
+    pixels = np.empty(image.size[0] * image.size[1] * 4, np.float32)
+    image.pixels.foreach_get(pixels)
+    bpy.data.images.remove(image)
+    return seconds, np.round(pixels.reshape(image.size[1], image.size[0], 4) * 255)
+
+
+def check_f12(bpy, data: Path, work: Path) -> None:
+    import numpy as np
+
+    path = data / "playbot_125k_sh2.ply"
+    for engine in ("CYCLES", "BLENDER_WORKBENCH"):
+        with check(f"F12 {engine}: Blender's import equals the add-on's own object") as c:
+            clear(bpy)
+            ours = addon_import(bpy, path, blender_splats=False)
+            scene = build_scene(bpy, ours, engine)
+            f12(bpy, scene, work / f"warm_{engine}.png")  # first render: caches, kernels
+            t_ours, img_ours = f12(bpy, scene, work / f"ours_{engine}.png")
+            matrix = ours.matrix_world.copy()
+            mesh = ours.data
+            bpy.data.objects.remove(ours)
+            bpy.data.meshes.remove(mesh)
+            theirs = blender_import(bpy, path)
+            assert np.allclose(np.array(theirs.matrix_world), np.array(matrix), atol=1e-6), \
+                "Blender's PLY import is placed differently from the add-on's"
+            bpy.context.view_layer.update()
+            ext("blender.blender_splats.ownership").sync_scene(scene)
+            f12(bpy, scene, work / f"warm2_{engine}.png")
+            t_theirs, img_theirs = f12(bpy, scene, work / f"theirs_{engine}.png")
+            diff = np.abs(img_ours - img_theirs)[..., :3].max(axis=2)
+            median, p99 = float(np.median(diff)), float(np.percentile(diff, 99))
+            splat_pixels = int((img_ours[..., 3] > 0).sum())
+            c.detail = (f"{WIDTH}x{HEIGHT}, median {median:.0f}/255, p99 {p99:.0f}/255, max "
+                        f"{diff.max():.0f}/255; F12 ours {t_ours * 1000:.0f} ms, Blender's "
+                        f"import {t_theirs * 1000:.0f} ms ({t_theirs / t_ours:.2f}x); "
+                        f"{splat_pixels} covered pixels")
+            assert median <= 1 and p99 <= 3 and t_theirs <= 3 * t_ours, c.detail
+            if engine == "CYCLES":
+                theirs.splat.render_by_blender = True
+                t_cycles, img_cycles = f12(bpy, scene, work / "cycles_own.png")
+                cdiff = np.abs(img_ours - img_cycles)[..., :3].max(axis=2)
+                print(f"  handed back to Cycles (4 samples): {t_cycles * 1000:.0f} ms, p99 "
+                      f"{np.percentile(cdiff, 99):.0f}/255 against the exact image", flush=True)
+
+
+def check_edit(bpy, data: Path) -> None:
+    import numpy as np
+
+    with check("crop / select / clean up on Blender's import") as c:
+        clear(bpy)
+        theirs = blender_import(bpy, data / "playbot_125k_sh2.ply")
+        n = len(theirs.data.points)
+        edit = ext("blender.edit_operators")
+        positions = edit.world_positions(theirs)
+        centre = np.median(positions, axis=0)
+        inside = np.all(np.abs(positions - centre) <= 0.5, axis=1)
+        for other in bpy.context.view_layer.objects:
+            other.select_set(other == theirs)
+        bpy.context.view_layer.objects.active = theirs
+        assert bpy.ops.splat.crop(shape="BOX", center=tuple(centre), size=(1, 1, 1)) == {"FINISHED"}
+        kept = len(theirs.data.points)
+        assert kept == int(inside.sum()) and theirs.data.type == "GAUSSIAN_SPLAT", (kept, inside.sum())
+        assert bpy.ops.splat.select_by(criterion="OPACITY", compare="BELOW", threshold=0.1) == {"FINISHED"}
+        selected = int(ext("blender.blender_splats.any_splats").selection(theirs).sum())
+        assert bpy.ops.splat.clean_up(use_size=False, use_isolated=False, min_opacity=0.1) == {"FINISHED"}
+        c.detail = f"crop kept {kept:,} of {n:,}, {selected:,} selected below 0.1 opacity, " \
+                   f"{len(theirs.data.points):,} left after clean up"
+        assert len(theirs.data.points) == kept - selected
+
+
+def check_drop(bpy) -> None:
+    with check("drop: a .ply offers Blender's importer and the add-on's") as c:
+        labels = []
+        for name in dir(bpy.types):
+            cls = getattr(bpy.types, name, None)
+            if isinstance(cls, type) and issubclass(cls, bpy.types.FileHandler) and cls is not bpy.types.FileHandler:
+                extensions = getattr(cls, "bl_file_extensions", "") or ""
+                if ".ply" in extensions.split(";") or ".spz" in extensions.split(";"):
+                    labels.append(f"{cls.bl_label} [{extensions}]")
+        c.detail = "; ".join(labels)
+        assert any("add-on" in label for label in labels), labels
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--zip", type=Path)
+    parser.add_argument("--data", type=Path, required=True)
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--only", nargs="*", default=None)
+    args = parser.parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else None)
+    args.work.mkdir(parents=True, exist_ok=True)
+    os.environ["BLENDER_USER_RESOURCES"] = str(args.work / "user")
+    import bpy
+
+    print(f"bpy {bpy.app.version_string}", flush=True)
+    if args.zip is not None:
+        install(bpy, args.zip)
+    elif EXTENSION not in bpy.context.preferences.addons:
+        bpy.ops.wm.read_userpref()
+    if EXTENSION not in bpy.context.preferences.addons:
+        print("FAIL the extension is not enabled")
+        return 1
+    probe(bpy)
+    steps = dict(convention=lambda: check_convention(bpy, args.data),
+                 roundtrip=lambda: check_round_trips(bpy, args.data),
+                 importer=lambda: check_importer(bpy, args.data),
+                 export=lambda: check_export(bpy, args.data, args.work),
+                 f12=lambda: check_f12(bpy, args.data, args.work),
+                 edit=lambda: check_edit(bpy, args.data),
+                 drop=lambda: check_drop(bpy))
+    for name, step in steps.items():
+        if args.only is None or name in args.only:
+            step()
+    print(f"{len(FAILURES)} failed: {', '.join(FAILURES)}" if FAILURES else "all passed", flush=True)
+    return 1 if FAILURES else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
