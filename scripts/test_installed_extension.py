@@ -30,15 +30,18 @@ zip and the data are staged under its /io for the run. The stages, each in a new
             the checker.
   colmap    import the distorted COLMAP model ../shared/data/beer (SIMPLE_RADIAL, images_8),
             train briefly, Convert to Mesh the result, export it.
-  blender_splats  (Blender 5.3 and later, which have splat point clouds of their own)
-            see tests/real_blender/blender_splats_checks.py.
+  blender_splats  (Blender 5.3 and later, which have splat point clouds of their own) the
+            checks of tests/real_blender/splats53.py, run as they are (the zip installed into a
+            fresh user folder of their own): Blender's importers against the add-on's, round
+            trips on every shared file, the importer option, export, F12 against the add-on's
+            own object, the edit tools, drop handlers.
 
 Each check prints `PASS name` or `FAIL name: why`; the script exits non-zero on any failure
 (a stage that crashes fails as a whole), after a table of every check against every version.
 Without --zip it builds the zip first (scripts/build_extension.py --platform linux-x64, wheels
 cached). --keep keeps the work folders.
 
-The same file runs inside each bpy venv (`--inside STAGE`): there it imports only the standard
+The same file runs inside each bpy (`--inside STAGE`): there it imports only the standard
 library, bpy, numpy and the installed extension.
 """
 
@@ -119,6 +122,7 @@ class HostVenv:
     def __init__(self, version: str, cache: Path, scratch: Path, zip_path: Path, data: Path):
         self.python = str(bpy_venv(version, cache) / "bin" / "python")
         self.script, self.zip, self.data = Path(__file__).resolve(), zip_path, data
+        self.checks = ROOT / "tests" / "real_blender" / "splats53.py"
         self.base = scratch / f"bpy-{version}"
 
     def inside(self, path: Path) -> str:
@@ -130,7 +134,7 @@ class HostVenv:
     def command(self, arguments: list[str], user: Path, work: Path) -> tuple[list[str], dict]:
         env = dict(os.environ, BLENDER_USER_RESOURCES=str(user))
         env.pop("PYTHONPATH", None)
-        return [self.python, str(self.script), *arguments], env
+        return [self.python, *arguments], env
 
 
 class InPy313Root:
@@ -156,32 +160,41 @@ class InPy313Root:
                 copy_tree(data / name, staged / "data" / name)
             InPy313Root.staged = staged
         self.script = self.staged / "checkout" / "scripts" / Path(__file__).name
+        self.checks = self.staged / "checkout" / "tests" / "real_blender" / "splats53.py"
         self.zip, self.data = self.staged / zip_path.name, self.staged / "data"
         self.base = self.staged / f"bpy-{version}"
         self.inside, self.outside = self.where.inside, self.where.outside
 
     def command(self, arguments: list[str], user: Path, work: Path) -> tuple[list[str], dict]:
         env = {"BLENDER_USER_RESOURCES": self.inside(user)}
-        return self.where.command([self.inside(self.script), *arguments], cwd=work,
-                                  env=env), dict(os.environ)
+        return self.where.command(arguments, cwd=work, env=env), dict(os.environ)
 
 
 def run_process(command: list[str], env: dict, cwd: Path, timeout: float) -> tuple[str, object]:
-    """(stdout and stderr, exit status or "timeout"); on a timeout the whole process group is
-    killed (run.sh's chroot leaves the Python process a grandchild)."""
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    """(stdout then stderr, exit status or "timeout"); on a timeout the whole process group is
+    killed (run.sh's chroot leaves the Python process a grandchild). The streams are read
+    apart: Blender writes reports to one without a line end, which would hide a check line."""
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, env=env, cwd=cwd, start_new_session=True)
     try:
-        return process.communicate(timeout=timeout)[0], process.returncode
+        out, err = process.communicate(timeout=timeout)
+        return out + err, process.returncode
     except subprocess.TimeoutExpired:
         os.killpg(process.pid, signal.SIGKILL)
-        return process.communicate()[0], "timeout"
+        out, err = process.communicate()
+        return out + err, "timeout"
 
 
 def run_stage(place, stage: str, user: Path, work: Path) -> list[tuple[str, bool, str]]:
     """[(check, passed, detail)] of one stage, run in a fresh process of the place's bpy."""
-    arguments = ["--inside", stage, "--zip", place.inside(place.zip), "--work",
-                 place.inside(work), "--data", place.inside(place.data)]
+    if stage == "blender_splats":  # its own script, its own fresh user folder (under --work)
+        arguments = [place.inside(place.checks), "--zip", place.inside(place.zip), "--data",
+                     place.inside(place.data / "splats"), "--work",
+                     place.inside(work / "blender_splats")]
+    else:
+        arguments = [place.inside(place.script), "--inside", stage, "--zip",
+                     place.inside(place.zip), "--work", place.inside(work), "--data",
+                     place.inside(place.data)]
     command, env = place.command(arguments, user, work)
     output, code = run_process(command, env, work, timeout=900)
     (work / f"{stage}.log").write_text(output)
@@ -277,7 +290,7 @@ def main() -> int:
     parser.add_argument("--cache", default=str(default_cache()))
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     parser.add_argument("--keep", action="store_true", help="keep the work folders")
-    parser.add_argument("--inside", choices=STAGES, help=argparse.SUPPRESS)
+    parser.add_argument("--inside", choices=STAGES[:-1], help=argparse.SUPPRESS)
     parser.add_argument("--work", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.inside:
@@ -363,8 +376,8 @@ def inside(stage: str, zip_path: Path, work: Path, data: Path) -> int:
         print(f"FAIL {stage}: the extension is not enabled after reading the preferences")
         return 1
     clear_scene(bpy)
-    {"formats": stage_formats, "render": stage_render, "colmap": stage_colmap,
-     "blender_splats": stage_blender_splats}[stage](bpy, work, data)
+    {"formats": stage_formats, "render": stage_render, "colmap": stage_colmap}[stage](
+        bpy, work, data)
     return 0
 
 
@@ -664,17 +677,6 @@ def stage_colmap(bpy, work: Path, data: Path) -> None:
         back = import_file(bpy, target)
         assert splat_count(back) == splat_count(trained)
         c.detail = f"{target.stat().st_size / 1e6:.2f} MB"
-
-
-# ------------------------------------------------------- Blender 5.3's own splat point clouds
-
-def stage_blender_splats(bpy, work: Path, data: Path) -> None:
-    """The checks of Blender's own splats (tests/real_blender/blender_splats_checks.py: plain bpy
-    and the installed extension, so the same file runs in real Blender too)."""
-    sys.path.insert(0, str(ROOT / "tests" / "real_blender"))
-    import blender_splats_checks
-
-    blender_splats_checks.run_all(bpy, check, work, data)
 
 
 def splat_count_or_none(obj):
