@@ -10,8 +10,9 @@ checks place it), 16-bit PNGs under the "Standard" view transform over a black w
   Cycles N      Blender's own PLY importer (`bpy.ops.wm.ply_import`: a point cloud of type
                 'GAUSSIAN_SPLAT'), F12 in Cycles on the CPU with N samples (no denoising, no
                 adaptive sampling, Cycles' other defaults), the add-on switched off;
-  EEVEE         the same object in EEVEE, where a GPU context exists (`--eevee`; bpy in the
-                background has none, so by default the row says so and is not run);
+  EEVEE         the same object in EEVEE, where a GPU context exists; where the only OpenGL
+                is software (Mesa's llvmpipe, as on a machine without a GPU) the row says so
+                and is not run, unless --eevee asks for it;
   add-on F12    the add-on's importer (`splat.import_splats`, the object placed as Blender's),
                 F12 with the add-on composing its splats (Cycles, 4 samples, nothing else in
                 the scene), and the add-on's renderer call alone (`splats only`);
@@ -61,10 +62,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--bpy", default="5.3.0", help="the bpy version the driver runs")
     parser.add_argument("--zip", help="the extension zip (default: build linux-x64)")
     parser.add_argument("--reference-size", default="64x48")
-    parser.add_argument("--eevee", action="store_true", help="also render EEVEE (needs a GPU)")
+    parser.add_argument("--eevee", action="store_true",
+                        help="render EEVEE also on software OpenGL (no GPU)")
     parser.add_argument("--inside", action="store_true", help="render here (Blender 5.3+)")
-    parser.add_argument("--out", help="with --inside: the folder for the images and "
-                        "results.json (default: a new temporary folder)")
+    parser.add_argument("--out", help="the folder for the images and results.json (default: "
+                        "none kept; with --inside a new temporary folder)")
     return parser.parse_args(argv)
 
 
@@ -188,23 +190,29 @@ def blender_world_positions(obj):
     return positions.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
 
 
-def gathered(bpy, module: str):
+def gathered(bpy, module: str, obj):
+    """`obj`'s world-space Gaussians as the add-on renders them."""
     return ext(module, "blender.gather").gather(bpy.context.evaluated_depsgraph_get(),
-                                                use_cache=False).gaussians
+                                                objects=[obj], use_cache=False).gaussians
 
 
-def eevee_probe(bpy) -> str | None:
-    """Why EEVEE cannot render here, or None where a GPU context exists."""
-    if not bpy.app.background:
-        return None
+def gpu_context(bpy) -> tuple[bool, str]:
+    """(a hardware GPU context exists, what the OpenGL renderer is or why there is none).
+    bpy in the background starts without one; gpu.init() makes one where it can (on a machine
+    without a GPU: Mesa's software OpenGL, llvmpipe)."""
+    import gpu
+
     try:
-        import gpu
-
-        gpu.platform.backend_type_get()
-        gpu.types.GPUOffScreen(4, 4).free()
-    except Exception as error:  # no context: bpy in the background without a display or EGL
-        return f"no GPU context ({' '.join(str(error).split())[:120]})"
-    return None
+        renderer = gpu.platform.renderer_get()
+    except Exception:
+        try:
+            gpu.init()
+            renderer = gpu.platform.renderer_get()
+        except Exception as error:
+            return False, f"no GPU context ({' '.join(str(error).split())[:100]})"
+    software = any(name in renderer.lower() for name in ("llvmpipe", "softpipe", "swrast"))
+    return not software, (f"no GPU: only software OpenGL ({renderer})" if software
+                          else renderer)
 
 
 def inside(args: argparse.Namespace) -> int:
@@ -237,12 +245,14 @@ def inside(args: argparse.Namespace) -> int:
         rows.append(dict(name=f"Blender 5.3 Cycles (CPU), {samples} samples",
                          **f12(bpy, scene, out / f"cycles_{samples}.png")))
         print(f"  {rows[-1]['name']}: {rows[-1]['wall_s']:.1f} s", flush=True)
-    why_not = eevee_probe(bpy) if args.eevee else "not asked for (--eevee)"
-    if why_not is None:
+    has_gpu, opengl = gpu_context(bpy)
+    if has_gpu or (args.eevee and not opengl.startswith("no GPU context")):
         scene.render.engine = "BLENDER_EEVEE"
-        rows.append(dict(name="Blender 5.3 EEVEE", **f12(bpy, scene, out / "eevee.png")))
+        rows.append(dict(name=f"Blender 5.3 EEVEE ({opengl})",
+                         **f12(bpy, scene, out / "eevee.png")))
     else:
-        rows.append(dict(name="Blender 5.3 EEVEE", skipped=why_not))
+        rows.append(dict(name="Blender 5.3 EEVEE", skipped=opengl + (
+            "" if args.eevee else "; --eevee renders it there anyway")))
 
     # The add-on: its own object of the same file, placed as Blender's object.
     set_extension(bpy, module, True)
@@ -251,7 +261,7 @@ def inside(args: argparse.Namespace) -> int:
     ours.matrix_world = blender_obj.matrix_world.copy()
     blender_obj.hide_render = True
     bpy.context.view_layer.update()
-    gaussians = gathered(bpy, module)
+    gaussians = gathered(bpy, module, ours)
     theirs = blender_world_positions(blender_obj)
     placement = float(np.abs(gaussians.means - theirs).max()) if len(theirs) == len(
         gaussians.means) else float("inf")
@@ -280,14 +290,17 @@ def inside(args: argparse.Namespace) -> int:
     # splats (then Cycles does not path-trace them), else Cycles renders it as above.
     ours.hide_render, blender_obj.hide_render = True, False
     bpy.context.view_layer.update()
-    takes_blender_splats = len(gathered(bpy, module)) > 0
+    try:
+        takes_blender_splats, why = len(gathered(bpy, module, blender_obj)) > 0, ""
+    except Exception as error:  # an add-on that cannot read them: the row says why
+        takes_blender_splats, why = False, " ".join(str(error).split())[:120]
     if takes_blender_splats:
         f12(bpy, scene, out / "addon_blender_warm.png")
         rows.append(dict(name="add-on F12 of Blender's splat object (Cycles, 4 samples)",
                          **f12(bpy, scene, out / "addon_blender.png")))
     else:
         rows.append(dict(name="add-on F12 of Blender's splat object",
-                         skipped="this add-on does not compose Blender's own splats"))
+                         skipped=why or "this add-on does not compose Blender's own splats"))
 
     for row in rows:
         if row.get("png"):
@@ -297,7 +310,7 @@ def inside(args: argparse.Namespace) -> int:
         blender=bpy.app.version_string, python=platform.python_version(),
         machine=machine(), splats=Path(args.splats).name, count=len(gaussians),
         size=f"{size[0]}x{size[1]}", placement_error=placement, rows=rows,
-        camera=camera_params(bpy, scene), eevee=why_not)
+        camera=camera_params(bpy, scene), opengl=opengl)
     (out / "results.json").write_text(json.dumps(results, indent=1))
     print(table(results))
     return 0
@@ -403,6 +416,7 @@ def driver(args: argparse.Namespace, argv: list[str]) -> int:
         out, user = stage / "out", stage / "user"
         out.mkdir()
         forwarded = ["--size", args.size, "--samples", *map(str, args.samples),
+                     "--reference-size", args.reference_size,
                      *(["--eevee"] if args.eevee else [])]
         command = where.command(
             [where.inside(stage / Path(__file__).name), *forwarded, "--inside",
@@ -415,6 +429,8 @@ def driver(args: argparse.Namespace, argv: list[str]) -> int:
                   f"{stage}", file=sys.stderr)
             return 1
         results = json.loads((out / "results.json").read_text())
+        if args.out:  # the images and results.json, kept
+            shutil.copytree(out, Path(args.out), dirs_exist_ok=True)
         print()
         print(reference_check(out, results, size_of(args.reference_size)))
         print(f"command: .venv/bin/python examples/bench_blender_splats_cycles.py {' '.join(argv)}")
