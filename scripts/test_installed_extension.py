@@ -3,9 +3,13 @@
     .venv/bin/python scripts/test_installed_extension.py [--bpy 4.2.23 ...] [--zip FILE]
                                                          [--cache DIR] [--keep]
 
-For each bpy version (default BPY_VERSIONS, the newest of each supported line on PyPI), a venv
-holding nothing but that bpy wheel and what pip installs with it (cached in --cache, default
-~/.cache/gaussian-splatting-ci, and made once), and a fresh, empty Blender user folder:
+For each bpy version (default BPY_VERSIONS, the newest of each supported line on PyPI), a clean
+bpy holding nothing but that wheel and what pip installs with it, and a fresh, empty Blender user
+folder. bpy 4.2 - 5.0 (Python 3.11) run in venvs of this machine, made once in --cache (default
+~/.cache/gaussian-splatting-ci). bpy 5.1 and later are official wheels for Python 3.13, which
+this machine cannot install: they run in the py313 root filesystem of ../shared/real-blender
+(`bpy313.sh VERSION` builds each once; needs root), where this script, tests/real_blender, the
+zip and the data are staged under its /io for the run. The stages, each in a new process:
 
   install   `extension validate` (that Blender's own bl_pkg/cli/blender_ext.py), then
             `bpy.ops.extensions.package_install_files(enable_on_install=True)` of the zip (the
@@ -26,12 +30,18 @@ holding nothing but that bpy wheel and what pip installs with it (cached in --ca
             the checker.
   colmap    import the distorted COLMAP model ../shared/data/beer (SIMPLE_RADIAL, images_8),
             train briefly, Convert to Mesh the result, export it.
+  blender_splats  (Blender 5.3 and later, which have splat point clouds of their own) the
+            checks of tests/real_blender/splats53.py, run as they are (the zip installed into a
+            fresh user folder of their own): Blender's importers against the add-on's, round
+            trips on every shared file, the importer option, export, F12 against the add-on's
+            own object, the edit tools, drop handlers.
 
 Each check prints `PASS name` or `FAIL name: why`; the script exits non-zero on any failure
-(a stage that crashes fails as a whole). Without --zip it builds the zip first
-(scripts/build_extension.py --platform linux-x64, wheels cached). --keep keeps the work folders.
+(a stage that crashes fails as a whole), after a table of every check against every version.
+Without --zip it builds the zip first (scripts/build_extension.py --platform linux-x64, wheels
+cached). --keep keeps the work folders.
 
-The same file runs inside each bpy venv (`--inside STAGE`): there it imports only the standard
+The same file runs inside each bpy (`--inside STAGE`): there it imports only the standard
 library, bpy, numpy and the installed extension.
 """
 
@@ -41,6 +51,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -49,9 +60,12 @@ import traceback
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-# The newest of each line on PyPI (`pip index versions bpy`): 4.2 LTS, 4.5 LTS, 5.0.
-BPY_VERSIONS = ("4.2.23", "4.5.15", "5.0.1")
-STAGES = ("install", "formats", "render", "colmap")
+# The newest of each line on PyPI (`pip index versions bpy`): 4.2 LTS, 4.5 LTS, 5.0 (Python 3.11);
+# 5.1, 5.2, 5.3 (Python 3.13).
+BPY_VERSIONS = ("4.2.23", "4.5.15", "5.0.1", "5.1.2", "5.2.3", "5.3.0")
+PY313_FROM = (5, 1)         # the first bpy line built for Python 3.13
+BLENDER_SPLATS_FROM = (5, 3)  # the first Blender with splat point clouds of its own
+STAGES = ("install", "formats", "render", "colmap", "blender_splats")
 MODULES = ("splatcore", "pycolmap", "OpenImageIO", "xatlas", "zstandard")
 EXTENSION = "bl_ext.user_default.gaussian_splatting"
 
@@ -92,20 +106,98 @@ def build_zip(out: Path) -> Path:
     return zip_path
 
 
-def run_stage(venv: Path, stage: str, zip_path: Path, user: Path, work: Path, data: Path
-              ) -> list[tuple[str, bool, str]]:
-    """[(check, passed, detail)] of one stage, run in a fresh process of the bpy venv."""
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(user))
-    env.pop("PYTHONPATH", None)
-    command = [str(venv / "bin" / "python"), str(Path(__file__).resolve()), "--inside", stage,
-               "--zip", str(zip_path), "--work", str(work), "--data", str(data)]
+def version_line(version: str) -> tuple[int, int]:
+    major, minor = version.split(".")[:2]
+    return int(major), int(minor)
+
+
+def stages_for(version: str) -> tuple[str, ...]:
+    return tuple(s for s in STAGES
+                 if s != "blender_splats" or version_line(version) >= BLENDER_SPLATS_FROM)
+
+
+class HostVenv:
+    """bpy 4.2 - 5.0 (Python 3.11) in a venv of this machine: paths are the same on both sides."""
+
+    def __init__(self, version: str, cache: Path, scratch: Path, zip_path: Path, data: Path):
+        self.python = str(bpy_venv(version, cache) / "bin" / "python")
+        self.script, self.zip, self.data = Path(__file__).resolve(), zip_path, data
+        self.checks = ROOT / "tests" / "real_blender" / "splats53.py"
+        self.base = scratch / f"bpy-{version}"
+
+    def inside(self, path: Path) -> str:
+        return str(path)
+
+    def outside(self, path: str) -> Path:
+        return Path(path)
+
+    def command(self, arguments: list[str], user: Path, work: Path) -> tuple[list[str], dict]:
+        env = dict(os.environ, BLENDER_USER_RESOURCES=str(user))
+        env.pop("PYTHONPATH", None)
+        return [self.python, *arguments], env
+
+
+class InPy313Root:
+    """bpy 5.1+ (official wheels for Python 3.13) in ../shared/real-blender's py313 root
+    (scripts/py313_root.py): this script, tests/real_blender, the zip and the data the stages
+    read are staged under its /io once per run (`staged`, shared by the versions)."""
+
+    staged: Path | None = None
+
+    def __init__(self, version: str, zip_path: Path, data: Path):
+        sys.path.insert(0, str(ROOT / "scripts"))
+        from py313_root import Py313Root, copy_tree
+
+        self.where = Py313Root(version)
+        if InPy313Root.staged is None:
+            staged = self.where.stage_dir("installed-extension-")
+            (staged / "checkout" / "scripts").mkdir(parents=True)
+            shutil.copy2(__file__, staged / "checkout" / "scripts")
+            copy_tree(ROOT / "tests" / "real_blender", staged / "checkout" / "tests"
+                      / "real_blender")
+            shutil.copy2(zip_path, staged)
+            for name in ("splats", "beer"):  # what the stages read
+                copy_tree(data / name, staged / "data" / name)
+            InPy313Root.staged = staged
+        self.script = self.staged / "checkout" / "scripts" / Path(__file__).name
+        self.checks = self.staged / "checkout" / "tests" / "real_blender" / "splats53.py"
+        self.zip, self.data = self.staged / zip_path.name, self.staged / "data"
+        self.base = self.staged / f"bpy-{version}"
+        self.inside, self.outside = self.where.inside, self.where.outside
+
+    def command(self, arguments: list[str], user: Path, work: Path) -> tuple[list[str], dict]:
+        env = {"BLENDER_USER_RESOURCES": self.inside(user)}
+        return self.where.command(arguments, cwd=work, env=env), dict(os.environ)
+
+
+def run_process(command: list[str], env: dict, cwd: Path, timeout: float) -> tuple[str, object]:
+    """(stdout then stderr, exit status or "timeout"); on a timeout the whole process group is
+    killed (run.sh's chroot leaves the Python process a grandchild). The streams are read
+    apart: Blender writes reports to one without a line end, which would hide a check line."""
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, env=env, cwd=cwd, start_new_session=True)
     try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=900, env=env,
-                              cwd=work)
-        output, code = done.stdout + done.stderr, done.returncode
-    except subprocess.TimeoutExpired as error:
-        output, code = f"{error.stdout or ''}{error.stderr or ''}", "timeout"
-    (work / f"{stage}.log").write_text(output if isinstance(output, str) else str(output))
+        out, err = process.communicate(timeout=timeout)
+        return out + err, process.returncode
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        out, err = process.communicate()
+        return out + err, "timeout"
+
+
+def run_stage(place, stage: str, user: Path, work: Path) -> list[tuple[str, bool, str]]:
+    """[(check, passed, detail)] of one stage, run in a fresh process of the place's bpy."""
+    if stage == "blender_splats":  # its own script, its own fresh user folder (under --work)
+        arguments = [place.inside(place.checks), "--zip", place.inside(place.zip), "--data",
+                     place.inside(place.data / "splats"), "--work",
+                     place.inside(work / "blender_splats")]
+    else:
+        arguments = [place.inside(place.script), "--inside", stage, "--zip",
+                     place.inside(place.zip), "--work", place.inside(work), "--data",
+                     place.inside(place.data)]
+    command, env = place.command(arguments, user, work)
+    output, code = run_process(command, env, work, timeout=900)
+    (work / f"{stage}.log").write_text(output)
     results = []
     for line in output.splitlines():
         if line.startswith(("PASS ", "FAIL ")):
@@ -113,6 +205,8 @@ def run_stage(venv: Path, stage: str, zip_path: Path, user: Path, work: Path, da
             results.append((name, line.startswith("PASS"), detail))
         elif line.startswith("COMPARE "):
             frame = json.loads(line[len("COMPARE "):])
+            for key in ("png", "exr", "splats"):
+                frame[key] = str(place.outside(frame[key]))
             try:
                 results.append((frame["name"], True, compare_frame(frame)))
             except (AssertionError, OSError, ValueError) as error:
@@ -196,7 +290,7 @@ def main() -> int:
     parser.add_argument("--cache", default=str(default_cache()))
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     parser.add_argument("--keep", action="store_true", help="keep the work folders")
-    parser.add_argument("--inside", choices=STAGES, help=argparse.SUPPRESS)
+    parser.add_argument("--inside", choices=STAGES[:-1], help=argparse.SUPPRESS)
     parser.add_argument("--work", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.inside:
@@ -206,32 +300,64 @@ def main() -> int:
     started = time.perf_counter()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
+    data = Path(args.data).resolve()
     scratch = Path(tempfile.mkdtemp(prefix="installed-extension-"))
     zip_path = Path(args.zip).resolve() if args.zip else build_zip(scratch / "dist")
     print(f"zip: {zip_path} ({zip_path.stat().st_size / 1e6:.1f} MB)", flush=True)
-    summary = []
-    for version in args.bpy or BPY_VERSIONS:
+    versions = args.bpy or list(BPY_VERSIONS)
+    summary, seconds, logs = [], {}, []
+    for version in versions:
         t0 = time.perf_counter()
-        venv = bpy_venv(version, cache)
-        user, work = scratch / f"bpy-{version}" / "user", scratch / f"bpy-{version}" / "work"
+        try:
+            place = (InPy313Root(version, zip_path, data) if version_line(version) >= PY313_FROM
+                     else HostVenv(version, cache, scratch, zip_path, data))
+        except (RuntimeError, OSError, subprocess.CalledProcessError) as error:
+            print(f"[bpy {version}] FAIL bpy {version} set up: {error}", flush=True)
+            summary.append((version, "set up", False))
+            continue
+        user, work = place.base / "user", place.base / "work"
         work.mkdir(parents=True)
-        for stage in STAGES:
-            results = run_stage(venv, stage, zip_path, user, work, Path(args.data).resolve())
+        for stage in stages_for(version):
+            results = run_stage(place, stage, user, work)
             for name, passed, detail in results:
                 print(f"[bpy {version}] {'PASS' if passed else 'FAIL'} {name}"
                       + (f": {detail}" if detail else ""), flush=True)
             summary += [(version, name, passed) for name, passed, _ in results]
             if stage == "install" and not any(n == "install the zip" and p for n, p, _ in results):
                 break  # nothing else can run without the extension
-        print(f"[bpy {version}] {time.perf_counter() - t0:.0f} s (logs: {work})", flush=True)
+        seconds[version] = time.perf_counter() - t0
+        logs.append(work)
+        print(f"[bpy {version}] {seconds[version]:.0f} s (logs: {work})", flush=True)
     failed = [(v, n) for v, n, p in summary if not p]
+    print()
+    print(version_table(summary, versions, seconds))
     print(f"{len(summary) - len(failed)} passed, {len(failed)} failed in "
           f"{time.perf_counter() - started:.0f} s")
     for version, name in failed:
         print(f"  FAILED bpy {version}: {name}")
     if not args.keep and not failed:
         shutil.rmtree(scratch, ignore_errors=True)
+        if InPy313Root.staged is not None:
+            shutil.rmtree(InPy313Root.staged, ignore_errors=True)
+    elif InPy313Root.staged is not None:
+        print(f"py313 work folders kept in {InPy313Root.staged}")
     return 1 if failed or not summary else 0
+
+
+def version_table(summary: list[tuple[str, str, bool]], versions: list[str],
+                  seconds: dict[str, float]) -> str:
+    """Every check (first-seen order) against every version: ok, FAIL, or - (not run there)."""
+    names = list(dict.fromkeys(name for _, name, _ in summary))
+    result = {(v, n): p for v, n, p in summary}
+    width = max([len(n) for n in names] + [12])
+    rows = [f"{'check':<{width}}  " + "  ".join(f"{v:>7}" for v in versions)]
+    for name in names:
+        cells = ["-" if (v, name) not in result else "ok" if result[v, name] else "FAIL"
+                 for v in versions]
+        rows.append(f"{name:<{width}}  " + "  ".join(f"{c:>7}" for c in cells))
+    rows.append(f"{'seconds':<{width}}  " + "  ".join(
+        f"{seconds[v]:>7.0f}" if v in seconds else f"{'-':>7}" for v in versions))
+    return "\n".join(rows)
 
 
 # ====================================================== inside a clean bpy venv (one stage)
@@ -289,11 +415,21 @@ def ext_module(name: str):
 
 
 def clear_scene(bpy) -> None:
-    # Not factory settings: they would also switch the extension off.
+    # Not factory settings: they would also switch the extension off. Hidden data (a name with
+    # a leading dot: the add-on's compositor helper scene and its camera, which Blender 5.1+
+    # gets as soon as a scene has splats) stays, as a user's deleting would leave it.
     for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.materials, bpy.data.cameras,
                        bpy.data.lights, bpy.data.images, bpy.data.collections):
         for item in list(collection):
-            collection.remove(item)
+            if not item.name.startswith("."):
+                collection.remove(item)
+
+
+def new_scene_objects(bpy, before: set) -> list:
+    """The objects made since `before` that the current scene shows (not the add-on's
+    helper scene's)."""
+    scene_objects = set(bpy.context.scene.objects)
+    return [o for o in set(bpy.data.objects) - before if o in scene_objects]
 
 
 def stage_install(bpy, zip_path: Path) -> None:
@@ -335,7 +471,7 @@ def import_file(bpy, path: Path):
     before = set(bpy.data.objects)
     result = bpy.ops.splat.import_splats(filepath=str(path))
     assert result == {"FINISHED"}, result
-    (obj,) = set(bpy.data.objects) - before
+    (obj,) = new_scene_objects(bpy, before)
     return obj
 
 
@@ -511,7 +647,7 @@ def stage_colmap(bpy, work: Path, data: Path) -> None:
                                      update_every=0, checkpoint_every=0,
                                      checkpoint=str(work / "train.ckpt"))
         assert result == {"FINISHED"}, result
-        new = [o for o in set(bpy.data.objects) - before if splat_count_or_none(o)]
+        new = [o for o in new_scene_objects(bpy, before) if splat_count_or_none(o)]
         assert len(new) == 1, f"{len(new)} new splat objects"
         trained = new[0]
         assert trained.get("splat_trained_steps") == 100, dict(trained.items())
