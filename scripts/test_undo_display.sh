@@ -17,7 +17,7 @@ root=$("$RB/root.sh" "$SUITE")
 io=$root/io/$NAME; t=/io/$NAME
 rm -rf "$io" && mkdir -p "$io/out" "$io/user"
 cp "$ZIP" "$io/extension.zip"
-cp tests/real_blender/undo_display.py "$io/"
+cp tests/real_blender/undo_display.py tests/real_blender/ui_kit.py "$io/"
 $PY tests/real_blender/check.py undo-splats "$io/undo_splats.ply" || exit 1
 blender() { "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user blender "$@"; }
 blender --command extension install-file -r user_default -e $t/extension.zip > "$io/install.log" 2>&1 \

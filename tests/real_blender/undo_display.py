@@ -27,14 +27,15 @@ from __future__ import annotations
 import importlib
 import json
 import os
-import subprocess
 import sys
 import time
-import traceback
 
 import bpy
 import numpy as np
 from mathutils import Quaternion, Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # ui_kit, copied beside this
+import ui_kit  # noqa: E402
 
 ADDON = "bl_ext.user_default.gaussian_splatting"
 args = sys.argv[sys.argv.index("--") + 1:]
@@ -45,12 +46,7 @@ NAME = os.path.splitext(os.path.basename(PLY))[0]
 
 
 def view3d():
-    for window in bpy.context.window_manager.windows:
-        for area in window.screen.areas:
-            if area.type == "VIEW_3D":
-                region = next(r for r in area.regions if r.type == "WINDOW")
-                return window, area, region
-    raise RuntimeError("no 3D view")
+    return ui_kit.view3d(bpy)
 
 
 def override():
@@ -156,7 +152,7 @@ def settled_shot(name: str):
     def step():
         now = time.monotonic()
         state["t0"] = state["t0"] or now
-        subprocess.run(["import", "-window", "root", path], check=True)
+        ui_kit.shot(path)
         data = open(path, "rb").read()
         state["same"] = state["same"] + 1 if data == state["previous"] else 0
         state["previous"] = data
@@ -202,23 +198,9 @@ for step_name in STEPS:
     steps.extend([wait_for_image, settled_shot(step_name), save_state(step_name)])
 
 
-def run_steps():
-    try:
-        if not steps:
-            json.dump({k: v for k, v in record.items() if not k.startswith("_")},
-                      open(os.path.join(OUT, "steps.json"), "w"), indent=1)
-            bpy.ops.wm.quit_blender()
-            return None
-        wait = steps[0]()
-        if wait is None:
-            steps.pop(0)
-            return 0.3
-        return wait
-    except Exception:
-        record["errors"].append(traceback.format_exc())
-        print(record["errors"][-1], flush=True)
-        steps.clear()
-        return 0.1
+def finish() -> None:
+    json.dump({k: v for k, v in record.items() if not k.startswith("_")},
+              open(os.path.join(OUT, "steps.json"), "w"), indent=1)
 
 
-bpy.app.timers.register(run_steps, first_interval=2.0)
+ui_kit.run_steps(bpy, steps, finish, record["errors"], pause=0.3)

@@ -22,6 +22,10 @@ import traceback
 import bpy
 from mathutils import Vector
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # ui_kit, copied beside this
+import ui_kit  # noqa: E402
+from ui_kit import shot  # noqa: E402,F401
+
 ADDON = "bl_ext.user_default.gaussian_splatting"
 args = sys.argv[sys.argv.index("--") + 1:]
 OUT = args[0]
@@ -32,12 +36,7 @@ record: dict = {"shots": {}}
 
 
 def view3d():
-    for window in bpy.context.window_manager.windows:
-        for area in window.screen.areas:
-            if area.type == "VIEW_3D":
-                region = next(r for r in area.regions if r.type == "WINDOW")
-                return window, area, region
-    return None
+    return ui_kit.view3d(bpy)
 
 
 def set_up() -> None:
@@ -75,32 +74,13 @@ def aim() -> None:
         other.tag_redraw()
 
 
-def shot(path: str) -> None:
-    """The X screen (Blender's own screenshot reads a black front buffer under Xvfb)."""
-    import subprocess
-    subprocess.run(["import", "-window", "root", path], check=True)
-
-
 steps: list = []
 
 
-def state_step():
-    try:
-        if not steps:
-            json.dump({**{k: v for k, v in record.items() if not k.startswith("_")},
-                       "errors": errors + viewport.renderer.errors},
-                      open(os.path.join(OUT, "view.json"), "w"), indent=1)
-            bpy.ops.wm.quit_blender()
-            return None
-        wait = steps[0]()
-        if wait is None:
-            steps.pop(0)
-            return 0.5
-        return wait
-    except Exception:
-        errors.append(traceback.format_exc())
-        steps.clear()
-        return 0.1
+def finish() -> None:
+    json.dump({**{k: v for k, v in record.items() if not k.startswith("_")},
+               "errors": errors + viewport.renderer.errors},
+              open(os.path.join(OUT, "view.json"), "w"), indent=1)
 
 
 def wait_until_rested():
@@ -188,4 +168,4 @@ catch_draw_errors()
 steps.extend([lambda: (set_up(), None)[1], lambda: (aim(), None)[1]])
 for name in SHADINGS:
     add_shading(name)
-bpy.app.timers.register(state_step, first_interval=2.0)
+ui_kit.run_steps(bpy, steps, finish, errors)
