@@ -18,6 +18,7 @@ import numpy as np
 
 from ...core.blender_splats import attributes as convention
 from ...core.gaussians import Gaussians
+from .. import splat_object
 
 GAUSSIAN_SPLAT = "GAUSSIAN_SPLAT"
 # Blender attribute data type -> (foreach property, values per point). FLOAT4 (5.3) is what
@@ -74,14 +75,7 @@ def point_count(data) -> int:
 
 
 def hidden_mask(data) -> np.ndarray | None:
-    attribute = data.attributes.get(HIDE)
-    if attribute is None or attribute.domain != "POINT" or attribute.data_type != "BOOLEAN":
-        return None
-    n = len(attribute.data)
-    hide = np.empty(n, bool)
-    if n:
-        attribute.data.foreach_get("value", hide)
-    return hide if hide.any() else None
+    return splat_object.hidden_mask(data, HIDE)
 
 
 def read_names(data) -> tuple[str, ...]:
