@@ -19,14 +19,13 @@ together, like the chunks read for them, stay within `formats.limits.MAX_GAUSSIA
 from __future__ import annotations
 
 import os
-import stat
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..gaussians import Gaussians
-from .contained import contained_file, is_contained_name
+from .contained import contained_file, is_contained_name, read_regular
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
 from .limits import check_gaussian_count
@@ -41,16 +40,7 @@ READ_VERSION = 1
 
 
 def _read_index(path: Path) -> dict[str, Any]:
-    try:
-        with open(path, "rb") as f:
-            info = os.fstat(f.fileno())
-            if not stat.S_ISREG(info.st_mode):
-                raise SplatFileError(path, "not a regular file")
-            if info.st_size > MAX_INDEX_BYTES:
-                raise SplatFileError(path, f"lod-meta.json is larger than {MAX_INDEX_BYTES} bytes")
-            text = f.read(MAX_INDEX_BYTES + 1)
-    except OSError as e:
-        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
+    text = read_regular(path, path, "lod-meta.json", MAX_INDEX_BYTES)
     index = parse_object(path, text, "lod-meta.json")
     version = index.get("version", READ_VERSION)  # files before version 1 have none
     if not isinstance(version, int) or version > READ_VERSION:
