@@ -53,8 +53,9 @@ def contained_file(root: str | os.PathLike, name: str, file: str | os.PathLike, 
                                    f"{root}; refused")
     path = Path(root) / name.replace("\\", "/")
     try:
-        inside = path.resolve().is_relative_to(Path(root).resolve())
-        mode = os.stat(path).st_mode if inside else 0
+        real, real_root = os.path.realpath(path), os.path.realpath(root)
+        inside = real.startswith(real_root.rstrip(os.sep) + os.sep)
+        mode = os.stat(real).st_mode if inside else 0
     except FileNotFoundError:
         raise SplatFileError(file, f"missing {what} {name!r} in {root}") from None
     except (OSError, RuntimeError, ValueError) as e:  # loops, name too long, not a folder
