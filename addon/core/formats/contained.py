@@ -19,7 +19,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 
 from .errors import SplatFileError
 
-__all__ = ["is_contained_name", "contained_file", "MAX_NAME_CHARS"]
+__all__ = ["is_contained_name", "contained_file", "read_regular", "MAX_NAME_CHARS"]
 
 MAX_NAME_CHARS = 4096  # longer than any path a platform opens
 _WINDOWS_DEVICES = {"CON", "PRN", "AUX", "NUL", "CONIN$", "CONOUT$"} | \
@@ -53,8 +53,9 @@ def contained_file(root: str | os.PathLike, name: str, file: str | os.PathLike, 
                                    f"{root}; refused")
     path = Path(root) / name.replace("\\", "/")
     try:
-        inside = path.resolve().is_relative_to(Path(root).resolve())
-        mode = os.stat(path).st_mode if inside else 0
+        real, real_root = os.path.realpath(path), os.path.realpath(root)
+        inside = real.startswith(real_root.rstrip(os.sep) + os.sep)
+        mode = os.stat(real).st_mode if inside else 0
     except FileNotFoundError:
         raise SplatFileError(file, f"missing {what} {name!r} in {root}") from None
     except (OSError, RuntimeError, ValueError) as e:  # loops, name too long, not a folder
@@ -66,3 +67,31 @@ def contained_file(root: str | os.PathLike, name: str, file: str | os.PathLike, 
     if not stat.S_ISREG(mode):
         raise SplatFileError(file, f"{what} {name!r}: not a regular file; refused")
     return path
+
+
+def read_regular(path: str | os.PathLike, shown: str | os.PathLike, what: str,
+                 limit: int | None = None, first: int | None = None) -> bytes:
+    """The bytes of the regular file `path` (at most `limit` of them, when given: more is an
+    error; only the `first` bytes, when given), or a SplatFileError naming `shown` and `what`.
+    Opened without blocking, so a FIFO swapped in after `contained_file` judged the name is
+    refused, not waited on."""
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as e:
+        raise SplatFileError(shown, f"cannot read {what}: {e.strerror or e}") from None
+    with os.fdopen(fd, "rb") as f:
+        try:
+            info = os.fstat(fd)
+            if not stat.S_ISREG(info.st_mode):
+                raise SplatFileError(shown, f"{what} is not a regular file")
+            if limit is not None and info.st_size > limit:
+                raise SplatFileError(shown, f"{what} is larger than {limit} bytes")
+            if hasattr(os, "set_blocking"):
+                os.set_blocking(fd, True)
+            data = f.read(first if first is not None else -1 if limit is None else limit + 1)
+        except OSError as e:
+            raise SplatFileError(shown, f"cannot read {what}: {e.strerror or e}") from None
+    if limit is not None and len(data) > limit:
+        raise SplatFileError(shown, f"{what} is larger than {limit} bytes")
+    return data

@@ -39,7 +39,6 @@ import binascii
 import json
 import math
 import os
-import stat
 import struct
 import urllib.parse
 from dataclasses import dataclass
@@ -52,7 +51,7 @@ from ..gaussians import Gaussians
 from ..sh import SH_C0
 from ..transform import transform_gaussians
 from ..atomic import atomic_write
-from .contained import contained_file
+from .contained import contained_file, read_regular
 from .errors import SplatFileError
 from .frames import rdf_to_rub
 from .json_file import malformed, parse_object
@@ -181,17 +180,6 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
 # Reading
 
 
-def _read_bytes(path: Path, shown: Path | None = None, what: str = "file",
-               limit: int | None = None) -> bytes:
-    """A regular file's bytes (the first `limit` of them); errors name `shown` (the user's file)."""
-    shown = shown or path
-    try:
-        with open(path, "rb") as f:
-            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
-                raise SplatFileError(shown, f"{what} is not a regular file")
-            return f.read() if limit is None else f.read(limit)
-    except OSError as e:
-        raise SplatFileError(shown, f"cannot read {what}: {e.strerror or e}") from None
 
 
 def _parse_json(path: Path, text: bytes) -> dict:
@@ -246,7 +234,7 @@ def _buffers(path: Path, document: dict, binary: memoryview | None) -> list[memo
             uri = file.resolve()
             longest[uri] = max(longest.get(uri, 0), length)
         wanted.append((length, uri))
-    files = {file: memoryview(_read_bytes(file, path, f"buffer file {file.name!r}", limit))
+    files = {file: memoryview(read_regular(file, path, f"buffer file {file.name!r}", first=limit))
              for file, limit in longest.items()}
     buffers = []
     for i, (length, uri) in enumerate(wanted):
@@ -469,7 +457,7 @@ def load(path: str | os.PathLike) -> Gaussians:
 
 
 def _load(path: Path) -> Gaussians:
-    data = _read_bytes(path)
+    data = read_regular(path, path, "file")
     if data[:4] == b"glTF":
         document, binary = _split_glb(path, data)
     else:

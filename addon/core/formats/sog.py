@@ -46,7 +46,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import stat
 import tempfile
 import zipfile
 import zlib
@@ -60,7 +59,7 @@ from ..gaussians import Gaussians
 from . import webp
 from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook
-from .contained import contained_file, is_contained_name
+from .contained import contained_file, is_contained_name, read_regular
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
 from .limits import check_gaussian_count
@@ -169,7 +168,7 @@ class _Source:
 
     def meta_bytes(self) -> bytes:
         if self.bundle is None:
-            return _read_regular(self.path, self.path, "meta.json", MAX_META_BYTES)
+            return read_regular(self.path, self.path, "meta.json", MAX_META_BYTES)
         return self._unpack("meta.json", MAX_META_BYTES)
 
     def _unpack(self, name: str, limit: int) -> bytes:
@@ -213,20 +212,6 @@ class _Source:
 
     def read_rgba(self, name: str) -> np.ndarray:
         return webp.read_rgba(self.image_path(name), self.path, name)
-
-
-def _read_regular(path: Path, shown: Path, what: str, limit: int) -> bytes:
-    """A regular file's bytes (a FIFO would block, a device never end), at most `limit`."""
-    try:
-        with open(path, "rb") as f:
-            info = os.fstat(f.fileno())
-            if not stat.S_ISREG(info.st_mode):
-                raise _fail(shown, f"{what} is not a regular file")
-            if info.st_size > limit:
-                raise _fail(shown, f"{what} is larger than {limit} bytes")
-            return f.read(limit + 1)
-    except OSError as e:
-        raise _fail(shown, f"cannot read {what}: {e.strerror or e}") from None
 
 
 def _image(source: _Source, name: str, count: int, per_gaussian: bool = True) -> np.ndarray:

@@ -19,14 +19,13 @@ together, like the chunks read for them, stay within `formats.limits.MAX_GAUSSIA
 from __future__ import annotations
 
 import os
-import stat
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..gaussians import Gaussians
-from .contained import contained_file, is_contained_name
+from .contained import contained_file, is_contained_name, read_regular
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
 from .limits import check_gaussian_count
@@ -41,16 +40,7 @@ READ_VERSION = 1
 
 
 def _read_index(path: Path) -> dict[str, Any]:
-    try:
-        with open(path, "rb") as f:
-            info = os.fstat(f.fileno())
-            if not stat.S_ISREG(info.st_mode):
-                raise SplatFileError(path, "not a regular file")
-            if info.st_size > MAX_INDEX_BYTES:
-                raise SplatFileError(path, f"lod-meta.json is larger than {MAX_INDEX_BYTES} bytes")
-            text = f.read(MAX_INDEX_BYTES + 1)
-    except OSError as e:
-        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
+    text = read_regular(path, path, "lod-meta.json", MAX_INDEX_BYTES)
     index = parse_object(path, text, "lod-meta.json")
     version = index.get("version", READ_VERSION)  # files before version 1 have none
     if not isinstance(version, int) or version > READ_VERSION:
@@ -113,18 +103,17 @@ def load(path: str | os.PathLike, level: int = 0, *, environment: bool = True) -
         return _load(path, level, environment)
 
 
-def _check_runs(path: Path, names: list[str], runs: list[tuple[int, int, int]],
-                counts: dict[int, int]) -> None:
-    """Every run inside its chunk, no two overlapping (a tree repeating a leaf would otherwise
-    copy the same Gaussians again and again)."""
-    for file, offset, count in sorted(runs):
-        if offset + count > counts[file]:
+def _check_runs(path: Path, runs: list[tuple[Path, int, int]], counts: dict[Path, int]) -> None:
+    """Every run inside its chunk, no two overlapping (a tree repeating a leaf, or naming one
+    chunk under several file indices, would otherwise copy the same Gaussians again and again)."""
+    for chunk, offset, count in runs:
+        if offset + count > counts[chunk]:
             raise SplatFileError(path, f"run of {count} at {offset} is beyond chunk "
-                                       f"{names[file]!r} of {counts[file]} Gaussians")
-    ordered = sorted(r for r in runs if r[2])
-    for (file, offset, count), (next_file, next_offset, _) in zip(ordered, ordered[1:]):
-        if file == next_file and next_offset < offset + count:
-            raise SplatFileError(path, f"runs at {offset} and {next_offset} of chunk {names[file]!r} "
+                                       f"{chunk.parent.name!r} of {counts[chunk]} Gaussians")
+    ordered = sorted(runs)
+    for (chunk, offset, count), (next_chunk, next_offset, _) in zip(ordered, ordered[1:]):
+        if chunk == next_chunk and next_offset < offset + count:
+            raise SplatFileError(path, f"runs at {offset} and {next_offset} of chunk {chunk.parent.name!r} "
                                        f"overlap: a level holds each Gaussian once")
 
 
@@ -133,28 +122,34 @@ def _load(path: Path, level: int, environment: bool) -> Gaussians:
     if not 0 <= level < index["lodLevels"]:
         raise SplatFileError(path, f"no LOD level {level}: the set has levels 0..{index['lodLevels'] - 1}")
     names = index["filenames"]
-    runs = _runs(path, index, level)
+    runs = [run for run in _runs(path, index, level) if run[2] > 0]  # empty runs read nothing
     check_gaussian_count(path, sum(count for _, _, count in runs), f"Gaussians at level {level}")
-    files = {file: contained_file(path.parent, names[file], path, f"chunk {file}")
-             for file, _, _ in runs}
+    # Chunks by the file they are (several indices may name one): each read once.
+    judged: dict[str, Path] = {}  # by name: a name repeated under many indices is judged once
+    chunks = {}
+    for file in {file for file, _, _ in runs}:
+        if names[file] not in judged:
+            judged[names[file]] = contained_file(path.parent, names[file], path, f"chunk {file}").resolve()
+        chunks[file] = judged[names[file]]
+    runs_in = [(chunks[file], offset, count) for file, offset, count in runs]
     env = index.get("environment") if environment else None
     env_file = contained_file(path.parent, env, path, "environment") if env is not None else None
-    counts = {file: chunk_count(meta) for file, meta in files.items()}
-    _check_runs(path, names, runs, counts)
+    counts = {chunk: chunk_count(chunk) for chunk in set(chunks.values())}
+    _check_runs(path, runs_in, counts)
     total = sum(count for _, _, count in runs) + (chunk_count(env_file) if env_file else 0)
     check_gaussian_count(path, total, f"Gaussians at level {level} with the environment")
-    for file, meta in files.items():
-        check_gaussian_count(meta, counts[file])
-    by_file: dict[int, list[int]] = {}
-    for i, (file, _, _) in enumerate(runs):
-        by_file.setdefault(file, []).append(i)
-    parts: list[Gaussians | None] = [None] * len(runs)
-    for file, meta in files.items():  # one chunk in memory at a time
-        chunk = load_chunk(meta)
-        if len(chunk) != counts[file]:
-            raise SplatFileError(path, f"chunk {names[file]!r} changed while it was read")
-        for i in by_file[file]:
-            _, offset, count = runs[i]
+    for chunk, count in counts.items():
+        check_gaussian_count(chunk, count)
+    by_chunk: dict[Path, list[int]] = {}
+    for i, (chunk, _, _) in enumerate(runs_in):
+        by_chunk.setdefault(chunk, []).append(i)
+    parts: list[Gaussians | None] = [None] * len(runs_in)
+    for chunk_path, indices in by_chunk.items():  # one chunk in memory at a time
+        chunk = load_chunk(chunk_path)
+        if len(chunk) != counts[chunk_path]:
+            raise SplatFileError(path, f"chunk {chunk_path.parent.name!r} changed while it was read")
+        for i in indices:
+            _, offset, count = runs_in[i]
             parts[i] = chunk.subset(slice(offset, offset + count))
         del chunk
     parts = [p for p in parts if p is not None]

@@ -101,3 +101,17 @@ def test_deeply_nested_lod_meta_is_a_named_error(lod) -> None:
     path.write_text(json.dumps(index)[:-1] + ', "deep": ' + "[" * 50_000 + "]" * 50_000 + "}")
     with pytest.raises(SplatFileError, match="lod-meta.json nests 50001 levels deep"):
         sog_lod.load(path)
+
+
+def test_one_chunk_named_under_many_indices_is_read_once_and_runs_checked_together(lod) -> None:
+    """20,000 indices naming c0 with a run each decoded c0 20,000 times (no end in a minute);
+    the runs are now checked per chunk file, so they overlap and are refused at once."""
+    path, index = lod
+    index["filenames"] = ["c0/meta.json", "c1/meta.json"] + ["./c0/meta.json"] * 20_000
+    leaf = lambda f: {"lods": {"0": {"file": f, "offset": 0, "count": 1}}}  # noqa: E731
+    index["tree"] = {"children": [leaf(f) for f in range(2, 20_002)]}
+    kind, text = load_limited(write(path, index), seconds=60)
+    assert kind == "SplatFileError" and "overlap" in text, (kind, text)
+    index["filenames"] = ["c0/meta.json", "./c0/meta.json", "c1/../c0/meta.json"]
+    index["tree"] = {"children": [{"lods": {"0": {"file": f, "offset": 200 * f, "count": 200}}} for f in range(3)]}
+    assert len(sog_lod.load(write(path, index))) == 600  # disjoint runs of one chunk: fine
