@@ -295,7 +295,7 @@ DAMAGE = [("hide-render", True, "meshes"), ("hide-viewport", True, "splats"),
           ("delete", True, "meshes"), ("empty-objects", True, "splats"),
           ("helper-renamed", True, "splats"), ("node-deleted", True, "splats"),
           ("node-renamed", True, "splats"), ("camera-cleared", True, "splats"),
-          ("helper-deleted", True, "fails"),
+          ("helper-deleted", True, "fails"), ("helper-deleted, saved", True, "splats"),
           ("nothing", False, "fails"), ("hide-render", False, "fails"), ("delete", False, "fails")]
 
 
@@ -313,6 +313,13 @@ def run_damage(blender, homes, blend, local, results) -> None:
         args = ["-b"] + ([] if with_addon else ["--factory-startup"]) + [
             "-y", str(blend), "-o", str(out / "######"), "--python",
             str(blender.farm / "scripts" / "damage.py"), "-f", "1", "--", case]
+        if case.endswith(", saved"):   # damaged and saved by one process, rendered by another
+            damaged = out.parent / "damaged.blend"
+            blender.run(homes / "artist", "-b", "-y", str(blend), "--python",
+                        str(blender.farm / "scripts" / "damage.py"), "--python-expr",
+                        f"import bpy; bpy.ops.wm.save_as_mainfile(filepath={str(damaged)!r})",
+                        "--", case.split(",")[0])
+            args = ["-b", "-y", str(damaged), "-o", str(out / "######"), "-f", "1"]
         result = blender.run(homes / "artist", *args, check=False)
         written = frames_in(out)
         if result.returncode < 0 or result.returncode > 128:
