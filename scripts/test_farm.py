@@ -304,11 +304,15 @@ def run_damage(blender, homes, blend, local, results) -> None:
     a script takes away, with the extension and without it (--factory-startup): never a crash,
     never a frame without what it should show."""
     out = blender.farm / "damage"
+    version = re.search(r"Blender (\d+)\.(\d+)", blender.run(homes / "artist", "--version").stdout)
+    version = (int(version.group(1)), int(version.group(2))) if version else (0, 0)
     expected = {"splats": frames_in(local / "anim")[1],
                 "meshes": frames_in(local / "anim_nosplats")[1]}
     crashes, wrong, worst = [], [], 0
     for case, with_addon, want in DAMAGE:
         label = case + ("" if with_addon else " (no add-on)")
+        if case == "helper-deleted" and version < (5, 1):
+            want = "splats"   # up to 5.0 the render itself makes the helper scene again
         shutil.rmtree(out, ignore_errors=True)
         args = ["-b"] + ([] if with_addon else ["--factory-startup"]) + [
             "-y", str(blend), "-o", str(out / "######"), "--python",

@@ -74,8 +74,8 @@ def main(kind: str, source: str, out: str) -> None:
     elif kind == "sequence":
         operators = importlib.import_module(ADDON + ".blender.io.operators")
         bpy.ops.wm.save_as_mainfile(filepath=out)           # a home for the relative path
-        obj = operators.import_sequence(source)
-        obj.splat.sequence_source = bpy.path.relpath(source)
+        obj = operators.import_sequence(source, relative=True)   # "Relative Path", the default
+        assert obj.splat.sequence_source.startswith("//"), obj.splat.sequence_source
     else:
         raise SystemExit(f"unknown scene kind {kind!r}")
     bpy.ops.object.select_all(action="DESELECT")
