@@ -20,6 +20,10 @@ API, with the settings its job type evaluates in the artist's Blender), and ever
   must fail that frame's task with a message naming it, and write no frame 4.
 - no extension / broken native module: a worker without the extension, and one whose native
   module cannot load, must fail their tasks with a message and write no frame.
+- saved scene (before the farm starts, `blender -b -y FILE -f 1` as a worker runs it): the splat
+  object hidden, disabled in viewports or deleted, the helper data taken away in turn
+  (tests/farm/damage.py), and the add-on absent (--factory-startup): never a crash, each frame
+  equal to the local one with or without splats as the case says, or a loud failure.
 - Blender 5.3's own splat point clouds: skipped, said so (no real Blender 5.3 binary here).
 
 Ends with one line per job and exits non-zero on a missing frame, a difference over 1/255, or an
@@ -296,7 +300,9 @@ DAMAGE = [("hide-render", True, "meshes"), ("hide-viewport", True, "splats"),
           ("helper-renamed", True, "splats"), ("node-deleted", True, "splats"),
           ("node-renamed", True, "splats"), ("camera-cleared", True, "splats"),
           ("helper-deleted", True, "fails"), ("helper-deleted, saved", True, "splats"),
-          ("nothing", False, "fails"), ("hide-render", False, "fails"), ("delete", False, "fails")]
+          ("compositing-off", True, "splats"),
+          ("nothing", False, "fails"), ("hide-render", False, "fails"), ("delete", False, "fails"),
+          ("compositing-off", False, "meshes")]   # the user turned the compositor off: no splats
 
 
 def run_damage(blender, homes, blend, local, results) -> None:

@@ -4,7 +4,7 @@ neither crashes nor loses the splats silently.
 
     blender -b [--factory-startup] -y SCENE.blend --python damage.py -- CASE -o OUT -f 1
 
-CASE: nothing, hide-render / hide-viewport / delete (the splat object), empty-objects (a generation
+CASE: nothing, compositing-off (Post Processing > Compositing), hide-render / hide-viewport / delete (the splat object), empty-objects (a generation
 script's `for o in bpy.data.objects: bpy.data.objects.remove(o)`, then the scene is built again
 from copies), helper-renamed / helper-deleted (the helper scene), node-deleted / node-renamed
 (the Splat Composite node), camera-cleared (the helper scene's borrowed camera). Plain bpy: it
@@ -51,6 +51,8 @@ def main(case: str) -> None:
     splats = bpy.data.objects.get("Splats")
     if case == "nothing":
         pass
+    elif case == "compositing-off":
+        scene.render.use_compositing = False
     elif case == "hide-render":
         splats.hide_render = True
     elif case == "hide-viewport":
