@@ -126,7 +126,8 @@ class Results:
     def add(self, job: str, ok: bool, frames: str, worst: str, injected: str, detail: str = ""):
         self.failed |= not ok
         self.lines.append(f"{job:<14} {'ok' if ok else 'FAIL':<4}  frames {frames:<5}  "
-                          f"worst {worst:<7}  injected {injected}" + (f"  ({detail})" if detail else ""))
+                          f"worst {worst:<7}  injected {injected}"
+                          + (f"  ({detail})" if detail else ""))
 
 
 def make_inputs(farm: Path) -> dict:
@@ -340,7 +341,8 @@ def run_damage(blender, homes, blend, local, results) -> None:
             continue
         if want == "fails":
             text = result.stdout + result.stderr
-            said = re.search(r"(Gaussian splats: ERROR: .*|Engine 'SPLAT_GAUSSIANS' not available.*)", text)
+            said = re.search(r"(Gaussian splats: ERROR: .*"
+                             r"|Engine 'SPLAT_GAUSSIANS' not available.*)", text)
             if result.returncode == 0 or written or not said:
                 wrong.append(f"{label}: exit {result.returncode}, {len(written)} files, "
                              f"{'a message' if said else 'no message'}")
