@@ -20,6 +20,10 @@ API, with the settings its job type evaluates in the artist's Blender), and ever
   must fail that frame's task with a message naming it, and write no frame 4.
 - no extension / broken native module: a worker without the extension, and one whose native
   module cannot load, must fail their tasks with a message and write no frame.
+- saved scene (before the farm starts, `blender -b -y FILE -f 1` as a worker runs it): the splat
+  object hidden, disabled in viewports or deleted, the helper data taken away in turn
+  (tests/farm/damage.py), and the add-on absent (--factory-startup): never a crash, each frame
+  equal to the local one with or without splats as the case says, or a loud failure.
 - Blender 5.3's own splat point clouds: skipped, said so (no real Blender 5.3 binary here).
 
 Ends with one line per job and exits non-zero on a missing frame, a difference over 1/255, or an
@@ -122,7 +126,8 @@ class Results:
     def add(self, job: str, ok: bool, frames: str, worst: str, injected: str, detail: str = ""):
         self.failed |= not ok
         self.lines.append(f"{job:<14} {'ok' if ok else 'FAIL':<4}  frames {frames:<5}  "
-                          f"worst {worst:<7}  injected {injected}" + (f"  ({detail})" if detail else ""))
+                          f"worst {worst:<7}  injected {injected}"
+                          + (f"  ({detail})" if detail else ""))
 
 
 def make_inputs(farm: Path) -> dict:
@@ -188,7 +193,8 @@ def compare_frames(written: dict, local: dict, frames) -> tuple[list[int], int]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--suite", default="sid")
-    parser.add_argument("--keep", action="store_true", help="leave the farm folder for a look")
+    parser.add_argument("--keep", action="store_true",
+                        help="leave the farm folder for a look (it stays after a failure)")
     args = parser.parse_args()
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))   # stop the farm on the way out
     shared = REPO.parent / "shared"
@@ -284,8 +290,10 @@ def main() -> int:
                   f"{60 * len(FRAMES) / timings[f'local_{job}_s']:.1f}; submission to first "
                   f"frame {timings.get(f'{job}_first_frame_s', float('nan')):.1f} s"
                   + ("  (a worker killed and restarted during it)" if job == "anim" else ""))
-    if not args.keep:
-        shutil.rmtree(farm_dir / "storage", ignore_errors=True)
+    if args.keep or results.failed:
+        print(f"the farm's files (logs in flamenco/, frames in storage/render/): {farm_dir}")
+    else:
+        shutil.rmtree(farm_dir, ignore_errors=True)   # ~1.4 GB: four installed extensions
     return 1 if results.failed else 0
 
 
@@ -295,8 +303,10 @@ DAMAGE = [("hide-render", True, "meshes"), ("hide-viewport", True, "splats"),
           ("delete", True, "meshes"), ("empty-objects", True, "splats"),
           ("helper-renamed", True, "splats"), ("node-deleted", True, "splats"),
           ("node-renamed", True, "splats"), ("camera-cleared", True, "splats"),
-          ("helper-deleted", True, "fails"),
-          ("nothing", False, "fails"), ("hide-render", False, "fails"), ("delete", False, "fails")]
+          ("helper-deleted", True, "fails"), ("helper-deleted, saved", True, "splats"),
+          ("compositing-off", True, "splats"),
+          ("nothing", False, "fails"), ("hide-render", False, "fails"), ("delete", False, "fails"),
+          ("compositing-off", False, "meshes")]   # the user turned the compositor off: no splats
 
 
 def run_damage(blender, homes, blend, local, results) -> None:
@@ -304,15 +314,26 @@ def run_damage(blender, homes, blend, local, results) -> None:
     a script takes away, with the extension and without it (--factory-startup): never a crash,
     never a frame without what it should show."""
     out = blender.farm / "damage"
+    version = re.search(r"Blender (\d+)\.(\d+)", blender.run(homes / "artist", "--version").stdout)
+    version = (int(version.group(1)), int(version.group(2))) if version else (0, 0)
     expected = {"splats": frames_in(local / "anim")[1],
                 "meshes": frames_in(local / "anim_nosplats")[1]}
     crashes, wrong, worst = [], [], 0
     for case, with_addon, want in DAMAGE:
         label = case + ("" if with_addon else " (no add-on)")
+        if case == "helper-deleted" and version < (5, 1):
+            want = "splats"   # up to 5.0 the render itself makes the helper scene again
         shutil.rmtree(out, ignore_errors=True)
         args = ["-b"] + ([] if with_addon else ["--factory-startup"]) + [
             "-y", str(blend), "-o", str(out / "######"), "--python",
             str(blender.farm / "scripts" / "damage.py"), "-f", "1", "--", case]
+        if case.endswith(", saved"):   # damaged and saved by one process, rendered by another
+            damaged = out.parent / "damaged.blend"
+            blender.run(homes / "artist", "-b", "-y", str(blend), "--python",
+                        str(blender.farm / "scripts" / "damage.py"), "--python-expr",
+                        f"import bpy; bpy.ops.wm.save_as_mainfile(filepath={str(damaged)!r})",
+                        "--", case.split(",")[0])
+            args = ["-b", "-y", str(damaged), "-o", str(out / "######"), "-f", "1"]
         result = blender.run(homes / "artist", *args, check=False)
         written = frames_in(out)
         if result.returncode < 0 or result.returncode > 128:
@@ -320,7 +341,8 @@ def run_damage(blender, homes, blend, local, results) -> None:
             continue
         if want == "fails":
             text = result.stdout + result.stderr
-            said = re.search(r"(Gaussian splats: ERROR: .*|ERROR Engine 'SPLAT_GAUSSIANS'.*)", text)
+            said = re.search(r"(Gaussian splats: ERROR: .*"
+                             r"|Engine 'SPLAT_GAUSSIANS' not available.*)", text)
             if result.returncode == 0 or written or not said:
                 wrong.append(f"{label}: exit {result.returncode}, {len(written)} files, "
                              f"{'a message' if said else 'no message'}")

@@ -46,6 +46,15 @@ def _viewport_switch(settings, context) -> None:
         ownership.sync_scene(context.scene)
 
 
+
+# A path that may start with "//" (relative to the .blend, what a render farm needs) is marked
+# so where Blender has the flag (5.0 has it, and warns when an unmarked one gets "//"; 4.3 has
+# not).
+_BLEND_RELATIVE_PATH = ({"PATH_SUPPORTS_BLEND_RELATIVE"}
+                        if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties
+                        else set())
+
+
 class SplatObjectSettings(bpy.types.PropertyGroup):
     is_splat: BoolProperty(
         name="Gaussian Splats",
@@ -68,7 +77,7 @@ class SplatObjectSettings(bpy.types.PropertyGroup):
     source_path: StringProperty(
         name="Source", description="The file the splats were imported from", subtype="FILE_PATH")
     sequence_source: StringProperty(
-        name="Sequence", subtype="FILE_PATH",
+        name="Sequence", subtype="FILE_PATH", options=_BLEND_RELATIVE_PATH,
         description="A splat sequence (a numbered file, a #### pattern or a folder): the "
                     "splats are those of the frame's file (empty: not a sequence)")
     sequence_frame_offset: IntProperty(

@@ -251,5 +251,6 @@ variables:
         if job["status"] not in ("completed", "failed", "canceled"):
             self.api.call("POST", f"/api/v3/jobs/{job_id}/setstatus",
                           {"status": "cancel-requested",
-                           "reason": "farm test: render tasks done; no FFmpeg worker for the preview video"})
+                           "reason": "farm test: render tasks done; no FFmpeg worker for the "
+                                     "preview video"})
         return job, tasks

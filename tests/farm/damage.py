@@ -2,12 +2,13 @@
 a script takes away, so that the farm test (scripts/test_farm.py) can check that the render
 neither crashes nor loses the splats silently.
 
-    blender -b [--factory-startup] -y SCENE.blend --python damage.py -- CASE -o OUT -f 1
+    blender -b [--factory-startup] -y SCENE.blend -o OUT --python damage.py -f 1 -- CASE
 
-CASE: nothing, hide-render / hide-viewport / delete (the splat object), empty-objects (a generation
-script's `for o in bpy.data.objects: bpy.data.objects.remove(o)`, then the scene is built again
-from copies), helper-renamed / helper-deleted (the helper scene), node-deleted / node-renamed
-(the Splat Composite node), camera-cleared (the helper scene's borrowed camera). Plain bpy: it
+CASE: nothing; compositing-off (Post Processing > Compositing); hide-render / hide-viewport /
+delete (the splat object); empty-objects (a generation script's
+`for o in bpy.data.objects: bpy.data.objects.remove(o)`, then the scene is built again from
+copies); helper-renamed / helper-deleted (the helper scene); node-deleted / node-renamed (the
+Splat Composite node); camera-cleared (the helper scene's borrowed camera). Plain bpy: it
 also runs with --factory-startup, where the add-on is absent.
 """
 
@@ -51,6 +52,8 @@ def main(case: str) -> None:
     splats = bpy.data.objects.get("Splats")
     if case == "nothing":
         pass
+    elif case == "compositing-off":
+        scene.render.use_compositing = False
     elif case == "hide-render":
         splats.hide_render = True
     elif case == "hide-viewport":

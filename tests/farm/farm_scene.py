@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import importlib
 import json
-import math
 import os
 import sys
 
@@ -35,40 +34,9 @@ def _empty_file() -> None:
         bpy.data.objects.remove(obj)
 
 
-def _meshes_and_camera(scene):
-    bpy.ops.mesh.primitive_cube_add(size=0.9, location=(0.35, -2.5, 0.15))
-    bpy.context.active_object.data.materials.append(scene_kit.material(bpy, "Cube", (0.9, 0.3, 0.1)))
-    bpy.ops.mesh.primitive_plane_add(size=40, location=(0, 2.5, 0), rotation=(math.pi / 2, 0, 0))
-    bpy.context.active_object.data.materials.append(scene_kit.material(bpy, "Plane", (0.1, 0.35, 0.8)))
-    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(camera)
-    camera.location = (0.0, -6.0, 0.0)
-    camera.rotation_euler = (math.pi / 2, 0, 0)
-    camera.data.lens = 35
-    scene.camera = camera
-    return camera
-
-
 def _render_settings(scene) -> None:
-    scene.render.resolution_x, scene.render.resolution_y = 64, 48
-    scene.render.resolution_percentage = 100
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = 4
-    scene.cycles.use_denoising = False
-    scene.cycles.use_adaptive_sampling = False
-    scene.cycles.max_bounces = 0
-    scene.render.threads_mode = "FIXED"
-    scene.render.threads = 1          # two workers share this machine's two cores
+    scene_kit.render_settings(scene, threads=1, frames=(1, 6))  # two workers share two cores
     scene.splat_render.threads = 1
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.render.dither_intensity = 0.0
-    scene.frame_start, scene.frame_end = 1, 6
-    settings = scene.render.image_settings
-    settings.file_format = "PNG"
-    settings.color_mode = "RGBA"
-    settings.color_depth = "8"
 
 
 def flamenco_settings(scene) -> dict:
@@ -90,7 +58,7 @@ def main(kind: str, source: str, out: str) -> None:
     bpy.ops.wm.read_homefile(use_empty=False)
     _empty_file()
     scene = bpy.context.scene
-    camera = _meshes_and_camera(scene)
+    camera = scene_kit.meshes_and_camera(bpy, scene)
     _render_settings(scene)
     os.makedirs(os.path.dirname(out), exist_ok=True)
     if kind == "anim":
@@ -106,8 +74,8 @@ def main(kind: str, source: str, out: str) -> None:
     elif kind == "sequence":
         operators = importlib.import_module(ADDON + ".blender.io.operators")
         bpy.ops.wm.save_as_mainfile(filepath=out)           # a home for the relative path
-        obj = operators.import_sequence(source)
-        obj.splat.sequence_source = bpy.path.relpath(source)
+        obj = operators.import_sequence(source, relative=True)   # "Relative Path", the default
+        assert obj.splat.sequence_source.startswith("//"), obj.splat.sequence_source
     else:
         raise SystemExit(f"unknown scene kind {kind!r}")
     bpy.ops.object.select_all(action="DESELECT")

@@ -29,3 +29,45 @@ def multilayer_exr(settings) -> None:
     else:
         settings.file_format = "OPEN_EXR_MULTILAYER"
     settings.color_depth = "32"
+
+
+def meshes_and_camera(bpy, scene):
+    """The real-Blender scenes' meshes and camera: a red cube in front of the splats (about the
+    origin), a blue plane behind them, a 35 mm camera 6 units away looking along +Y.
+    Returns the camera object."""
+    import math
+    bpy.ops.mesh.primitive_cube_add(size=0.9, location=(0.35, -2.5, 0.15))
+    bpy.context.active_object.data.materials.append(material(bpy, "Cube", (0.9, 0.3, 0.1)))
+    bpy.ops.mesh.primitive_plane_add(size=40, location=(0, 2.5, 0), rotation=(math.pi / 2, 0, 0))
+    bpy.context.active_object.data.materials.append(material(bpy, "Plane", (0.1, 0.35, 0.8)))
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    camera.location = (0.0, -6.0, 0.0)
+    camera.rotation_euler = (math.pi / 2, 0, 0)
+    camera.data.lens = 35
+    scene.camera = camera
+    return camera
+
+
+def render_settings(scene, *, threads: int, frames: tuple[int, int]) -> None:
+    """64x48, Cycles on the CPU (4 samples, no denoising, no bounces: emission materials render
+    flat), `threads` fixed, Standard view without dither (written files are compared with
+    computed ones), 8-bit RGBA PNG."""
+    scene.render.resolution_x, scene.render.resolution_y = 64, 48
+    scene.render.resolution_percentage = 100
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = 4
+    scene.cycles.use_denoising = False
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.max_bounces = 0
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = threads
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.render.dither_intensity = 0.0
+    scene.frame_start, scene.frame_end = frames
+    settings = scene.render.image_settings
+    settings.file_format = "PNG"
+    settings.color_mode = "RGBA"
+    settings.color_depth = "8"

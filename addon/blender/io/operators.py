@@ -137,9 +137,21 @@ def _select_only(obj, view_layer) -> None:
         view_layer.objects.active = obj
 
 
+def _stored_path(path: Path, relative: bool) -> str:
+    """`path` as a splat object stores it: relative to the saved .blend (`//frames/...`) when
+    `relative`, so that it resolves wherever the .blend and its folder are mounted (a render
+    farm's shared storage); absolute for an unsaved file or another drive."""
+    if relative and bpy.data.filepath:
+        try:
+            return bpy.path.relpath(str(path))
+        except ValueError:  # another drive (Windows): no relative path exists
+            pass
+    return str(path)
+
+
 def import_sequence(target: str | os.PathLike, *, name: str | None = None, collection=None,
                     context=None, frame_offset: int = 0, forward_axis: str | None = "AUTO",
-                    up_axis: str | None = "AUTO") -> bpy.types.Object:
+                    up_axis: str | None = "AUTO", relative: bool = False) -> bpy.types.Object:
     """Load a splat sequence (a numbered file and its siblings, a `####` pattern or a folder;
     see `core.formats.sequence`) as ONE splat object showing, at scene frame F, the file numbered
     F + `frame_offset` (see `sequence`). Only the current frame's file is read now. Raises
@@ -159,7 +171,7 @@ def import_sequence(target: str | os.PathLike, *, name: str | None = None, colle
     obj = splat_object.create_splat_object(
         gaussians, name or stem, collection=collection, antialiased=antialiased,
         source_path=str(target))
-    obj.splat.sequence_source = str(target)
+    obj.splat.sequence_source = _stored_path(target, relative)
     obj.splat.sequence_frame_offset = int(frame_offset)
     sequence.adopt(obj, splat_sequence)
     sequence.mark_shown(obj, number)
@@ -288,6 +300,11 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
                ("BLENDER", "Blender Splat Point Cloud",
                 "Blender 5.3's own Gaussian splat point cloud (what File > Import > PLY makes); "
                 "the add-on still renders, edits and exports it. Needs Blender 5.3")])
+    relative_path: BoolProperty(
+        name="Relative Path", default=True,
+        description="Store a sequence's path relative to the saved .blend file (//frames/...), "
+                    "so that it is found wherever the .blend and its frames are mounted, e.g. on "
+                    "render farm workers")
 
     def paths(self) -> list[Path]:
         names = [f.name for f in self.files if f.name]
@@ -369,7 +386,8 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
 
     def import_sequence(self, context, path: Path):
         try:
-            obj = import_sequence(path, context=context, forward_axis=self.forward_axis,
+            obj = import_sequence(path, context=context, relative=self.relative_path,
+                                  forward_axis=self.forward_axis,
                                   up_axis=self.up_axis)
         except (SplatFileError, OSError, ValueError) as error:
             self.report({"ERROR"}, f"Cannot import: {error}")

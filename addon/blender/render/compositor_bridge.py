@@ -6,12 +6,14 @@ Render Layers node points at, with that scene's engine, after the main engine an
 compositor runs. The bridge uses this:
 
 - a hidden helper scene (`.Splat Composite`) whose render engine is this add-on's
-  (`render_hooks.SplatRenderEngine`); it holds nothing. Blender 5.1+ renders a compositor's
-  scene only when it has a camera, so the helper borrows one (`attach_camera`: a pointer to a
-  bridged scene's camera, no object of its own) while the add-on runs; files are saved without
-  it (`detach_cameras`, from save_pre), so that a Blender without the add-on (a render farm
-  worker that lacks it) fails the render ("no camera") instead of writing frames without
-  splats, and the add-on attaches it again when a file loads, a scene changes or a render starts;
+  (`render_hooks.SplatRenderEngine`); it holds nothing. Blender renders a compositor's scene
+  only when it has a camera (4.3 and 5.2 tried: "Cannot render, no camera"), so the helper
+  borrows one (`attach_camera`: a pointer to a bridged scene's camera, no object of its own:
+  a camera object in the helper scene made Blender 5.2.2 segfault) while the add-on runs;
+  files are saved without it (`detach_cameras`, from save_pre), so that a Blender without the
+  add-on (a render farm worker that lacks it) fails the render ("no camera") instead of
+  writing frames without splats; the add-on attaches it again when a file loads, a scene
+  changes or a render starts;
 - in the scene's compositor, a Render Layers node for the helper scene (named "Splat
   Composite"), wired where the scene's own Render Layers "Image", "Alpha" and "Depth" outputs
   were wired (for a scene without a compositor: a new node tree, Render Layers -> Group Output).
@@ -88,7 +90,7 @@ def _borrowable_camera():
 
 def attach_camera(helper) -> bool:
     """Give the helper scene a camera if it has none (see the module docstring). Only a
-    pointer changes: safe in render_init. True if it changed."""
+    pointer changes: safe in render_init (tried on 5.2). True if it changed."""
     if helper is None or helper.camera is not None:
         return False
     camera = _borrowable_camera()
@@ -384,8 +386,9 @@ def problems(scene) -> list[str]:
         found.append("the Splat Composite node is muted")
     if node.scene is None or not is_helper(node.scene):
         found.append("the Splat Composite node does not point at the helper scene")
-    elif node.scene.camera is None and bpy.app.version >= (5, 1, 0):
-        found.append("the helper scene has no camera (Blender 5.1+ needs one to render it)")
+    elif node.scene.camera is None:
+        found.append("the helper scene has no camera (Blender needs one to render it; the "
+                     "scene has none to lend)")
     layer = bridge_view_layer(scene)
     if layer is None or layer not in scene.view_layers:
         found.append(f"view layer {layer!r} is gone")

@@ -229,3 +229,20 @@ def test_recorded_numbers_round_trip():
     sequence.record_numbers(obj, [5, 1, 2, 3, 9, 10, 7])
     assert obj[sequence.NUMBERS_KEY] == "1-3,5,7,9-10"
     assert sequence.recorded_numbers(obj) == {1, 2, 3, 5, 7, 9, 10}
+
+
+def test_the_import_stores_the_path_relative_to_the_saved_blend(tmp_path):
+    """What a render farm needs: `//frames/walk_####.ply` resolves wherever the .blend and its
+    folder are mounted. The operator's Relative Path is on by default; an unsaved file keeps
+    the absolute path."""
+    (tmp_path / "frames").mkdir()
+    files = write_frames(tmp_path / "frames", COUNTS)
+    unsaved = io_operators.import_sequence(files[1], relative=True)
+    assert unsaved.splat.sequence_source == str(files[1])
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
+    assert bpy.ops.splat.import_splats(filepath=str(files[1]), sequence=True) == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj.splat.sequence_source == "//frames/walk_0001.ply"
+    assert sequence.source_of(obj) == str(files[1])
+    bpy.context.scene.frame_set(3)
+    assert len(obj.data.vertices) == COUNTS[3]

@@ -153,3 +153,22 @@ def test_an_older_files_helper_camera_goes_on_load(rng, tmp_path):
     helper = bridge.helper_scene(create=False)
     assert bridge.HELPER_CAMERA not in bpy.data.objects and len(helper.objects) == 0
     assert helper.camera == bpy.context.scene.camera is not None
+
+
+def test_a_script_saved_file_carries_the_bridge(rng, tmp_path):
+    """Blender up to 5.0 sets the bridge up when a render starts; a script that adds splats and
+    saves at once must still save a file that a Blender without the add-on refuses to render
+    (the bridge, the helper scene without a camera), not one it renders without splats."""
+    bs.reset_scene()
+    scene = bpy.context.scene
+    splat_object.create_splat_object(random_gaussians(rng, 50, 1, radius=1.0), "Splats")
+    bs.add_camera()
+    path = str(tmp_path / "script.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
+    assert bridge.bridge_node(scene) is not None
+    with bpy.data.libraries.load(path, link=True) as (source, target):
+        target.scenes = list(source.scenes)
+    linked = {s.name: s for s in bpy.data.scenes if s.library is not None}
+    helper = next(s for s in linked.values() if s.get(bridge.HELPER_FLAG))
+    assert helper.camera is None and len(helper.objects) == 0
+    assert bridge.bridge_node(linked[scene.name]) is not None
