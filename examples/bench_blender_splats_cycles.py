@@ -389,7 +389,7 @@ def reference_check(out: Path, results: dict, size: tuple[int, int]) -> str:
     keep = ~expected["ambiguous"]
     error = float(np.abs(ours[keep] - expected["rgb"][keep]).max()) * 255
     return (f"The add-on's renderer against the float64 reference (tests/reference.py) at "
-            f"{size[0]}x{size[1]}, same Gaussians and camera: max error {error:.3f}/255 over "
+            f"{size[0]}x{size[1]}, same Gaussians and camera: max error {error:.2g}/255 over "
             f"{keep.mean():.1%} of the pixels (the rest ambiguous), PSNR "
             f"{psnr(ours[keep], expected['rgb'][keep]):.1f} dB; the reference took "
             f"{seconds:.0f} s.")
