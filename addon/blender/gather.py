@@ -137,7 +137,7 @@ def _attribute_addresses(data, names: tuple[str, ...]) -> tuple:
 # Attribute data type -> (foreach_get property, values per point, dtype).
 _RAW = {"FLOAT_VECTOR": ("vector", 3, np.float32), "QUATERNION": ("value", 4, np.float32),
         "FLOAT": ("value", 1, np.float32), "BOOLEAN": ("value", 1, np.bool_),
-        "FLOAT4": ("value", 4, np.float32), "FLOAT_COLOR": ("color", 4, np.float32)}
+        "FLOAT4": ("vector", 4, np.float32), "FLOAT_COLOR": ("color", 4, np.float32)}
 
 
 def _stored_values(attribute, count: int, stride: int):

@@ -115,9 +115,10 @@ def point_count(data) -> int:
     return len(position.data) if position is not None else 0
 
 
-def hidden_mask(data) -> np.ndarray | None:
-    """The `.hide_vert` flags of a mesh (None where nothing is hidden)."""
-    attribute = data.attributes.get(HIDE)
+def hidden_mask(data, name: str = HIDE) -> np.ndarray | None:
+    """The hidden flags of a mesh (`.hide_vert`; a point cloud's are named by the caller), None
+    where nothing is hidden."""
+    attribute = data.attributes.get(name)
     if attribute is None or attribute.domain != "POINT" or attribute.data_type != "BOOLEAN":
         return None
     n = len(attribute.data)

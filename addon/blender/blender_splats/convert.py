@@ -128,6 +128,13 @@ class _Convert:
     def sources(context) -> list:
         raise NotImplementedError
 
+    @classmethod
+    def poll(cls, context):
+        if not data.supported():
+            cls.poll_message_set("Needs Blender 5.3 or later (Gaussian splat point clouds)")
+            return False
+        return bool(cls.sources(context))
+
     def execute(self, context):
         if context.mode != "OBJECT":
             bpy.ops.object.mode_set(mode="OBJECT")
@@ -157,13 +164,6 @@ class SPLAT_OT_convert_to_blender_splats(_Convert, bpy.types.Operator):
     def sources(context) -> list:
         return [o for o in context.selected_objects if splat_object.is_splat_object(o)]
 
-    @classmethod
-    def poll(cls, context):
-        if not data.supported():
-            cls.poll_message_set("Needs Blender 5.3 or later (Gaussian splat point clouds)")
-            return False
-        return bool(cls.sources(context))
-
     def convert(self, obj):
         return to_blender_splats(obj, keep_original=self.keep_original)
 
@@ -177,13 +177,6 @@ class SPLAT_OT_convert_from_blender_splats(_Convert, bpy.types.Operator):
     @staticmethod
     def sources(context) -> list:
         return [o for o in context.selected_objects if data.is_blender_splat_object(o)]
-
-    @classmethod
-    def poll(cls, context):
-        if not data.supported():
-            cls.poll_message_set("Needs Blender 5.3 or later (Gaussian splat point clouds)")
-            return False
-        return bool(cls.sources(context))
 
     def convert(self, obj):
         return from_blender_splats(obj, keep_original=self.keep_original)

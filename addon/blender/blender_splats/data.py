@@ -18,11 +18,12 @@ import numpy as np
 
 from ...core.blender_splats import attributes as convention
 from ...core.gaussians import Gaussians
+from .. import splat_object
 
 GAUSSIAN_SPLAT = "GAUSSIAN_SPLAT"
 # Blender attribute data type -> (foreach property, values per point). FLOAT4 (5.3) is what
 # Blender writes for radiance:base; a FLOAT_COLOR of the same name is read the same way.
-_KEYS = {"FLOAT_VECTOR": ("vector", 3), "QUATERNION": ("value", 4), "FLOAT4": ("value", 4),
+_KEYS = {"FLOAT_VECTOR": ("vector", 3), "QUATERNION": ("value", 4), "FLOAT4": ("vector", 4),
          "FLOAT_COLOR": ("color", 4), "FLOAT": ("value", 1)}
 HIDE = ".hide"  # hidden points, where this Blender's point cloud Edit Mode records them
 
@@ -74,14 +75,7 @@ def point_count(data) -> int:
 
 
 def hidden_mask(data) -> np.ndarray | None:
-    attribute = data.attributes.get(HIDE)
-    if attribute is None or attribute.domain != "POINT" or attribute.data_type != "BOOLEAN":
-        return None
-    n = len(attribute.data)
-    hide = np.empty(n, bool)
-    if n:
-        attribute.data.foreach_get("value", hide)
-    return hide if hide.any() else None
+    return splat_object.hidden_mask(data, HIDE)
 
 
 def read_names(data) -> tuple[str, ...]:
@@ -136,8 +130,12 @@ def read_gaussians(data, *, drop_hidden: bool = True) -> Gaussians:
 
 
 def _sized_pointcloud(name: str, n: int):
-    """A new PointCloud with `n` points. Python cannot add points to a point cloud, but the
-    object Convert operator turns a vertex-only mesh into one, keeping its point attributes."""
+    """A new PointCloud with `n` points: `PointCloud.resize` (5.3); before it, the object
+    Convert operator turns a vertex-only mesh into one, keeping its point attributes."""
+    if hasattr(bpy.types.PointCloud, "resize"):
+        pointcloud = bpy.data.pointclouds.new(name)
+        pointcloud.resize(n)
+        return pointcloud
     mesh = bpy.data.meshes.new(name)
     mesh.vertices.add(n)
     holder = bpy.data.objects.new(name, mesh)
@@ -226,7 +224,7 @@ _GENERIC = {
     "FLOAT": ("value", 1, np.float32), "INT": ("value", 1, np.int32),
     "BOOLEAN": ("value", 1, bool), "FLOAT_VECTOR": ("vector", 3, np.float32),
     "FLOAT2": ("vector", 2, np.float32), "QUATERNION": ("value", 4, np.float32),
-    "FLOAT4": ("value", 4, np.float32), "FLOAT_COLOR": ("color", 4, np.float32),
+    "FLOAT4": ("vector", 4, np.float32), "FLOAT_COLOR": ("color", 4, np.float32),
     "BYTE_COLOR": ("color", 4, np.float32), "INT8": ("value", 1, np.int32),
     "INT32_2D": ("value", 2, np.int32), "INT16_2D": ("value", 2, np.int32),
     "FLOAT4X4": ("value", 16, np.float32),

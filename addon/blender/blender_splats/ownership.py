@@ -20,6 +20,7 @@ from __future__ import annotations
 import bpy
 from bpy.app.handlers import persistent
 
+from ..registration import module_registration
 from . import data
 
 RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
@@ -148,18 +149,11 @@ _HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_
              ("render_init", _on_render_init))
 
 
-def register() -> None:
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler not in handlers:
-            handlers.append(handler)
+register, _unregister = module_registration(handlers=_HANDLERS)
 
 
 def unregister() -> None:
-    for name, handler in _HANDLERS:
-        handlers = getattr(bpy.app.handlers, name)
-        if handler in handlers:
-            handlers.remove(handler)
+    _unregister()
     _counts.clear()
     try:
         for obj in bpy.data.objects:
