@@ -305,7 +305,7 @@ def main() -> int:
     zip_path = Path(args.zip).resolve() if args.zip else build_zip(scratch / "dist")
     print(f"zip: {zip_path} ({zip_path.stat().st_size / 1e6:.1f} MB)", flush=True)
     versions = args.bpy or list(BPY_VERSIONS)
-    summary, seconds, logs = [], {}, []
+    summary, seconds, logs, seen = [], {}, [], {}
     for version in versions:
         t0 = time.perf_counter()
         try:
@@ -322,7 +322,10 @@ def main() -> int:
             for name, passed, detail in results:
                 print(f"[bpy {version}] {'PASS' if passed else 'FAIL'} {name}"
                       + (f": {detail}" if detail else ""), flush=True)
-            summary += [(version, name, passed) for name, passed, _ in results]
+            for name, passed, _ in results:  # a name seen before gets its count
+                seen[version, name] = seen.get((version, name), 0) + 1
+                count = seen[version, name]
+                summary.append((version, name + (f" ({count})" if count > 1 else ""), passed))
             if stage == "install" and not any(n == "install the zip" and p for n, p, _ in results):
                 break  # nothing else can run without the extension
         seconds[version] = time.perf_counter() - t0
