@@ -29,3 +29,28 @@ def multilayer_exr(settings) -> None:
     else:
         settings.file_format = "OPEN_EXR_MULTILAYER"
     settings.color_depth = "32"
+
+
+def world_bounds(obj):
+    """(low, high, centre, radius) of `obj`'s bounding box in world space (numpy arrays;
+    radius is half the box's diagonal)."""
+    import numpy as np
+    from mathutils import Vector
+
+    corners = np.array([obj.matrix_world @ Vector(c) for c in obj.bound_box])
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    return low, high, (low + high) / 2, float(np.linalg.norm(high - low)) / 2
+
+
+def camera_in_front(bpy, scene, centre, radius):
+    """A 35 mm camera 2.2 radii before `centre` along -Y, looking along +Y; the scene's
+    camera."""
+    import math
+
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    camera.location = (centre[0], centre[1] - 2.2 * radius, centre[2])
+    camera.rotation_euler = (math.pi / 2, 0, 0)
+    camera.data.lens = 35
+    scene.camera = camera
+    return camera
