@@ -50,6 +50,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+# tests/real_blender/scene_kit.py (plain bpy): in the checkout, or staged beside this file
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(ROOT / "tests" / "real_blender")]
 PLAYBOT = ROOT.parent / "shared" / "data" / "splats" / "playbot_125k_sh2.ply"
 EXTENSION_NAME = "gaussian_splatting"
 
@@ -117,20 +119,12 @@ def new_objects(bpy, run) -> list:
 
 
 def build_scene(bpy, blender_obj, size: tuple[int, int]):
-    """A camera looking along +Y at the splats' bounding box; black world; Standard view."""
-    import numpy as np
-    from mathutils import Vector
+    """A camera looking along +Y at the splats' bounding box (tests/real_blender/scene_kit.py,
+    as the installed-extension checks); black world; Standard view."""
+    import scene_kit
 
     scene = bpy.context.scene
-    corners = np.array([blender_obj.matrix_world @ Vector(c) for c in blender_obj.bound_box])
-    low, high = corners.min(axis=0), corners.max(axis=0)
-    centre, radius = (low + high) / 2, float(np.linalg.norm(high - low)) / 2
-    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(camera)
-    camera.location = (centre[0], centre[1] - 2.2 * radius, centre[2])
-    camera.rotation_euler = (math.pi / 2, 0, 0)
-    camera.data.lens = 35
-    scene.camera = camera
+    scene_kit.camera_in_front(bpy, scene, *scene_kit.world_bounds(blender_obj)[2:])
     if scene.world is None:
         scene.world = bpy.data.worlds.new("World")
     scene.world.color = (0, 0, 0)
@@ -389,7 +383,7 @@ def reference_check(out: Path, results: dict, size: tuple[int, int]) -> str:
     keep = ~expected["ambiguous"]
     error = float(np.abs(ours[keep] - expected["rgb"][keep]).max()) * 255
     return (f"The add-on's renderer against the float64 reference (tests/reference.py) at "
-            f"{size[0]}x{size[1]}, same Gaussians and camera: max error {error:.3f}/255 over "
+            f"{size[0]}x{size[1]}, same Gaussians and camera: max error {error:.2g}/255 over "
             f"{keep.mean():.1%} of the pixels (the rest ambiguous), PSNR "
             f"{psnr(ours[keep], expected['rgb'][keep]):.1f} dB; the reference took "
             f"{seconds:.0f} s.")
@@ -410,6 +404,7 @@ def driver(args: argparse.Namespace, argv: list[str]) -> int:
                             str(stage / "dist")], check=True)
             (zip_path,) = (stage / "dist").glob("*.zip")
         shutil.copy2(__file__, stage)
+        shutil.copy2(ROOT / "tests" / "real_blender" / "scene_kit.py", stage)
         shutil.copy2(zip_path, stage / "extension.zip")
         splats = Path(args.splats).resolve()
         shutil.copy2(splats, stage / splats.name)

@@ -305,7 +305,7 @@ def main() -> int:
     zip_path = Path(args.zip).resolve() if args.zip else build_zip(scratch / "dist")
     print(f"zip: {zip_path} ({zip_path.stat().st_size / 1e6:.1f} MB)", flush=True)
     versions = args.bpy or list(BPY_VERSIONS)
-    summary, seconds, logs = [], {}, []
+    summary, seconds, logs, seen = [], {}, [], {}
     for version in versions:
         t0 = time.perf_counter()
         try:
@@ -322,7 +322,10 @@ def main() -> int:
             for name, passed, detail in results:
                 print(f"[bpy {version}] {'PASS' if passed else 'FAIL'} {name}"
                       + (f": {detail}" if detail else ""), flush=True)
-            summary += [(version, name, passed) for name, passed, _ in results]
+            for name, passed, _ in results:  # a name seen before gets its count
+                seen[version, name] = seen.get((version, name), 0) + 1
+                count = seen[version, name]
+                summary.append((version, name + (f" ({count})" if count > 1 else ""), passed))
             if stage == "install" and not any(n == "install the zip" and p for n, p, _ in results):
                 break  # nothing else can run without the extension
         seconds[version] = time.perf_counter() - t0
@@ -513,15 +516,13 @@ def build_render_scene(bpy, data: Path, engine: str):
     """PLAYBOT, a cube in front of it, a plane behind it, a camera looking along +Y."""
     import math
 
-    import numpy as np
-    from mathutils import Vector
+    sys.path.insert(0, str(ROOT / "tests" / "real_blender"))
+    import scene_kit
 
     clear_scene(bpy)
     scene = bpy.context.scene
     splats = import_file(bpy, data / "splats" / "playbot_125k_sh2.ply")
-    corners = np.array([splats.matrix_world @ Vector(c) for c in splats.bound_box])
-    low, high = corners.min(axis=0), corners.max(axis=0)
-    centre, radius = (low + high) / 2, float(np.linalg.norm(high - low)) / 2
+    low, high, centre, radius = scene_kit.world_bounds(splats)
     bpy.ops.mesh.primitive_cube_add(size=0.35 * radius, location=(
         centre[0] + 0.25 * radius, low[1] - 0.4 * radius, centre[2]))
     cube = bpy.context.active_object
@@ -530,12 +531,7 @@ def build_render_scene(bpy, data: Path, engine: str):
         centre[0], high[1] + 0.5 * radius, centre[2]), rotation=(math.pi / 2, 0, 0))
     bpy.context.active_object.data.materials.append(
         material(bpy, "Plane", (0.1, 0.35, 0.8), engine))
-    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(camera)
-    camera.location = (centre[0], centre[1] - 2.2 * radius, centre[2])
-    camera.rotation_euler = (math.pi / 2, 0, 0)
-    camera.data.lens = 35
-    scene.camera = camera
+    scene_kit.camera_in_front(bpy, scene, centre, radius)
     render = scene.render
     render.resolution_x, render.resolution_y, render.resolution_percentage = WIDTH, HEIGHT, 100
     render.engine = engine

@@ -40,13 +40,7 @@ def meshes_and_camera(bpy, scene):
     bpy.context.active_object.data.materials.append(material(bpy, "Cube", (0.9, 0.3, 0.1)))
     bpy.ops.mesh.primitive_plane_add(size=40, location=(0, 2.5, 0), rotation=(math.pi / 2, 0, 0))
     bpy.context.active_object.data.materials.append(material(bpy, "Plane", (0.1, 0.35, 0.8)))
-    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(camera)
-    camera.location = (0.0, -6.0, 0.0)
-    camera.rotation_euler = (math.pi / 2, 0, 0)
-    camera.data.lens = 35
-    scene.camera = camera
-    return camera
+    return camera_in_front(bpy, scene, (0.0, 0.0, 0.0), 6.0 / 2.2)
 
 
 def render_settings(scene, *, threads: int, frames: tuple[int, int]) -> None:
@@ -71,3 +65,28 @@ def render_settings(scene, *, threads: int, frames: tuple[int, int]) -> None:
     settings.file_format = "PNG"
     settings.color_mode = "RGBA"
     settings.color_depth = "8"
+
+
+def world_bounds(obj):
+    """(low, high, centre, radius) of `obj`'s bounding box in world space (numpy arrays;
+    radius is half the box's diagonal)."""
+    import numpy as np
+    from mathutils import Vector
+
+    corners = np.array([obj.matrix_world @ Vector(c) for c in obj.bound_box])
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    return low, high, (low + high) / 2, float(np.linalg.norm(high - low)) / 2
+
+
+def camera_in_front(bpy, scene, centre, radius):
+    """A 35 mm camera 2.2 radii before `centre` along -Y, looking along +Y; the scene's
+    camera."""
+    import math
+
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    camera.location = (centre[0], centre[1] - 2.2 * radius, centre[2])
+    camera.rotation_euler = (math.pi / 2, 0, 0)
+    camera.data.lens = 35
+    scene.camera = camera
+    return camera
