@@ -318,8 +318,9 @@ def mutate_zip(data: bytes, rnd: random.Random, spares: list[bytes]) -> bytes:
     name, content, compression = members[k]
     kind = rnd.randrange(8)
     if kind == 0:
-        members[k] = (rnd.choice([".", "..", "/", "a/", "x" * 300, "x" * 5000, "../meta.json", "/etc/passwd",
-                                  "C:/meta.json", "..\\x.webp", "\\\\h\\s\\x", "CON", "meta.json"]), content, compression)
+        hostile = [".", "..", "/", "a/", "x" * 300, "x" * 5000, "../meta.json", "/etc/passwd",
+                   "C:/meta.json", "..\\x.webp", "\\\\h\\s\\x", "CON", "meta.json"]
+        members[k] = (rnd.choice(hostile), content, compression)
     elif kind == 1:
         members[k] = (name, content, zipfile.ZIP_DEFLATED if compression == zipfile.ZIP_STORED else zipfile.ZIP_STORED)
     elif kind == 2:

@@ -2,8 +2,9 @@
 
 They act on the splat objects being edited (Edit Mode) or the selected splat objects (Object
 Mode), Blender 5.3's own splat point clouds included (crop, select by, clean up; join and apply
-transform are for the add-on's objects), on their original mesh data (modifiers stay on top), with every measure taken in world
-space (the object's transform applied). Each is undoable and reports what it did.
+transform are for the add-on's objects), on their original mesh data (modifiers stay on top),
+with every measure taken in world space (the object's transform applied). Each is undoable and
+reports what it did.
 
 - `bpy.ops.splat.crop(shape='BOX'|'SPHERE', volume="", center, size, radius, invert)`: removes the
   splats whose centre lies outside a world-space box (centre, full size, axis aligned) or sphere

@@ -48,7 +48,7 @@ from ..core.cameras import Camera
 from ..core.mesh import surface, texture as mesh_texture
 from ..core.mesh.surface import Cancelled
 from ..core.jobs import StagedJob
-from . import dependencies, gather, splat_object
+from . import dependencies, gather
 from .blender_splats import any_splats
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, wants_background

@@ -155,7 +155,8 @@ class _Convert:
 
 
 class SPLAT_OT_convert_to_blender_splats(_Convert, bpy.types.Operator):
-    """Convert the selected add-on splat objects to Blender's own Gaussian splat point clouds (Blender 5.3+), losslessly"""
+    """Convert the selected add-on splat objects to Blender's own Gaussian splat point clouds
+    (Blender 5.3+), losslessly"""
 
     bl_idname = "splat.convert_to_blender_splats"
     bl_label = "Splats to Blender Splat Point Cloud"
@@ -169,7 +170,8 @@ class SPLAT_OT_convert_to_blender_splats(_Convert, bpy.types.Operator):
 
 
 class SPLAT_OT_convert_from_blender_splats(_Convert, bpy.types.Operator):
-    """Convert the selected Blender splat point clouds to the add-on's splat objects (meshes with the splat attributes), losslessly for SH bands 0-3"""
+    """Convert the selected Blender splat point clouds to the add-on's splat objects (meshes with
+    the splat attributes), losslessly for SH bands 0-3"""
 
     bl_idname = "splat.convert_from_blender_splats"
     bl_label = "Blender Splat Point Cloud to Splats"

@@ -9,7 +9,6 @@ from pathlib import Path
 import bpy_support as bs
 from bpy_support import bpy  # the shared bpy import
 import numpy as np
-import pytest
 from mathutils import Vector
 
 from addon.blender import mesh_convert, splat_object

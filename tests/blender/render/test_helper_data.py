@@ -142,7 +142,7 @@ def test_files_are_saved_without_the_borrowed_camera(rng, tmp_path):
 
 
 def test_an_older_files_helper_camera_goes_on_load(rng, tmp_path):
-    scene = _scene(rng)
+    _scene(rng)
     helper = bridge.helper_scene(create=False)
     old = bpy.data.objects.new(bridge.HELPER_CAMERA, bpy.data.cameras.new(bridge.HELPER_CAMERA))
     helper.collection.objects.link(old)

@@ -5,7 +5,6 @@ JSON. Each must be a SplatFileError naming the file, in bounded time and memory.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import sys
