@@ -5,7 +5,9 @@ ratios in the thousands on degenerate data), and a PLY header is free to declare
 file size allows. So every reader refuses a file that declares more than `MAX_GAUSSIANS`
 Gaussians, from the header, before it decompresses or allocates. Loading N Gaussians peaks at
 N x 125-730 bytes, by format and SH degree (measured: docs/guide/formats.md), so the
-default ceiling keeps a load under about 7.5 GB. Raise it for bigger scenes: set
+default ceiling keeps a load under about 7.5 GB. It bounds a whole file, not one part of it:
+the glTF reader counts every node's instance of a mesh, the streamed-SOG reader every run of the
+level, before either reads a buffer or image. Raise it for bigger scenes: set
 `MAX_GAUSSIANS` here, or the environment variable SPLAT_MAX_GAUSSIANS before the add-on loads.
 """
 

@@ -76,10 +76,10 @@ COEFFS = {1: 3, 2: 8, 3: 15}  # SH bands -> higher-order coefficients per colour
 MAX_MEMBER_BYTES = 1 << 30  # one image or meta.json inside a .sog bundle
 MAX_META_BYTES = 16 << 20
 # What a .sog may unpack in total: its members are WebP images (already compressed, so a ZIP
-# barely shrinks them) and one meta.json; 64 times the bundle's size is far beyond any real one,
-# and bounds a zip bomb's unpacking (to disk) by what the file can justify.
-MAX_UNPACK_RATIO = 64
-UNPACK_SLACK = 1 << 20
+# barely shrinks them: about 1:1) and one small meta.json; 16 times the bundle's size is far
+# beyond any real one, and bounds a zip bomb's unpacking (to disk) by what the file can justify.
+MAX_UNPACK_RATIO = 16
+UNPACK_SLACK = 4 << 20
 GENERATOR = "Gaussian Splatting for Blender"
 
 
