@@ -152,7 +152,7 @@ static int parse_gaussians(buffers *b, PyObject *const *objs, sc_gaussians *g) {
 static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int width, int height,
                         double near, int antialiased, int threads, sc_gaussians *g, sc_camera *cam,
                         sc_options *opt) {
-    const Py_ssize_t m44[] = {4, 4}, v4[] = {4};
+    const Py_ssize_t m44[] = {4, 4}, any[] = {-1};
     if (parse_gaussians(b, objs, g) != 0) return -1;
     const int data_degree = g->sh_coeffs == 1 ? 0 : g->sh_coeffs == 4 ? 1 : g->sh_coeffs == 9 ? 2 : 3;
     if (sh_degree < 0 || sh_degree > data_degree) {
@@ -163,8 +163,22 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
 
     const double *viewmat = get_array(b, objs[5], "world_to_camera", 'd', 2, m44, 0);
     if (!viewmat) return -1;
-    const double *intr = get_array(b, objs[6], "intrinsics", 'd', 1, v4, 0);
+    /* intrinsics: fx fy cx cy (a pinhole), or those, the model, far and SC_MODEL_PARAMS. */
+    const double *intr = get_array(b, objs[6], "intrinsics", 'd', 1, any, 0);
     if (!intr) return -1;
+    const Py_ssize_t n_intr = b->views[b->count - 1].shape[0];
+    if (n_intr != 4 && n_intr != 6 + SC_MODEL_PARAMS) {
+        PyErr_Format(PyExc_ValueError, "intrinsics must have shape (4,) or (%d,), got (%zd,)",
+                     6 + SC_MODEL_PARAMS, n_intr);
+        return -1;
+    }
+    const double model = n_intr == 4 ? SC_PINHOLE : intr[4], far = n_intr == 4 ? 0.0 : intr[5];
+    if (!(model >= 0 && model < SC_MODEL_COUNT && model == (int)model) || isnan(far) ||
+        !all_finite_d(intr + (n_intr == 4 ? 0 : 6), n_intr == 4 ? 0 : SC_MODEL_PARAMS)) {
+        PyErr_SetString(PyExc_ValueError, "intrinsics: unknown camera model or non-finite "
+                                          "model parameters");
+        return -1;
+    }
     if (!all_finite_d(viewmat, 16) || !all_finite_d(intr, 4)) {
         PyErr_SetString(PyExc_ValueError, "camera has non-finite pose or intrinsics");
         return -1;
@@ -193,7 +207,8 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
                      width, height, (int)MAX_SIDE, MAX_PIXELS);
         return -1;
     }
-    if (!(near >= 0) || !isfinite(near)) {
+    /* Orthographic views may clip behind their origin (Blender's viewport does). */
+    if (!isfinite(near) || (!(near >= 0) && model != SC_ORTHO)) {
         value_error("near must be finite and >= 0, got %g", near);
         return -1;
     }
@@ -204,6 +219,8 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
     memcpy(cam->world_to_camera, viewmat, sizeof cam->world_to_camera);
     cam->fx = intr[0], cam->fy = intr[1], cam->cx = intr[2], cam->cy = intr[3];
     cam->width = width, cam->height = height;
+    cam->model = (int)model, cam->far = far;
+    for (int k = 0; k < SC_MODEL_PARAMS; ++k) cam->params[k] = n_intr == 4 ? 0.0 : intr[6 + k];
     opt->sh_degree = sh_degree;
     opt->near = near;
     opt->antialiased = antialiased;
@@ -273,7 +290,7 @@ static PyObject *py_project(PyObject *self, PyObject *args) {
         release_all(&b);
         return NULL;
     }
-    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL};
+    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL, 0};
     sc_stats stats = {0};
     sc_status status = SC_ERR_MEMORY;
     if (proj.splats) {
@@ -460,6 +477,10 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
                      &opt) != 0)
         goto fail;
     opt.exhaustive = exhaustive;
+    if (cam.model != SC_PINHOLE) {
+        PyErr_SetString(PyExc_ValueError, "training renders through pinhole cameras only");
+        goto fail;
+    }
     if (parse_image(&b, background, outs, width, height, &image) != 0) goto fail;
     const Py_ssize_t img1[] = {height, width};
     if (outs[3] != Py_None &&
