@@ -18,6 +18,12 @@ sys.path.insert(0, str(ROOT / "tests"))  # the shared helpers (reference, scenes
 os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="splat-blender-user-")
 
 SHARED_DATA = ROOT.parent / "shared" / "data"
+# CI sets this variable: there a missing ../shared/data fails the tests that need it, so CI can
+# never pass by skipping them.
+REQUIRE_SHARED_DATA = "SPLAT_REQUIRE_SHARED_DATA"
+MISSING_SHARED_DATA = (
+    "needs the real captures in ../shared/data beside the repository, which is missing: "
+    "docs/development.md, 'Test data', says where each comes from")
 
 
 @pytest.fixture
@@ -32,7 +38,12 @@ def rng(request: pytest.FixtureRequest) -> np.random.Generator:
 
 @pytest.fixture
 def shared_data() -> Path:
-    """../shared/data, the real captures and splats (present in CI)."""
+    """../shared/data, the real captures and splats. Without it the test is skipped (a fresh
+    clone: `pytest -ra` sums these skips up in one line), or fails where CI sets
+    SPLAT_REQUIRE_SHARED_DATA."""
     if not SHARED_DATA.is_dir():
-        pytest.fail(f"{SHARED_DATA} is missing: tests need ../shared beside the repository")
+        if os.environ.get(REQUIRE_SHARED_DATA):
+            pytest.fail(f"{SHARED_DATA} is missing and {REQUIRE_SHARED_DATA} is set: this test "
+                        f"{MISSING_SHARED_DATA}")
+        pytest.skip(MISSING_SHARED_DATA)
     return SHARED_DATA

@@ -106,15 +106,6 @@ def _options(args: argparse.Namespace, names: Sequence[str]) -> dict:
     return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
 
 
-def _is_splat_file(path: Path) -> bool:
-    from .core.formats import registry
-    try:
-        registry.format_for(path)
-    except ValueError:
-        return False
-    return True
-
-
 def _splat_object(bpy, source: Path, object_name: str | None, forward: str, up: str):
     """A splat object: imported from a splat file, or named (or the only one) in a .blend."""
     from .blender.io import operators as io_operators

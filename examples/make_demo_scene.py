@@ -17,8 +17,7 @@ sys.path.insert(0, str(ROOT))
 
 from addon.core import splat_io  # noqa: E402
 from addon.core.gaussians import Gaussians  # noqa: E402
-
-C0 = 0.28209479177387814
+from addon.core.sh import SH_C0 as C0  # noqa: E402
 
 
 def _to_sh_dc(rgb: np.ndarray) -> np.ndarray:

@@ -36,7 +36,8 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, \
     StringProperty
 
-from ..core.cleanup import FloaterMasks, floater_masks, sigmoid
+from ..core.cleanup import FloaterMasks, floater_masks
+from ..core.gaussians import sigmoid
 from ..core.transform import transform_gaussians
 from . import splat_object
 from .registration import module_registration

@@ -149,7 +149,7 @@ def _contents(data, degree: int) -> tuple:
     when they are not one array). A change within any 193 consecutive bits of an attribute (one
     value, or a few neighbouring ones) always changes its checksum; any other change goes
     unnoticed only if four 64-bit sums all come out the same."""
-    checksum = native.splatcore().checksum
+    checksum = native.checksum
     attributes = data.attributes
     names = (splat_object.POSITION, splat_object.ROTATION, splat_object.LOG_SCALE,
              splat_object.OPACITY_LOGIT, splat_object.HIDE) + splat_object.SH_NAMES[:(degree + 1) ** 2]

@@ -348,37 +348,6 @@ def menu_parent():
     return getattr(bpy.types, "VIEW3D_MT_splat", None) or bpy.types.VIEW3D_MT_object
 
 
-_MENU_ENTRIES: list = []  # (menu, draw function) added by `add_menu_entry`
-
-
-def add_menu_entry(draw) -> None:
-    """Append a job operator's menu `draw` function to `menu_parent()` (once)."""
-    parent = menu_parent()
-    parent.remove(draw)
-    parent.append(draw)
-    _MENU_ENTRIES.append((parent, draw))
-
-
-def remove_menu_entry(draw) -> None:
-    for entry in [e for e in _MENU_ENTRIES if e[1] is draw]:
-        entry[0].remove(draw)
-        _MENU_ENTRIES.remove(entry)
-
-
-def registration(classes: tuple, menu_draw) -> tuple[Callable[[], None], Callable[[], None]]:
-    """`register`, `unregister` for a module of job operators with one menu entry."""
-
-    def register() -> None:
-        register_classes(classes)
-        add_menu_entry(menu_draw)
-
-    def unregister() -> None:
-        remove_menu_entry(menu_draw)
-        unregister_classes(classes)
-
-    return register, unregister
-
-
 @bpy.app.handlers.persistent
 def _on_load_pre(*_args) -> None:
     stop_all()

@@ -39,9 +39,16 @@ def module_registration(classes=(), *, pointers=(), menus=(), handlers=()
                         ) -> tuple[Callable[[], None], Callable[[], None]]:
     """`register`, `unregister` for a module that registers `classes`, hangs PropertyGroups on
     types (`pointers`: (owner type, name, group) triples), appends draw functions to menus
-    (`menus`: (menu type name, draw) pairs; a menu this Blender lacks is skipped) and adds
+    (`menus`: (menu, draw) pairs, the menu a type name (one this Blender lacks is skipped) or a
+    function that picks the menu type when registering, as `job_runner.menu_parent`) and adds
     application handlers (`handlers`: (`bpy.app.handlers` list name, function) pairs). Both
     are harmless to call twice."""
+    chosen: dict = {}  # draw -> the menu type a picking function chose for it
+
+    def menu_of(menu, draw):
+        if callable(menu):
+            return chosen.get(draw)
+        return getattr(bpy.types, menu, None)
 
     def register() -> None:
         register_classes(classes)
@@ -51,8 +58,12 @@ def module_registration(classes=(), *, pointers=(), menus=(), handlers=()
                 handler_list.append(handler)
         for owner, name, group in pointers:
             add_pointer(owner, name, group)
-        for menu_name, draw in menus:
-            menu = getattr(bpy.types, menu_name, None)
+        for menu, draw in menus:
+            if callable(menu):
+                if chosen.get(draw) is not None:
+                    chosen[draw].remove(draw)
+                chosen[draw] = menu()
+            menu = menu_of(menu, draw)
             if menu is not None:
                 menu.remove(draw)  # no-op unless registered before
                 menu.append(draw)
@@ -62,10 +73,11 @@ def module_registration(classes=(), *, pointers=(), menus=(), handlers=()
             handler_list = getattr(bpy.app.handlers, list_name)
             if handler in handler_list:
                 handler_list.remove(handler)
-        for menu_name, draw in menus:
-            menu = getattr(bpy.types, menu_name, None)
+        for menu, draw in menus:
+            menu = menu_of(menu, draw)
             if menu is not None:
                 menu.remove(draw)
+            chosen.pop(draw, None)
         for owner, name, _group in pointers:
             remove_pointer(owner, name)
         unregister_classes(classes)

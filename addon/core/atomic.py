@@ -3,7 +3,8 @@ in one step, so a reader never sees half a file and a failed write leaves the ol
 
 `atomic_path` serves writers that open files by name (OpenImageIO, `numpy.savez`); the temporary
 name keeps the target's extension, which such writers read the format from. `atomic_write` is
-the same for code that writes bytes itself.
+the same for code that writes bytes itself. `move_files_into` serves writers that fill a folder
+(pycolmap): they write into a scratch folder, whose files are then renamed into place.
 """
 
 from __future__ import annotations
@@ -28,6 +29,13 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def move_files_into(folder: str | os.PathLike, target: str | os.PathLike) -> None:
+    """Rename every file of `folder` into `target`, each in one step (a rename replaces a file
+    or a link by its name, never what a link points at)."""
+    for written in Path(folder).iterdir():
+        os.replace(written, Path(target) / written.name)
 
 
 @contextlib.contextmanager

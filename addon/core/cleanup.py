@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .gaussians import sigmoid
+
 MAX_CELLS_PER_AXIS = 1 << 20  # cell coordinates are clamped here so keys fit in int64
 
 
@@ -38,11 +40,6 @@ class FloaterMasks:
     def counts(self) -> dict[str, int]:
         return {"transparent": int(self.transparent.sum()), "tiny": int(self.tiny.sum()),
                 "isolated": int(self.isolated.sum()), "total": int(self.any.sum())}
-
-
-def sigmoid(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, np.float64)
-    return 0.5 * (1.0 + np.tanh(0.5 * x))  # stable for any x
 
 
 def auto_radius(means: np.ndarray) -> float:

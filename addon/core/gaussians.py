@@ -12,6 +12,7 @@ Layout (see docs/conventions.md, "Gaussians in memory"):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,23 @@ def sh_count(degree: int) -> int:
     if degree not in (0, 1, 2, 3):
         raise ValueError(f"SH degree must be 0..3, got {degree}")
     return (degree + 1) ** 2
+
+
+def sigmoid(logits) -> np.ndarray:
+    """Opacities of opacity logits, float64: 1 / (1 + exp(-x)) (0 where exp overflows)."""
+    x = np.asarray(logits, np.float64)
+    with np.errstate(over="ignore"):
+        return 1.0 / (1.0 + np.exp(-x))
+
+
+def logit(opacity):
+    """The opacity logit log(p / (1 - p)) of opacities in (0, 1): a float for a number, else a
+    float64 array."""
+    if np.ndim(opacity) == 0:
+        p = float(opacity)
+        return math.log(p / (1.0 - p))
+    p = np.asarray(opacity, np.float64)
+    return np.log(p / (1.0 - p))
 
 
 def _as_f32(name: str, value: object, tail: tuple[int, ...]) -> np.ndarray:

@@ -1,7 +1,10 @@
-"""The one door to the native module `splatcore`: importing it, and turning Python arguments
-(cameras, Gaussians, thread counts, SH degrees, images) into what its functions take, checked
-before anything crosses the boundary. `render.py` and `train_kernels.py` call the kernels
-through these helpers, as gsplat's `cuda/_wrapper.py` does for its kernels.
+"""The one door to the native module `splatcore`: importing it, turning Python arguments
+(cameras, Gaussians, thread counts, SH degrees, images) into what its functions take, and one
+typed function per native entry point (the end of this file), as gsplat's `cuda/_wrapper.py`
+does for its kernels. No other module calls `splatcore`: the renderer (`render/renderer.py`,
+`render/composite.py`), the training kernels (`train/kernels.py`) and Blender's side
+(`blender/gather.py`) call these functions. The native module checks every argument again
+(`native/src/module.c`, a table per entry point) and raises TypeError or ValueError.
 """
 
 from __future__ import annotations
@@ -9,6 +12,8 @@ from __future__ import annotations
 import os
 
 import numpy as np
+
+from typing import Any
 
 from .cameras import MAX_MODEL_PARAMS, MODELS, Camera
 from .gaussians import Gaussians
@@ -105,6 +110,148 @@ def rgb_image(name: str, value) -> np.ndarray:
     return array
 
 
+# ---------------------------------------------------------------- the native entry points
+# One function per function of `splatcore`, in the order of native/src/module.c's method table.
+# Arguments are passed as the native function takes them; the Gaussians and the camera are
+# converted here (`gaussian_args`, `camera_args`), so a change of what a kernel takes of them
+# is made in this file and module.c only.
+
+
+def project(gaussians: Gaussians, camera: Camera, out_xy: np.ndarray, out_conic: np.ndarray,
+            out_depth: np.ndarray, out_opacity: np.ndarray, out_rgb: np.ndarray,
+            out_valid: np.ndarray, *, sh_degree: int | None, near: float, antialiased: bool,
+            threads: int) -> None:
+    """Project every Gaussian into `camera` into the out_* float32 arrays (N, 2), (N, 3), (N,),
+    (N,), (N, 3) and `out_valid` uint8 (N,) (`renderer.project`)."""
+    viewmat, intrinsics, width, height = camera_args(camera)
+    splatcore().project(
+        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
+        width, height, float(near), bool(antialiased), thread_count(threads),
+        out_xy, out_conic, out_depth, out_opacity, out_rgb, out_valid)
+
+
+def render(gaussians: Gaussians, camera: Camera, background: np.ndarray | None,
+           mesh_rgba: np.ndarray | None, mesh_depth: np.ndarray | None, out_rgb: np.ndarray,
+           out_alpha: np.ndarray, out_depth: np.ndarray, *, sh_degree: int | None, near: float,
+           antialiased: bool, threads: int, exhaustive: bool = False) -> dict[str, float]:
+    """Render into out_rgb (H, W, 3), out_alpha and out_depth (H, W), float32, over an optional
+    mesh layer (mesh_rgba (H, W, 4) premultiplied, mesh_depth (H, W); both or neither) and
+    background (3,) (`renderer.render`). Returns timings (ms) and counts."""
+    viewmat, intrinsics, width, height = camera_args(camera)
+    return dict(splatcore().render(
+        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
+        width, height, float(near), bool(antialiased), thread_count(threads), background,
+        mesh_rgba, mesh_depth, out_rgb, out_alpha, out_depth, bool(exhaustive)))
+
+
+def compose_prepare(gaussians: Gaussians, camera: Camera, *, sh_degree: int | None, near: float,
+                    antialiased: bool, threads: int) -> tuple[Any, dict[str, float]]:
+    """F12's composite, the Gaussians' half: projected, sorted and binned for `camera` (no mesh
+    needed yet). Returns (an opaque prepared frame for `compose_srgb`, stats). Releases the
+    GIL while it runs."""
+    viewmat, intrinsics, width, height = camera_args(camera)
+    handle, stats = splatcore().compose_prepare(
+        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
+        width, height, float(near), bool(antialiased), thread_count(threads))
+    return handle, stats
+
+
+def compose_srgb(prepared: Any, mesh_rgba: np.ndarray, mesh_depth: np.ndarray, out: np.ndarray,
+                 out_depth: np.ndarray | None, far: float) -> dict[str, float]:
+    """F12's composite, the tile pass: the prepared Gaussians over a scene-linear mesh render
+    (mesh_rgba (H, W, 4), mesh_depth (H, W), float32, any strides), composed in display sRGB,
+    into `out` (H, W, 4, scene-linear, any strides) and `out_depth` (H, W, or None: no depth);
+    tiles no Gaussian reaches keep the mesh's pixels. Returns stats (ms_colour_cpu: the
+    conversions' CPU time)."""
+    return dict(splatcore().compose_srgb(prepared, mesh_rgba, mesh_depth, out, out_depth,
+                                         float(far)))
+
+
+def checksum(buffer) -> tuple[int, int, int, int]:
+    """A 256-bit checksum of a C-contiguous buffer's bytes: any change within 193 consecutive
+    bits changes it (F12's test whether splat attributes changed)."""
+    return splatcore().checksum(buffer)
+
+
+def sort_keys(keys: np.ndarray, out_order: np.ndarray, *, threads: int) -> int:
+    """The renderer's depth sort alone: `out_order` (int32 (N,)) gets the stable ascending order
+    of `keys` (float32 (N,); +inf last, -0 before +0, no NaN). Returns how many keys are not
+    +inf."""
+    return splatcore().sort_keys(keys, thread_count(threads), out_order)
+
+
+def release_buffers() -> None:
+    """Free the working buffers renders keep for the next frame."""
+    splatcore().release_buffers()
+
+
+def render_train(gaussians: Gaussians, camera: Camera, background: np.ndarray | None,
+                 out_rgb: np.ndarray, out_alpha: np.ndarray, out_depth: np.ndarray,
+                 out_final_t: np.ndarray | None, out_n_contrib: np.ndarray | None,
+                 out_visible: np.ndarray | None, *, sh_degree: int | None, near: float,
+                 antialiased: bool, threads: int,
+                 exhaustive: bool = False) -> tuple[dict[str, float], Any]:
+    """The training forward: `render` without a mesh layer, bit for bit, plus per pixel the
+    final transmittance (float32) and n_contrib (int32) (H, W), and per Gaussian whether it was
+    drawn (uint8 (N,)), each None to skip. Returns (stats, the opaque state `backward` needs)."""
+    viewmat, intrinsics, width, height = camera_args(camera)
+    return splatcore().render_train(
+        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
+        width, height, float(near), bool(antialiased), thread_count(threads), background,
+        out_rgb, out_alpha, out_depth, out_final_t, out_n_contrib, out_visible, bool(exhaustive))
+
+
+def train_state_info(state: Any) -> dict[str, Any]:
+    """The image size, Gaussian count, options and counts of a `render_train` state."""
+    return splatcore().train_state_info(state)
+
+
+def backward(state: Any, gaussians: Gaussians, d_rgb: np.ndarray, d_alpha: np.ndarray | None,
+             d_depth: np.ndarray | None, out_means: np.ndarray, out_log_scales: np.ndarray,
+             out_quats: np.ndarray, out_opacity_logits: np.ndarray, out_sh: np.ndarray,
+             out_xy: np.ndarray, out_xy_abs: np.ndarray, *, threads: int) -> dict[str, float]:
+    """Gradients of a loss with dL/d(rgb) (H, W, 3), dL/d(alpha) and dL/d(depth) (H, W) or None
+    w.r.t. the Gaussians `render_train` drew (the same, unchanged), into the out_* arrays
+    (overwritten, shaped like the Gaussians' arrays; out_xy, out_xy_abs (N, 2))."""
+    return dict(splatcore().backward(
+        state, *gaussian_args(gaussians), d_rgb, d_alpha, d_depth, thread_count(threads),
+        out_means, out_log_scales, out_quats, out_opacity_logits, out_sh, out_xy, out_xy_abs))
+
+
+def l1_ssim(image: np.ndarray, target: np.ndarray, lambda_dssim: float,
+            out_grad: np.ndarray | None, *, threads: int) -> tuple[float, float, float, float]:
+    """(1 - lambda) L1 + lambda (1 - SSIM) of (H, W, 3) float32 images, dL/d(image) into
+    `out_grad` unless None. Returns (loss, l1, ssim, mse of the image clamped to [0, 1])."""
+    return splatcore().l1_ssim(image, target, float(lambda_dssim), thread_count(threads),
+                               out_grad)
+
+
+def adam(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_sq: np.ndarray, *,
+         lr: float, beta1: float, beta2: float, eps: float, step: int, threads: int,
+         rows: np.ndarray | None, lead: int, lead_lr: float, used: int) -> None:
+    """One Adam step in place (torch.optim.Adam's formula) on float32 arrays of one shape; rows
+    (uint8 (shape[0],) or None) masks rows; the first `lead` values of a row step at `lead_lr`;
+    only the first `used` values of a row are updated (negative: all)."""
+    splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1), float(beta2),
+                     float(eps), int(step), thread_count(threads), rows, int(lead),
+                     float(lead_lr), int(used))
+
+
+def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
+                   opacity_logits: np.ndarray, noise: np.ndarray, scale: float, *,
+                   threads: int) -> None:
+    """3DGS-MCMC's noise on `means` in place: float32 parameters of N Gaussians, noise (N, 3)
+    float64 standard normal."""
+    splatcore().position_noise(means, log_scales, quats, opacity_logits, noise, float(scale),
+                               thread_count(threads))
+
+
+def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads: int) -> None:
+    """Premultiplied float32 RGBA (..., 4), C-contiguous, scene-linear -> display sRGB, or back
+    with `decode`, into `out` (`rgba` itself, or a C-contiguous array of its shape)."""
+    splatcore().srgb_premultiplied(rgba, out, bool(decode), thread_count(threads))
+
+
 def srgb_view(rgba: np.ndarray, out: np.ndarray, decode: bool, zero_non_finite: bool,
               threads: int) -> None:
     """Premultiplied float32 RGBA (H, W, 4), any strides (views of an EXR's planar channels, a
@@ -125,3 +272,14 @@ def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, la
         splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))
     else:
         splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads), out)
+
+
+def composite_microbench(count: int, iterations: int) -> float:
+    """Seconds for the compositor's inner loop over one in-cache tile covered by `count`
+    Gaussians, `iterations` times (a benchmark's probe)."""
+    return splatcore().composite_microbench(int(count), int(iterations))
+
+
+def native_cpu_count() -> int:
+    """Cores the native module may use (its `threads=0`); `cpu_count` is Python's view."""
+    return splatcore().cpu_count()

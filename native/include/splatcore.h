@@ -22,6 +22,11 @@
  *   buffers.c    large working buffers, kept for the next frame
  *   cpu.c        the instruction set the compositor kernels run with, picked once at run time
  *
+ * F12's composite and its helpers:
+ *   compose.c    the composite in display sRGB, tile by tile (prepare, then the tile pass)
+ *   colour.c     premultiplied RGBA between scene-linear and display sRGB, any strides
+ *   checksum.c   a checksum of raw memory (whether a splat object's attributes changed)
+ *
  * Training (backward passes, loss and optimizer):
  *   composite_backward.c  per tile, back to front: gradients of the projected Gaussians
  *   project_backward.c    per Gaussian: projected-Gaussian gradients -> parameter gradients
@@ -30,6 +35,9 @@
  *   loss.c                L1 + SSIM loss and its gradient
  *   adam.c                the Adam update
  *   position_noise.c      3DGS-MCMC's noise on the positions of nearly transparent Gaussians
+ *
+ * The Python binding, module.c, is no stage: it checks every argument (a table per entry point)
+ * and calls the functions declared here.
  */
 #ifndef SPLATCORE_H
 #define SPLATCORE_H

@@ -69,17 +69,60 @@ static const char *type_name(char type) {
 
 static Py_ssize_t type_size(char type) { return type == 'd' ? 8 : type == 'f' || type == 'i' ? 4 : 1; }
 
-/* Get a C-contiguous buffer of `type` with shape `shape` (-1: any size) or raise. */
-static const void *get_array(buffers *b, PyObject *obj, const char *name, char type, int ndim,
-                             const Py_ssize_t *shape, int writable) {
+/* ---------------------------------------------------------------- argument checking as data
+ * Each entry point names its array arguments in a table (arg_spec: name, dtype, shape, flags)
+ * and check_args() validates them in order, so every array gets the same checks and messages:
+ * the buffer protocol, writability, dtype, C-contiguity (unless STRIDED), shape, and finiteness
+ * where asked. Shapes may use named sizes: the first argument with one binds it, later ones must
+ * match it. Scalar arguments are parsed by PyArg_ParseTuple and checked where they are used. */
+
+/* A dimension of a shape: a size (>= 0), ANY, or a named size (N Gaussians, at most
+ * MAX_GAUSSIANS; K SH coefficients per colour channel, 1, 4, 9 or 16; H and W an image's rows
+ * and columns; ROWS any other length). */
+enum { ANY = -1, DIM_N = -2, DIM_K = -3, DIM_H = -4, DIM_W = -5, DIM_ROWS = -6 };
+enum { NAMED_DIMS = 5, MAX_RANK = 8 };
+static const char DIM_LETTER[NAMED_DIMS] = {'N', 'K', 'H', 'W', 'N'};
+
+enum {
+    WRITABLE = 1, /* an output: the array must be writable */
+    OPTIONAL = 2, /* None is allowed (its view is NULL) */
+    FINITE = 4,   /* float32 values that must all be finite */
+    STRIDED = 8,  /* any strides (otherwise C-contiguous) */
+    ANY_RANK = 16, /* any shape (ndim and shape unused): later LIKE arguments must have it */
+    LIKE = 32,    /* the shape of the ANY_RANK argument before it (ndim and shape unused) */
+};
+
+typedef struct {
+    const char *name; /* as messages name it */
+    char type;        /* 'f' float32, 'd' float64, 'B' uint8, 'i' int32 */
+    int ndim;
+    Py_ssize_t shape[3]; /* sizes, ANY or DIM_* */
+    int flags;
+} arg_spec;
+
+/* The named sizes of one call (-1 until bound) and its ANY_RANK argument's view. */
+typedef struct {
+    Py_ssize_t size[NAMED_DIMS];
+    const Py_buffer *like;
+} arg_dims;
+
+#define ARG_DIMS_INIT {{-1, -1, -1, -1, -1}, NULL}
+#define COUNT(table) ((int)(sizeof(table) / sizeof(table)[0]))
+
+/* Get a buffer of `type` with shape `shape` (-1: any size; `letters` names those in messages),
+ * C-contiguous unless STRIDED, writable if WRITABLE, or raise. */
+static const Py_buffer *get_array(buffers *b, PyObject *obj, const char *name, char type, int ndim,
+                                  const Py_ssize_t *shape, const char *letters, int flags) {
     Py_buffer *view = &b->views[b->count];
-    int flags = PyBUF_FORMAT | PyBUF_STRIDES | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(obj, view, flags) != 0) {
+    const int writable = flags & WRITABLE;
+    if (PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES | (writable ? PyBUF_WRITABLE : 0))
+        != 0) {
         PyErr_Clear();
         if (writable && PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES) == 0) {
             PyBuffer_Release(view);
             PyErr_Format(PyExc_ValueError, "%s must be a writable array", name);
         } else {
+            PyErr_Clear();
             PyObject *type_obj = PyType_GetName(Py_TYPE(obj));
             PyErr_Format(PyExc_TypeError, "%s must be a %s array (buffer protocol), got %S", name,
                          type_name(type), type_obj ? type_obj : Py_None);
@@ -93,7 +136,7 @@ static const void *get_array(buffers *b, PyObject *obj, const char *name, char t
                      type_name(type), view->format ? view->format : "B");
         return NULL;
     }
-    if (!PyBuffer_IsContiguous(view, 'C')) {
+    if (!(flags & STRIDED) && !PyBuffer_IsContiguous(view, 'C')) {
         PyErr_Format(PyExc_ValueError, "%s must be C-contiguous (use numpy.ascontiguousarray)", name);
         return NULL;
     }
@@ -101,9 +144,9 @@ static const void *get_array(buffers *b, PyObject *obj, const char *name, char t
     for (int i = 0; shape_ok && i < ndim; ++i) shape_ok = shape[i] < 0 || view->shape[i] == shape[i];
     if (!shape_ok) {
         char want[96] = "(", got[96] = "(";
-        for (int i = 0; i < ndim; ++i) {
+        for (int i = 0; i < ndim && i < 6; ++i) {
             size_t at = strlen(want);
-            if (shape[i] < 0) snprintf(want + at, sizeof want - at, "%s%s", i ? ", " : "", "N");
+            if (shape[i] < 0) snprintf(want + at, sizeof want - at, "%s%c", i ? ", " : "", letters[i]);
             else snprintf(want + at, sizeof want - at, "%s%zd", i ? ", " : "", shape[i]);
         }
         for (int i = 0; i < view->ndim && i < 6; ++i) {
@@ -115,8 +158,82 @@ static const void *get_array(buffers *b, PyObject *obj, const char *name, char t
         PyErr_Format(PyExc_ValueError, "%s must have shape %s, got shape %s", name, want, got);
         return NULL;
     }
-    return view->buf;
+    return view;
 }
+
+static int check_finite_array(const float *v, int64_t n, const char *name);
+
+/* A named size just bound: N and K have limits of their own. */
+static int check_bound(int dim, Py_ssize_t size) {
+    if (dim == DIM_N && size > MAX_GAUSSIANS) {
+        PyErr_Format(PyExc_ValueError, "too many Gaussians (%zd); at most %lld", size, MAX_GAUSSIANS);
+        return -1;
+    }
+    if (dim == DIM_K && size != 1 && size != 4 && size != 9 && size != 16) {
+        PyErr_Format(PyExc_ValueError, "sh must have shape (N, K, 3) with K in 1, 4, 9, 16; got K=%d",
+                     (int)size);
+        return -1;
+    }
+    return 0;
+}
+
+/* Validate objs[0..count-1] against specs[0..count-1] in order; views[i] gets each array's view
+ * (NULL for an OPTIONAL None), held by `b` until release_all. */
+static int check_args(buffers *b, arg_dims *d, const arg_spec *specs, int count,
+                      PyObject *const *objs, const Py_buffer **views) {
+    for (int i = 0; i < count; ++i) {
+        const arg_spec *s = &specs[i];
+        views[i] = NULL;
+        if ((s->flags & OPTIONAL) && objs[i] == Py_None) continue;
+        Py_ssize_t shape[MAX_RANK] = {0};
+        char letters[MAX_RANK];
+        int ndim = s->ndim;
+        memset(letters, 'N', sizeof letters);
+        if (s->flags & LIKE) {
+            ndim = d->like->ndim;
+            for (int k = 0; k < ndim; ++k) shape[k] = d->like->shape[k];
+        } else if (s->flags & ANY_RANK) {
+            /* Learn the shape first, then validate like every other array. */
+            Py_buffer probe;
+            if (PyObject_GetBuffer(objs[i], &probe, PyBUF_FORMAT | PyBUF_STRIDES) != 0) {
+                PyErr_Clear();
+                ndim = 1, shape[0] = -1;
+            } else {
+                ndim = probe.ndim;
+                for (int k = 0; k < ndim && k < MAX_RANK; ++k) shape[k] = probe.shape[k];
+                PyBuffer_Release(&probe);
+            }
+            if (ndim > MAX_RANK) {
+                PyErr_Format(PyExc_ValueError, "%s has too many dimensions", s->name);
+                return -1;
+            }
+        } else {
+            for (int k = 0; k < ndim; ++k) {
+                const Py_ssize_t want = s->shape[k];
+                shape[k] = want >= ANY ? want : d->size[-2 - want];
+                if (want < ANY) letters[k] = DIM_LETTER[-2 - want];
+            }
+        }
+        const Py_buffer *view = get_array(b, objs[i], s->name, s->type, ndim, shape, letters, s->flags);
+        if (!view) return -1;
+        for (int k = 0; !(s->flags & (LIKE | ANY_RANK)) && k < ndim; ++k) {
+            const Py_ssize_t want = s->shape[k];
+            if (want < ANY && d->size[-2 - want] < 0) {
+                d->size[-2 - want] = view->shape[k];
+                if (check_bound((int)want, view->shape[k]) != 0) return -1;
+            }
+        }
+        if (s->flags & ANY_RANK) d->like = view;
+        if ((s->flags & FINITE) &&
+            check_finite_array(view->buf, (int64_t)(view->len / view->itemsize), s->name) != 0)
+            return -1;
+        views[i] = view;
+    }
+    return 0;
+}
+
+/* The data of a view check_args returned, or NULL for an OPTIONAL None. */
+static void *data(const Py_buffer *view) { return view ? view->buf : NULL; }
 
 static int all_finite_d(const double *v, int n) {
     for (int i = 0; i < n; ++i)
@@ -124,36 +241,39 @@ static int all_finite_d(const double *v, int n) {
     return 1;
 }
 
+static const arg_spec GAUSSIAN_ARGS[] = {
+    {"means", 'f', 2, {DIM_N, 3}, 0},
+    {"log_scales", 'f', 2, {DIM_N, 3}, 0},
+    {"quats", 'f', 2, {DIM_N, 4}, 0},
+    {"opacity_logits", 'f', 1, {DIM_N}, 0},
+    {"sh", 'f', 3, {DIM_N, DIM_K, 3}, 0},
+};
+
+static const arg_spec CAMERA_ARGS[] = {
+    {"world_to_camera", 'd', 2, {4, 4}, 0},
+    {"intrinsics", 'd', 1, {ANY}, 0}, /* (4,) or (6 + SC_MODEL_PARAMS,): parse_common */
+};
+
+/* The size a call bound to a named dimension. */
+#define SIZE(d, dim) ((d)->size[-2 - (dim)])
+
 /* Parse the five Gaussian arrays objs[0..4] (shapes consistent, K in 1, 4, 9, 16). */
-static int parse_gaussians(buffers *b, PyObject *const *objs, sc_gaussians *g) {
-    const Py_ssize_t n3[] = {-1, 3};
-    if (!(g->means = get_array(b, objs[0], "means", 'f', 2, n3, 0))) return -1;
-    const Py_ssize_t n = b->views[b->count - 1].shape[0];
-    if (n > MAX_GAUSSIANS) {
-        PyErr_Format(PyExc_ValueError, "too many Gaussians (%zd); at most %lld", n, MAX_GAUSSIANS);
-        return -1;
-    }
-    const Py_ssize_t rows3[] = {n, 3}, rows4[] = {n, 4}, rows1[] = {n}, sh_shape[] = {n, -1, 3};
-    if (!(g->log_scales = get_array(b, objs[1], "log_scales", 'f', 2, rows3, 0))) return -1;
-    if (!(g->quats = get_array(b, objs[2], "quats", 'f', 2, rows4, 0))) return -1;
-    if (!(g->opacity_logits = get_array(b, objs[3], "opacity_logits", 'f', 1, rows1, 0))) return -1;
-    if (!(g->sh = get_array(b, objs[4], "sh", 'f', 3, sh_shape, 0))) return -1;
-    g->count = n;
-    g->sh_coeffs = (int)b->views[b->count - 1].shape[1];
-    if (g->sh_coeffs != 1 && g->sh_coeffs != 4 && g->sh_coeffs != 9 && g->sh_coeffs != 16) {
-        PyErr_Format(PyExc_ValueError, "sh must have shape (N, K, 3) with K in 1, 4, 9, 16; got K=%d",
-                     g->sh_coeffs);
-        return -1;
-    }
+static int parse_gaussians(buffers *b, arg_dims *d, PyObject *const *objs, sc_gaussians *g) {
+    const Py_buffer *v[COUNT(GAUSSIAN_ARGS)];
+    if (check_args(b, d, GAUSSIAN_ARGS, COUNT(GAUSSIAN_ARGS), objs, v) != 0) return -1;
+    g->means = data(v[0]), g->log_scales = data(v[1]), g->quats = data(v[2]);
+    g->opacity_logits = data(v[3]), g->sh = data(v[4]);
+    g->count = SIZE(d, DIM_N);
+    g->sh_coeffs = (int)SIZE(d, DIM_K);
     return 0;
 }
 
-/* Parse the arguments project(), render() and render_train() share: Gaussians, camera, options. */
-static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int width, int height,
-                        double near, int antialiased, int threads, sc_gaussians *g, sc_camera *cam,
-                        sc_options *opt) {
-    const Py_ssize_t m44[] = {4, 4}, any[] = {-1};
-    if (parse_gaussians(b, objs, g) != 0) return -1;
+/* Parse the arguments project(), render() and render_train() share: Gaussians, camera, options;
+ * `d` gets N, K, H and W. */
+static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_degree, int width,
+                        int height, double near, int antialiased, int threads, sc_gaussians *g,
+                        sc_camera *cam, sc_options *opt) {
+    if (parse_gaussians(b, d, objs, g) != 0) return -1;
     const int data_degree = g->sh_coeffs == 1 ? 0 : g->sh_coeffs == 4 ? 1 : g->sh_coeffs == 9 ? 2 : 3;
     if (sh_degree < 0 || sh_degree > data_degree) {
         PyErr_Format(PyExc_ValueError, "sh_degree must be in 0..%d for this data, got %d",
@@ -161,12 +281,11 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
         return -1;
     }
 
-    const double *viewmat = get_array(b, objs[5], "world_to_camera", 'd', 2, m44, 0);
-    if (!viewmat) return -1;
+    const Py_buffer *v[COUNT(CAMERA_ARGS)];
+    if (check_args(b, d, CAMERA_ARGS, COUNT(CAMERA_ARGS), objs + 5, v) != 0) return -1;
+    const double *viewmat = data(v[0]), *intr = data(v[1]);
     /* intrinsics: fx fy cx cy (a pinhole), or those, the model, far and SC_MODEL_PARAMS. */
-    const double *intr = get_array(b, objs[6], "intrinsics", 'd', 1, any, 0);
-    if (!intr) return -1;
-    const Py_ssize_t n_intr = b->views[b->count - 1].shape[0];
+    const Py_ssize_t n_intr = v[1]->shape[0];
     if (n_intr != 4 && n_intr != 6 + SC_MODEL_PARAMS) {
         PyErr_Format(PyExc_ValueError, "intrinsics must have shape (4,) or (%d,), got (%zd,)",
                      6 + SC_MODEL_PARAMS, n_intr);
@@ -221,6 +340,7 @@ static int parse_common(buffers *b, PyObject *const *objs, int sh_degree, int wi
     cam->width = width, cam->height = height;
     cam->model = (int)model, cam->far = far;
     for (int k = 0; k < SC_MODEL_PARAMS; ++k) cam->params[k] = n_intr == 4 ? 0.0 : intr[6 + k];
+    SIZE(d, DIM_H) = height, SIZE(d, DIM_W) = width;
     opt->sh_degree = sh_degree;
     opt->near = near;
     opt->antialiased = antialiased;
@@ -260,6 +380,15 @@ static PyObject *raise_status(sc_status status, const sc_gaussians *g, const sc_
     return PyErr_NoMemory();
 }
 
+static const arg_spec PROJECT_OUTS[] = {
+    {"out_xy", 'f', 2, {DIM_N, 2}, WRITABLE},
+    {"out_conic", 'f', 2, {DIM_N, 3}, WRITABLE},
+    {"out_depth", 'f', 1, {DIM_N}, WRITABLE},
+    {"out_opacity", 'f', 1, {DIM_N}, WRITABLE},
+    {"out_rgb", 'f', 2, {DIM_N, 3}, WRITABLE},
+    {"out_valid", 'B', 1, {DIM_N}, WRITABLE},
+};
+
 static PyObject *py_project(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[7], *outs[6];
@@ -271,25 +400,21 @@ static PyObject *py_project(PyObject *self, PyObject *args) {
                           &outs[4], &outs[5]))
         return NULL;
     buffers b = {.count = 0};
+    arg_dims d = ARG_DIMS_INIT;
     sc_gaussians g;
     sc_camera cam;
     sc_options opt;
-    if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
-                     &opt) != 0) {
+    const Py_buffer *v[COUNT(PROJECT_OUTS)];
+    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
+                     &opt) != 0 ||
+        check_args(&b, &d, PROJECT_OUTS, COUNT(PROJECT_OUTS), outs, v) != 0) {
         release_all(&b);
         return NULL;
     }
-    const Py_ssize_t n = (Py_ssize_t)g.count, n2[] = {n, 2}, n3[] = {n, 3}, n1[] = {n};
-    float *xy = (float *)get_array(&b, outs[0], "out_xy", 'f', 2, n2, 1);
-    float *conic = xy ? (float *)get_array(&b, outs[1], "out_conic", 'f', 2, n3, 1) : NULL;
-    float *depth = conic ? (float *)get_array(&b, outs[2], "out_depth", 'f', 1, n1, 1) : NULL;
-    float *opacity = depth ? (float *)get_array(&b, outs[3], "out_opacity", 'f', 1, n1, 1) : NULL;
-    float *rgb = opacity ? (float *)get_array(&b, outs[4], "out_rgb", 'f', 2, n3, 1) : NULL;
-    uint8_t *valid = rgb ? (uint8_t *)get_array(&b, outs[5], "out_valid", 'B', 1, n1, 1) : NULL;
-    if (!valid) {
-        release_all(&b);
-        return NULL;
-    }
+    const Py_ssize_t n = (Py_ssize_t)g.count;
+    float *xy = data(v[0]), *conic = data(v[1]), *depth = data(v[2]), *opacity = data(v[3]),
+          *rgb = data(v[4]);
+    uint8_t *valid = data(v[5]);
     sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL, 0};
     sc_stats stats = {0};
     sc_status status = SC_ERR_MEMORY;
@@ -373,51 +498,61 @@ static int check_finite_array(const float *v, int64_t n, const char *name) {
     return 0;
 }
 
-/* The optional background (3) and the three images render() and render_train() write:
- * out_rgb (H,W,3), out_alpha and out_depth (H,W). */
-static int parse_image(buffers *b, PyObject *background, PyObject *const *outs, int width,
-                       int height, sc_image *image) {
-    const Py_ssize_t img3[] = {height, width, 3}, img1[] = {height, width}, rgb3[] = {3};
-    if (background != Py_None) {
-        if (!(image->background = get_array(b, background, "background", 'f', 1, rgb3, 0))) return -1;
-        if (check_finite_array(image->background, 3, "background") != 0) return -1;
-    }
-    if (!(image->rgb = (float *)get_array(b, outs[0], "out_rgb", 'f', 3, img3, 1))) return -1;
-    if (!(image->alpha = (float *)get_array(b, outs[1], "out_alpha", 'f', 2, img1, 1))) return -1;
-    if (!(image->depth = (float *)get_array(b, outs[2], "out_depth", 'f', 2, img1, 1))) return -1;
+/* The optional background (3) and the three images render() and render_train() write. */
+static const arg_spec IMAGE_ARGS[] = {
+    {"background", 'f', 1, {3}, OPTIONAL | FINITE},
+    {"out_rgb", 'f', 3, {DIM_H, DIM_W, 3}, WRITABLE},
+    {"out_alpha", 'f', 2, {DIM_H, DIM_W}, WRITABLE},
+    {"out_depth", 'f', 2, {DIM_H, DIM_W}, WRITABLE},
+};
+
+/* objs: background, out_rgb, out_alpha, out_depth. */
+static int parse_image(buffers *b, arg_dims *d, PyObject *const *objs, sc_image *image) {
+    const Py_buffer *v[COUNT(IMAGE_ARGS)];
+    if (check_args(b, d, IMAGE_ARGS, COUNT(IMAGE_ARGS), objs, v) != 0) return -1;
+    image->background = data(v[0]);
+    image->rgb = data(v[1]), image->alpha = data(v[2]), image->depth = data(v[3]);
     return 0;
 }
 
+/* render()'s mesh layer: both or neither (checked before). */
+static const arg_spec MESH_ARGS[] = {
+    {"mesh_rgba", 'f', 3, {DIM_H, DIM_W, 4}, OPTIONAL},
+    {"mesh_depth", 'f', 2, {DIM_H, DIM_W}, OPTIONAL},
+};
+
 static PyObject *py_render(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *objs[7], *background, *mesh_rgba, *mesh_depth, *outs[3];
+    PyObject *objs[7], *image_objs[4], *mesh_objs[2];
     int sh_degree, width, height, antialiased, threads, exhaustive = 0;
     double near;
     if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOO|p:render", &objs[0], &objs[1], &objs[2],
                           &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
-                          &near, &antialiased, parse_threads, &threads, &background, &mesh_rgba, &mesh_depth,
-                          &outs[0], &outs[1], &outs[2], &exhaustive))
+                          &near, &antialiased, parse_threads, &threads, &image_objs[0],
+                          &mesh_objs[0], &mesh_objs[1], &image_objs[1], &image_objs[2],
+                          &image_objs[3], &exhaustive))
         return NULL;
     buffers b = {.count = 0};
+    arg_dims d = ARG_DIMS_INIT;
     sc_gaussians g;
     sc_camera cam;
     sc_options opt;
     sc_image image = {0};
-    if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
+    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
                      &opt) != 0)
         goto fail;
-    if (parse_image(&b, background, outs, width, height, &image) != 0) goto fail;
+    if (parse_image(&b, &d, image_objs, &image) != 0) goto fail;
     opt.exhaustive = exhaustive;
-    const Py_ssize_t img4[] = {height, width, 4}, img1[] = {height, width};
-    if ((mesh_rgba == Py_None) != (mesh_depth == Py_None)) {
+    if ((mesh_objs[0] == Py_None) != (mesh_objs[1] == Py_None)) {
         PyErr_SetString(PyExc_ValueError, "mesh_rgba and mesh_depth must be given together");
         goto fail;
     }
-    if (mesh_rgba != Py_None) {
-        if (!(image.mesh_rgba = get_array(&b, mesh_rgba, "mesh_rgba", 'f', 3, img4, 0))) goto fail;
-        if (!(image.mesh_depth = get_array(&b, mesh_depth, "mesh_depth", 'f', 2, img1, 0))) goto fail;
-        if (check_mesh(image.mesh_rgba, image.mesh_depth, (int64_t)width * height) != 0) goto fail;
-    }
+    const Py_buffer *mesh[COUNT(MESH_ARGS)];
+    if (check_args(&b, &d, MESH_ARGS, COUNT(MESH_ARGS), mesh_objs, mesh) != 0) goto fail;
+    image.mesh_rgba = data(mesh[0]), image.mesh_depth = data(mesh[1]);
+    if (image.mesh_rgba &&
+        check_mesh(image.mesh_rgba, image.mesh_depth, (int64_t)width * height) != 0)
+        goto fail;
 
     sc_stats stats = {0};
     sc_status status;
@@ -455,25 +590,32 @@ static sc_train_state *get_state(PyObject *obj) {
     return PyCapsule_GetPointer(obj, STATE_NAME);
 }
 
+/* render_train()'s optional per-pixel and per-Gaussian outputs. */
+static const arg_spec TRAIN_OUTS[] = {
+    {"out_final_t", 'f', 2, {DIM_H, DIM_W}, WRITABLE | OPTIONAL},
+    {"out_n_contrib", 'i', 2, {DIM_H, DIM_W}, WRITABLE | OPTIONAL},
+    {"out_visible", 'B', 1, {DIM_N}, WRITABLE | OPTIONAL},
+};
+
 static PyObject *py_render_train(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *objs[7], *background, *outs[6];
+    PyObject *objs[7], *image_objs[4], *outs[3];
     int sh_degree, width, height, antialiased, threads, exhaustive = 0;
     double near;
     if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOOO|p:render_train", &objs[0], &objs[1],
                           &objs[2], &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width,
-                          &height, &near, &antialiased, parse_threads, &threads, &background, &outs[0],
-                          &outs[1], &outs[2], &outs[3], &outs[4], &outs[5], &exhaustive))
+                          &height, &near, &antialiased, parse_threads, &threads, &image_objs[0],
+                          &image_objs[1], &image_objs[2], &image_objs[3], &outs[0], &outs[1],
+                          &outs[2], &exhaustive))
         return NULL;
     buffers b = {.count = 0};
+    arg_dims d = ARG_DIMS_INIT;
     sc_gaussians g;
     sc_camera cam;
     sc_options opt;
     sc_image image = {0};
-    float *out_t = NULL;
-    int32_t *out_n = NULL;
-    uint8_t *out_visible = NULL;
-    if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
+    const Py_buffer *v[COUNT(TRAIN_OUTS)];
+    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
                      &opt) != 0)
         goto fail;
     opt.exhaustive = exhaustive;
@@ -481,18 +623,12 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "training renders through pinhole cameras only");
         goto fail;
     }
-    if (parse_image(&b, background, outs, width, height, &image) != 0) goto fail;
-    const Py_ssize_t img1[] = {height, width};
-    if (outs[3] != Py_None &&
-        !(out_t = (float *)get_array(&b, outs[3], "out_final_t", 'f', 2, img1, 1)))
+    if (parse_image(&b, &d, image_objs, &image) != 0 ||
+        check_args(&b, &d, TRAIN_OUTS, COUNT(TRAIN_OUTS), outs, v) != 0)
         goto fail;
-    if (outs[4] != Py_None &&
-        !(out_n = (int32_t *)get_array(&b, outs[4], "out_n_contrib", 'i', 2, img1, 1)))
-        goto fail;
-    const Py_ssize_t rows[] = {(Py_ssize_t)g.count};
-    if (outs[5] != Py_None &&
-        !(out_visible = (uint8_t *)get_array(&b, outs[5], "out_visible", 'B', 1, rows, 1)))
-        goto fail;
+    float *out_t = data(v[0]);
+    int32_t *out_n = data(v[1]);
+    uint8_t *out_visible = data(v[2]);
 
     sc_train_state *state = calloc(1, sizeof *state);
     if (!state) {
@@ -524,13 +660,13 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
         free(state);
         return NULL;
     }
-    PyObject *d = stats_dict(&stats);
-    if (!d) {
+    PyObject *stats_obj = stats_dict(&stats);
+    if (!stats_obj) {
         Py_DECREF(capsule);
         return NULL;
     }
-    PyObject *result = PyTuple_Pack(2, d, capsule);
-    Py_DECREF(d);
+    PyObject *result = PyTuple_Pack(2, stats_obj, capsule);
+    Py_DECREF(stats_obj);
     Py_DECREF(capsule);
     return result;
 fail:
@@ -551,14 +687,28 @@ static PyObject *py_train_state_info(PyObject *self, PyObject *arg) {
                          st->has_background ? Py_True : Py_False);
 }
 
+/* backward()'s loss gradients (in) and the Gaussians' gradients (out). */
+static const arg_spec BACKWARD_ARGS[] = {
+    {"d_rgb", 'f', 3, {DIM_H, DIM_W, 3}, FINITE},
+    {"d_alpha", 'f', 2, {DIM_H, DIM_W}, OPTIONAL | FINITE},
+    {"d_depth", 'f', 2, {DIM_H, DIM_W}, OPTIONAL | FINITE},
+    {"out_means", 'f', 2, {DIM_N, 3}, WRITABLE},
+    {"out_log_scales", 'f', 2, {DIM_N, 3}, WRITABLE},
+    {"out_quats", 'f', 2, {DIM_N, 4}, WRITABLE},
+    {"out_opacity_logits", 'f', 1, {DIM_N}, WRITABLE},
+    {"out_sh", 'f', 3, {DIM_N, DIM_K, 3}, WRITABLE},
+    {"out_xy", 'f', 2, {DIM_N, 2}, WRITABLE},
+    {"out_xy_abs", 'f', 2, {DIM_N, 2}, WRITABLE},
+};
+
 static PyObject *py_backward(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *state_obj, *objs[5], *d_objs[3], *outs[7];
+    PyObject *state_obj, *objs[5], *rest[COUNT(BACKWARD_ARGS)];
     int threads;
     if (!PyArg_ParseTuple(args, "OOOOOOOOOO&OOOOOOO:backward", &state_obj, &objs[0], &objs[1],
-                          &objs[2], &objs[3], &objs[4], &d_objs[0], &d_objs[1], &d_objs[2],
-                          parse_threads, &threads, &outs[0], &outs[1], &outs[2], &outs[3],
-                          &outs[4], &outs[5], &outs[6]))
+                          &objs[2], &objs[3], &objs[4], &rest[0], &rest[1], &rest[2],
+                          parse_threads, &threads, &rest[3], &rest[4], &rest[5], &rest[6],
+                          &rest[7], &rest[8], &rest[9]))
         return NULL;
     const sc_train_state *state = get_state(state_obj);
     if (!state) return NULL;
@@ -567,41 +717,21 @@ static PyObject *py_backward(PyObject *self, PyObject *args) {
         return NULL;
     }
     buffers b = {.count = 0};
+    arg_dims d = ARG_DIMS_INIT;
     sc_gaussians g;
-    if (parse_gaussians(&b, objs, &g) != 0) goto fail;
+    if (parse_gaussians(&b, &d, objs, &g) != 0) goto fail;
     if (g.count != state->count || g.sh_coeffs != state->sh_coeffs) {
         PyErr_Format(PyExc_ValueError,
                      "the Gaussians (N=%lld, K=%d) are not those render_train drew (N=%lld, K=%d)",
                      (long long)g.count, g.sh_coeffs, (long long)state->count, state->sh_coeffs);
         goto fail;
     }
-    const int width = state->camera.width, height = state->camera.height;
-    const int64_t pixels = (int64_t)width * height;
-    const Py_ssize_t img3[] = {height, width, 3}, img1[] = {height, width};
-    const float *d_rgb = get_array(&b, d_objs[0], "d_rgb", 'f', 3, img3, 0), *d_alpha = NULL,
-                *d_depth = NULL;
-    if (!d_rgb || check_finite_array(d_rgb, 3 * pixels, "d_rgb") != 0) goto fail;
-    if (d_objs[1] != Py_None) {
-        if (!(d_alpha = get_array(&b, d_objs[1], "d_alpha", 'f', 2, img1, 0))) goto fail;
-        if (check_finite_array(d_alpha, pixels, "d_alpha") != 0) goto fail;
-    }
-    if (d_objs[2] != Py_None) {
-        if (!(d_depth = get_array(&b, d_objs[2], "d_depth", 'f', 2, img1, 0))) goto fail;
-        if (check_finite_array(d_depth, pixels, "d_depth") != 0) goto fail;
-    }
-    const Py_ssize_t n = (Py_ssize_t)g.count, n3[] = {n, 3}, n4[] = {n, 4}, n1[] = {n},
-                     n2[] = {n, 2}, nk3[] = {n, g.sh_coeffs, 3};
-    sc_gaussian_grads out;
-    if (!(out.means = (float *)get_array(&b, outs[0], "out_means", 'f', 2, n3, 1))) goto fail;
-    if (!(out.log_scales = (float *)get_array(&b, outs[1], "out_log_scales", 'f', 2, n3, 1)))
-        goto fail;
-    if (!(out.quats = (float *)get_array(&b, outs[2], "out_quats", 'f', 2, n4, 1))) goto fail;
-    if (!(out.opacity_logits =
-              (float *)get_array(&b, outs[3], "out_opacity_logits", 'f', 1, n1, 1)))
-        goto fail;
-    if (!(out.sh = (float *)get_array(&b, outs[4], "out_sh", 'f', 3, nk3, 1))) goto fail;
-    if (!(out.xy = (float *)get_array(&b, outs[5], "out_xy", 'f', 2, n2, 1))) goto fail;
-    if (!(out.xy_abs = (float *)get_array(&b, outs[6], "out_xy_abs", 'f', 2, n2, 1))) goto fail;
+    SIZE(&d, DIM_H) = state->camera.height, SIZE(&d, DIM_W) = state->camera.width;
+    const Py_buffer *v[COUNT(BACKWARD_ARGS)];
+    if (check_args(&b, &d, BACKWARD_ARGS, COUNT(BACKWARD_ARGS), rest, v) != 0) goto fail;
+    const float *d_rgb = data(v[0]), *d_alpha = data(v[1]), *d_depth = data(v[2]);
+    sc_gaussian_grads out = {data(v[3]), data(v[4]), data(v[5]), data(v[6]), data(v[7]),
+                             data(v[8]), data(v[9])};
 
     sc_backward_stats stats = {0};
     sc_status status;
@@ -624,6 +754,12 @@ fail:
     return NULL;
 }
 
+static const arg_spec L1_SSIM_ARGS[] = {
+    {"image", 'f', 3, {DIM_H, DIM_W, 3}, FINITE},
+    {"target", 'f', 3, {DIM_H, DIM_W, 3}, FINITE},
+    {"out_grad", 'f', 3, {DIM_H, DIM_W, 3}, WRITABLE | OPTIONAL},
+};
+
 static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *image_obj, *target_obj, *grad_obj;
@@ -641,10 +777,11 @@ static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
         return NULL;
     }
     buffers b = {.count = 0};
-    const Py_ssize_t any3[] = {-1, -1, 3};
-    const float *image = get_array(&b, image_obj, "image", 'f', 3, any3, 0);
-    if (!image) goto fail;
-    const Py_ssize_t height = b.views[0].shape[0], width = b.views[0].shape[1];
+    arg_dims d = ARG_DIMS_INIT;
+    PyObject *objs[] = {image_obj, target_obj, grad_obj};
+    const Py_buffer *v[COUNT(L1_SSIM_ARGS)];
+    if (check_args(&b, &d, L1_SSIM_ARGS, 1, objs, v) != 0) goto fail;
+    const Py_ssize_t height = SIZE(&d, DIM_H), width = SIZE(&d, DIM_W);
     if (height < 1 || width < 1 || height > MAX_SIDE || width > MAX_SIDE ||
         (long long)width * height > MAX_PIXELS) {
         PyErr_Format(PyExc_ValueError,
@@ -652,16 +789,10 @@ static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
                      width, height, (int)MAX_SIDE, MAX_PIXELS);
         goto fail;
     }
-    const Py_ssize_t shape[] = {height, width, 3};
-    const float *target = get_array(&b, target_obj, "target", 'f', 3, shape, 0);
-    if (!target) goto fail;
-    const int64_t values = 3 * (int64_t)width * height;
-    if (check_finite_array(image, values, "image") != 0 ||
-        check_finite_array(target, values, "target") != 0)
+    if (check_args(&b, &d, L1_SSIM_ARGS + 1, COUNT(L1_SSIM_ARGS) - 1, objs + 1, v + 1) != 0)
         goto fail;
-    float *grad = NULL;
-    if (grad_obj != Py_None && !(grad = (float *)get_array(&b, grad_obj, "out_grad", 'f', 3, shape, 1)))
-        goto fail;
+    const float *image = data(v[0]), *target = data(v[1]);
+    float *grad = data(v[2]);
     double loss = 0, l1 = 0, ssim = 0, mse = 0;
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
@@ -676,33 +807,16 @@ fail:
     return NULL;
 }
 
-/* Any-shape float32 C-contiguous array; *size gets its element count. */
-static float *get_any_float(buffers *b, PyObject *obj, const char *name, int writable,
-                            const Py_buffer *like, int64_t *size) {
-    Py_buffer *view = &b->views[b->count];
-    Py_ssize_t shape[8];
-    int ndim = like ? like->ndim : -1;
-    if (like)
-        for (int i = 0; i < ndim && i < 8; ++i) shape[i] = like->shape[i];
-    if (!like) {
-        /* Learn the shape first, then validate like every other array. */
-        if (PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES) != 0) {
-            PyErr_Clear();
-            ndim = 1, shape[0] = -1;
-        } else {
-            ndim = view->ndim;
-            for (int i = 0; i < ndim && i < 8; ++i) shape[i] = view->shape[i];
-            PyBuffer_Release(view);
-        }
-        if (ndim > 8) {
-            PyErr_Format(PyExc_ValueError, "%s has too many dimensions", name);
-            return NULL;
-        }
-    }
-    float *data = (float *)get_array(b, obj, name, 'f', ndim, shape, writable);
-    if (data && size) *size = (int64_t)(b->views[b->count - 1].len / 4);
-    return data;
-}
+/* adam()'s arrays: param of any shape, its gradient and moments of the same, the row mask. Every
+ * value of grad is checked, those the update skips too: one flat pass is faster than a pass per
+ * row. */
+static const arg_spec ADAM_ARGS[] = {
+    {"param", 'f', 0, {0}, ANY_RANK | WRITABLE},
+    {"grad", 'f', 0, {0}, LIKE | FINITE},
+    {"exp_avg", 'f', 0, {0}, LIKE | WRITABLE},
+    {"exp_avg_sq", 'f', 0, {0}, LIKE | WRITABLE},
+    {"rows", 'B', 1, {DIM_ROWS}, OPTIONAL},
+};
 
 static PyObject *py_adam(PyObject *self, PyObject *args) {
     (void)self;
@@ -728,22 +842,19 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
     if (threads < 0)
         return PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
     buffers b = {.count = 0};
-    int64_t n = 0;
-    float *param = get_any_float(&b, objs[0], "param", 1, NULL, &n);
-    if (!param) goto fail;
-    const Py_buffer *like = &b.views[0];
+    arg_dims d = ARG_DIMS_INIT;
+    const Py_buffer *views[COUNT(ADAM_ARGS)];
+    if (check_args(&b, &d, ADAM_ARGS, 4, objs, views) != 0) goto fail;
+    const Py_buffer *like = views[0];
+    const int64_t n = (int64_t)(like->len / 4);
     /* Rows along the first axis (a 0-d array is one row). */
     const int64_t rows = like->ndim > 0 ? (int64_t)like->shape[0] : 1;
     const int64_t width = rows > 0 ? n / rows : 0;
-    const float *grad = get_any_float(&b, objs[1], "grad", 0, like, NULL);
-    float *m = grad ? get_any_float(&b, objs[2], "exp_avg", 1, like, NULL) : NULL;
-    float *v = m ? get_any_float(&b, objs[3], "exp_avg_sq", 1, like, NULL) : NULL;
-    if (!v) goto fail;
-    const uint8_t *mask = NULL;
-    if (mask_obj != Py_None) {
-        const Py_ssize_t mask_shape[] = {(Py_ssize_t)rows};
-        if (!(mask = get_array(&b, mask_obj, "rows", 'B', 1, mask_shape, 0))) goto fail;
-    }
+    SIZE(&d, DIM_ROWS) = (Py_ssize_t)rows;
+    if (check_args(&b, &d, ADAM_ARGS + 4, 1, &mask_obj, views + 4) != 0) goto fail;
+    float *param = data(views[0]), *m = data(views[2]), *v = data(views[3]);
+    const float *grad = data(views[1]);
+    const uint8_t *mask = data(views[4]);
     if (used < 0) used = width;
     if (used > width) {
         PyErr_Format(PyExc_ValueError, "used must be in 0..%lld (the values in a row), got %lld",
@@ -755,8 +866,6 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
                      "got %lld", (long long)used, lead);
         goto fail;
     }
-    /* Every value, those the update skips too: one flat pass is faster than a pass per row. */
-    if (check_finite_array(grad, n, "grad") != 0) goto fail;
     Py_BEGIN_ALLOW_THREADS
     sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, used, &o,
                  threads ? threads : sc_cpu_count());
@@ -770,6 +879,14 @@ fail:
 
 /* position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads): see
  * sc_position_noise. float32 parameters (means writable) of N rows, noise (N, 3) float64. */
+static const arg_spec POSITION_NOISE_ARGS[] = {
+    {"means", 'f', 2, {DIM_N, 3}, WRITABLE},
+    {"log_scales", 'f', 2, {DIM_N, 3}, 0},
+    {"quats", 'f', 2, {DIM_N, 4}, 0},
+    {"opacity_logits", 'f', 1, {DIM_N}, 0},
+    {"noise", 'd', 2, {DIM_N, 3}, 0},
+};
+
 static PyObject *py_position_noise(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *objs[5];
@@ -780,16 +897,14 @@ static PyObject *py_position_noise(PyObject *self, PyObject *args) {
         return NULL;
     if (!isfinite(scale)) return value_error("scale must be finite, got %g", scale), NULL;
     buffers b = {.count = 0};
-    const Py_ssize_t n3[] = {-1, 3};
-    float *means = (float *)get_array(&b, objs[0], "means", 'f', 2, n3, 1);
-    if (!means) goto fail;
-    const Py_ssize_t n = b.views[b.count - 1].shape[0];
-    const Py_ssize_t rows3[] = {n, 3}, rows4[] = {n, 4}, rows1[] = {n};
-    const float *log_scales = get_array(&b, objs[1], "log_scales", 'f', 2, rows3, 0);
-    const float *quats = log_scales ? get_array(&b, objs[2], "quats", 'f', 2, rows4, 0) : NULL;
-    const float *logits = quats ? get_array(&b, objs[3], "opacity_logits", 'f', 1, rows1, 0) : NULL;
-    const double *noise = logits ? get_array(&b, objs[4], "noise", 'd', 2, rows3, 0) : NULL;
-    if (!noise) goto fail;
+    arg_dims d = ARG_DIMS_INIT;
+    const Py_buffer *v[COUNT(POSITION_NOISE_ARGS)];
+    if (check_args(&b, &d, POSITION_NOISE_ARGS, COUNT(POSITION_NOISE_ARGS), objs, v) != 0)
+        goto fail;
+    const Py_ssize_t n = SIZE(&d, DIM_N);
+    float *means = data(v[0]);
+    const float *log_scales = data(v[1]), *quats = data(v[2]), *logits = data(v[3]);
+    const double *noise = data(v[4]);
     Py_BEGIN_ALLOW_THREADS
     sc_position_noise(means, log_scales, quats, logits, noise, n, scale,
                       threads ? threads : sc_cpu_count());
@@ -803,6 +918,11 @@ fail:
 
 /* srgb_premultiplied(src, dst, decode, threads): see sc_srgb_premultiplied. Both float32,
  * C-contiguous, of one shape (..., 4); dst writable and either src itself or not overlapping it. */
+static const arg_spec SRGB_PREMULTIPLIED_ARGS[] = {
+    {"rgba", 'f', 0, {0}, ANY_RANK},
+    {"out", 'f', 0, {0}, LIKE | WRITABLE},
+};
+
 static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *src_obj, *dst_obj;
@@ -811,17 +931,20 @@ static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args) {
                           parse_threads, &threads))
         return NULL;
     buffers b = {.count = 0};
-    int64_t n = 0;
-    const float *src = get_any_float(&b, src_obj, "rgba", 0, NULL, &n);
-    if (!src) goto fail;
-    const Py_buffer *like = &b.views[0];
+    arg_dims dims = ARG_DIMS_INIT;
+    PyObject *objs[] = {src_obj, dst_obj};
+    const Py_buffer *v[COUNT(SRGB_PREMULTIPLIED_ARGS)];
+    if (check_args(&b, &dims, SRGB_PREMULTIPLIED_ARGS, 1, objs, v) != 0) goto fail;
+    const Py_buffer *like = v[0];
+    const int64_t n = (int64_t)(like->len / 4);
     if (like->ndim < 1 || like->shape[like->ndim - 1] != 4) {
         PyErr_Format(PyExc_ValueError, "rgba must have shape (..., 4), got %d dimensions ending in %zd",
                      like->ndim, like->ndim ? like->shape[like->ndim - 1] : (Py_ssize_t)0);
         goto fail;
     }
-    float *dst = get_any_float(&b, dst_obj, "out", 1, like, NULL);
-    if (!dst) goto fail;
+    if (check_args(&b, &dims, SRGB_PREMULTIPLIED_ARGS + 1, 1, objs + 1, v + 1) != 0) goto fail;
+    const float *src = data(v[0]);
+    float *dst = data(v[1]);
     const char *a = (const char *)src, *d = (const char *)dst;
     if (a != d && a < d + 4 * n && d < a + 4 * n) {
         PyErr_SetString(PyExc_ValueError, "out must be rgba itself or not overlap it");
@@ -837,43 +960,16 @@ fail:
     return NULL;
 }
 
-/* An (H, W, 4) float32 array with any strides (h, w < 0: any size) as an sc_rgba_view. */
-static int get_rgba_view(buffers *b, PyObject *obj, const char *name, int writable, Py_ssize_t h,
-                         Py_ssize_t w, sc_rgba_view *out) {
-    Py_buffer *view = &b->views[b->count];
-    if (PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES | (writable ? PyBUF_WRITABLE : 0))
-        != 0) {
-        PyErr_Clear();
-        if (writable && PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES) == 0) {
-            PyBuffer_Release(view);
-            PyErr_Format(PyExc_ValueError, "%s must be a writable array", name);
-        } else {
-            PyErr_Clear();
-            PyErr_Format(PyExc_TypeError, "%s must be a float32 array (buffer protocol)", name);
-        }
-        return -1;
-    }
-    b->count++;
-    if (!format_is(view->format, 'f') || view->itemsize != 4) {
-        PyErr_Format(PyExc_TypeError, "%s must have dtype float32, got format '%s'", name,
-                     view->format ? view->format : "B");
-        return -1;
-    }
-    if (view->ndim != 3 || view->shape[2] != 4 || (h >= 0 && view->shape[0] != h) ||
-        (w >= 0 && view->shape[1] != w)) {
-        char want[48] = "(H, W, 4)", got[96] = "(";
-        if (h >= 0) snprintf(want, sizeof want, "(%zd, %zd, 4)", h, w);
-        for (int i = 0; i < view->ndim && i < 6; ++i) {
-            const size_t at = strlen(got);
-            snprintf(got + at, sizeof got - at, "%s%zd", i ? ", " : "", view->shape[i]);
-        }
-        strncat(got, ")", sizeof got - strlen(got) - 1);
-        PyErr_Format(PyExc_ValueError, "%s must have shape %s, got shape %s", name, want, got);
-        return -1;
-    }
-    *out = (sc_rgba_view){(const char *)view->buf, view->shape[0], view->shape[1],
-                          view->strides[0], view->strides[1], view->strides[2]};
-    return 0;
+/* A checked (H, W, 4) float32 view with any strides as an sc_rgba_view. */
+static sc_rgba_view rgba_view(const Py_buffer *v) {
+    return (sc_rgba_view){(const char *)v->buf, v->shape[0], v->shape[1], v->strides[0],
+                          v->strides[1], v->strides[2]};
+}
+
+/* A checked (H, W) float32 view with any strides as an sc_plane_view. */
+static sc_plane_view plane_view(const Py_buffer *v) {
+    return (sc_plane_view){(const char *)v->buf, v->shape[0], v->shape[1], v->strides[0],
+                           v->strides[1]};
 }
 
 /* The bytes a view spans, [*low, *high). */
@@ -904,6 +1000,11 @@ static int same_view(const Py_buffer *a, const Py_buffer *b) {
 
 /* srgb_view(rgba, out, decode, zero_non_finite, threads): see sc_srgb_view. (H, W, 4) float32
  * arrays of one shape with any strides; out writable, rgba itself or not overlapping it. */
+static const arg_spec SRGB_VIEW_ARGS[] = {
+    {"rgba", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED},
+    {"out", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED | WRITABLE},
+};
+
 static PyObject *py_srgb_view(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *src_obj, *dst_obj;
@@ -912,10 +1013,11 @@ static PyObject *py_srgb_view(PyObject *self, PyObject *args) {
                           parse_threads, &threads))
         return NULL;
     buffers b = {.count = 0};
-    sc_rgba_view src, dst;
-    if (get_rgba_view(&b, src_obj, "rgba", 0, -1, -1, &src) != 0 ||
-        get_rgba_view(&b, dst_obj, "out", 1, src.height, src.width, &dst) != 0)
-        goto fail;
+    arg_dims d = ARG_DIMS_INIT;
+    PyObject *objs[] = {src_obj, dst_obj};
+    const Py_buffer *v[COUNT(SRGB_VIEW_ARGS)];
+    if (check_args(&b, &d, SRGB_VIEW_ARGS, COUNT(SRGB_VIEW_ARGS), objs, v) != 0) goto fail;
+    const sc_rgba_view src = rgba_view(v[0]), dst = rgba_view(v[1]);
     if (!same_view(&b.views[0], &b.views[1]) && overlap(&b.views[0], &b.views[1])) {
         PyErr_SetString(PyExc_ValueError, "out must be rgba itself or not overlap it");
         goto fail;
@@ -942,19 +1044,21 @@ static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args) {
                           &objs[3], parse_threads, &threads, &out_obj))
         return NULL;
     buffers b = {.count = 0};
-    const Py_ssize_t any3[] = {-1, -1, 3};
-    sc_rgba_view mesh, out;
-    const float *rgb = get_array(&b, objs[0], "rgb", 'f', 3, any3, 0);
-    if (!rgb) goto fail;
-    const Py_ssize_t h = b.views[0].shape[0], w = b.views[0].shape[1];
-    const Py_ssize_t plane[] = {h, w}, rgba[] = {h, w, 4};
-    const float *alpha = get_array(&b, objs[1], "alpha", 'f', 2, plane, 0);
-    if (!alpha || get_rgba_view(&b, objs[2], "mesh", 0, h, w, &mesh) != 0) goto fail;
+    arg_dims d = ARG_DIMS_INIT;
     const int in_place = out_obj == Py_None;
-    const float *layer = get_array(&b, objs[3], "layer", 'f', 3, rgba, in_place);
-    if (!layer || get_rgba_view(&b, in_place ? objs[3] : out_obj, in_place ? "layer" : "out", 1, h,
-                                w, &out) != 0)
-        goto fail;
+    /* In place, layer is checked twice: C-contiguous (read), then as a writable view. */
+    const arg_spec specs[] = {
+        {"rgb", 'f', 3, {DIM_H, DIM_W, 3}, 0},
+        {"alpha", 'f', 2, {DIM_H, DIM_W}, 0},
+        {"mesh", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED},
+        {"layer", 'f', 3, {DIM_H, DIM_W, 4}, in_place ? WRITABLE : 0},
+        {in_place ? "layer" : "out", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED | WRITABLE},
+    };
+    PyObject *const all[] = {objs[0], objs[1], objs[2], objs[3], in_place ? objs[3] : out_obj};
+    const Py_buffer *v[COUNT(specs)];
+    if (check_args(&b, &d, specs, COUNT(specs), all, v) != 0) goto fail;
+    const float *rgb = data(v[0]), *alpha = data(v[1]), *layer = data(v[3]);
+    const sc_rgba_view mesh = rgba_view(v[2]), out = rgba_view(v[4]);
     const Py_buffer *out_view = &b.views[4];
     for (int i = 0; i < 3; ++i)
         if (overlap(out_view, &b.views[i])) {
@@ -974,30 +1078,6 @@ static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args) {
 fail:
     release_all(&b);
     return NULL;
-}
-
-/* An (H, W) float32 array with any strides as an sc_plane_view. */
-static int get_plane_view(buffers *b, PyObject *obj, const char *name, Py_ssize_t h, Py_ssize_t w,
-                          sc_plane_view *out) {
-    Py_buffer *view = &b->views[b->count];
-    if (PyObject_GetBuffer(obj, view, PyBUF_FORMAT | PyBUF_STRIDES) != 0) {
-        PyErr_Clear();
-        PyErr_Format(PyExc_TypeError, "%s must be a float32 array (buffer protocol)", name);
-        return -1;
-    }
-    b->count++;
-    if (!format_is(view->format, 'f') || view->itemsize != 4) {
-        PyErr_Format(PyExc_TypeError, "%s must have dtype float32, got format '%s'", name,
-                     view->format ? view->format : "B");
-        return -1;
-    }
-    if (view->ndim != 2 || view->shape[0] != h || view->shape[1] != w) {
-        PyErr_Format(PyExc_ValueError, "%s must have shape (%zd, %zd)", name, h, w);
-        return -1;
-    }
-    *out = (sc_plane_view){(const char *)view->buf, view->shape[0], view->shape[1],
-                           view->strides[0], view->strides[1]};
-    return 0;
 }
 
 static const char PREPARED_NAME[] = "splatcore.Prepared";
@@ -1024,10 +1104,11 @@ static PyObject *py_compose_prepare(PyObject *self, PyObject *args) {
                           &near, &antialiased, parse_threads, &threads, &exhaustive))
         return NULL;
     buffers b = {.count = 0};
+    arg_dims d = ARG_DIMS_INIT;
     sc_gaussians g;
     sc_camera cam;
     sc_options opt;
-    if (parse_common(&b, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
+    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
                      &opt) != 0) {
         release_all(&b);
         return NULL;
@@ -1062,6 +1143,13 @@ static PyObject *py_compose_prepare(PyObject *self, PyObject *args) {
  * mesh (H, W, 4) and mesh_depth (H, W) float32, any strides, of the prepared camera's size; out
  * (H, W, 4) writable, any strides, overlapping none of the others; out_depth (H, W) float32
  * C-contiguous, writable, overlapping neither mesh nor mesh_depth, or None (no depth). */
+static const arg_spec COMPOSE_SRGB_ARGS[] = {
+    {"mesh_rgba", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED},
+    {"mesh_depth", 'f', 2, {DIM_H, DIM_W}, STRIDED},
+    {"out", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED | WRITABLE},
+    {"out_depth", 'f', 2, {DIM_H, DIM_W}, WRITABLE | OPTIONAL},
+};
+
 static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *capsule, *mesh_obj, *depth_obj, *out_obj, *out_depth_obj;
@@ -1077,17 +1165,14 @@ static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
     int width, height;
     sc_prepared_size(prepared, &width, &height);
     buffers b = {.count = 0};
-    sc_rgba_view mesh, out;
-    sc_plane_view mesh_depth;
-    const Py_ssize_t img1[] = {height, width};
-    if (get_rgba_view(&b, mesh_obj, "mesh_rgba", 0, height, width, &mesh) != 0 ||
-        get_plane_view(&b, depth_obj, "mesh_depth", height, width, &mesh_depth) != 0 ||
-        get_rgba_view(&b, out_obj, "out", 1, height, width, &out) != 0)
-        goto fail;
-    float *out_depth = NULL;
-    if (out_depth_obj != Py_None &&
-        !(out_depth = (float *)get_array(&b, out_depth_obj, "out_depth", 'f', 2, img1, 1)))
-        goto fail;
+    arg_dims d = ARG_DIMS_INIT;
+    SIZE(&d, DIM_H) = height, SIZE(&d, DIM_W) = width;
+    PyObject *objs[] = {mesh_obj, depth_obj, out_obj, out_depth_obj};
+    const Py_buffer *v[COUNT(COMPOSE_SRGB_ARGS)];
+    if (check_args(&b, &d, COMPOSE_SRGB_ARGS, COUNT(COMPOSE_SRGB_ARGS), objs, v) != 0) goto fail;
+    const sc_rgba_view mesh = rgba_view(v[0]), out = rgba_view(v[2]);
+    const sc_plane_view mesh_depth = plane_view(v[1]);
+    float *out_depth = data(v[3]);
     for (int i = 0; i < b.count; ++i)
         for (int k = i + 1; k < b.count; ++k)
             if (i != 0 || k != 1) /* the two inputs may share a buffer */
@@ -1153,6 +1238,11 @@ static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
 
 /* sort_keys(keys, threads, out_order) -> count of keys not +inf: see sc_sort_keys. keys float32 (N,),
  * out_order int32 (N,) writable. */
+static const arg_spec SORT_KEYS_ARGS[] = {
+    {"keys", 'f', 1, {DIM_ROWS}, 0},
+    {"out_order", 'i', 1, {DIM_ROWS}, WRITABLE},
+};
+
 static PyObject *py_sort_keys(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *keys_obj, *order_obj;
@@ -1160,17 +1250,18 @@ static PyObject *py_sort_keys(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "OO&O:sort_keys", &keys_obj, parse_threads, &threads, &order_obj))
         return NULL;
     buffers b = {.count = 0};
-    const Py_ssize_t any[1] = {-1};
-    const float *keys = get_array(&b, keys_obj, "keys", 'f', 1, any, 0);
-    if (!keys) goto fail;
-    const Py_ssize_t n = b.views[0].shape[0];
+    arg_dims d = ARG_DIMS_INIT;
+    PyObject *objs[] = {keys_obj, order_obj};
+    const Py_buffer *v[COUNT(SORT_KEYS_ARGS)];
+    if (check_args(&b, &d, SORT_KEYS_ARGS, 1, objs, v) != 0) goto fail;
+    const Py_ssize_t n = SIZE(&d, DIM_ROWS);
     if (n > MAX_GAUSSIANS) {
         PyErr_Format(PyExc_ValueError, "at most %lld keys, got %zd", MAX_GAUSSIANS, n);
         goto fail;
     }
-    const Py_ssize_t shape[1] = {n};
-    int32_t *order = (int32_t *)get_array(&b, order_obj, "out_order", 'i', 1, shape, 1);
-    if (!order) goto fail;
+    if (check_args(&b, &d, SORT_KEYS_ARGS + 1, 1, objs + 1, v + 1) != 0) goto fail;
+    const float *keys = data(v[0]);
+    int32_t *order = data(v[1]);
     sc_stats stats = {0};
     int64_t finite = 0;
     sc_status status;

@@ -5,7 +5,9 @@ Scripts:
     export_splats(obj, "out.spz")                     # the evaluated object, in world space
 or the operators `bpy.ops.splat.import_splats(filepath=...)` and
 `bpy.ops.splat.export_splats(filepath=...)` (the active splat object). The format follows from the
-extension: .ply (standard 3DGS; SuperSplat's compressed .ply is read too), .splat, .spz.
+file name, through the format table `core/formats/registry.py` (`FORMATS`, the one list): .ply
+(standard 3DGS, and SuperSplat's .compressed.ply), .splat, .spz, SOG (.sog, a folder's
+meta.json; a streamed lod-meta.json is read only), glTF (.glb, .gltf).
 
 Import reads the whole file before touching the scene, so a bad file raises `SplatFileError`
 (the operator reports it as an error) and leaves nothing behind.

@@ -65,7 +65,8 @@ from ...core.train.trainer import TrainConfig
 from ...core.train.config import STRATEGY_NAMES
 from .. import dependencies, job_runner, splat_object
 from ..camera_adapter import camera_of
-from ..job_runner import JobOperator, OperatorJob, draw_settings, registration
+from ..job_runner import JobOperator, OperatorJob, draw_settings
+from ..registration import module_registration
 
 COLMAP_KEY = "colmap_transform"
 OBJECT_KEY = "splat_object"
@@ -453,4 +454,4 @@ def _menu(self, context):
 
 
 CLASSES = (SPLAT_OT_train,)
-register, unregister = registration(CLASSES, _menu)
+register, unregister = module_registration(CLASSES, menus=[(job_runner.menu_parent, _menu)])

@@ -73,14 +73,8 @@ from ...core.train.scene_to_splats import (
 from ...core.train.trainer import Trainer, TrainConfig
 from .. import dependencies, splat_object
 from ..camera_adapter import set_camera
-from ..job_runner import (
-    JobOperator,
-    OperatorJob,
-    draw_settings,
-    is_running,
-    preparing,
-    registration,
-)
+from ..job_runner import JobOperator, OperatorJob, draw_settings, is_running, menu_parent, preparing
+from ..registration import module_registration
 from .operator import TrainingSettings
 
 GEOMETRY_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "CURVES", "POINTCLOUD", "VOLUME",
@@ -561,4 +555,4 @@ def _menu(self, context):
 
 
 CLASSES = (SPLAT_OT_bake_to_splats,)
-register, unregister = registration(CLASSES, _menu)
+register, unregister = module_registration(CLASSES, menus=[(menu_parent, _menu)])

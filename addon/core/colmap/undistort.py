@@ -3,7 +3,6 @@ points and photo pixels mapped into it, and the undistorted model written as COL
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -11,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import move_files_into
 from ..cameras import Camera
 from .checks import inside
 from .errors import ColmapError, import_pycolmap
@@ -134,8 +134,7 @@ def write_undistorted_model(rec, registered, images: list[ColmapImage],
     fresh = Path(tempfile.mkdtemp(prefix=".model.", dir=target))
     try:
         out.write_binary(str(fresh))
-        for written in fresh.iterdir():
-            os.replace(written, target / written.name)
+        move_files_into(fresh, target)
     except Exception as error:  # noqa: BLE001
         raise ColmapError(f"{target}: cannot write the undistorted model: {error}") from error
     finally:

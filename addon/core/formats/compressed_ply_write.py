@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gaussians import Gaussians
+from ..gaussians import Gaussians, sigmoid
+from ..sh import SH_C0
 from ..atomic import atomic_write
 from .errors import SplatFileError
 from .morton import morton_order
@@ -40,7 +41,6 @@ from .quaternions import smallest_three
 __all__ = ["save", "CHUNK_SIZE", "header_text"]
 
 CHUNK_SIZE = 256
-SH_C0 = 0.28209479177387814
 SCALE_LIMIT = 20.0
 TINY_RANGE = 1e-5
 GENERATOR = "Gaussian Splatting for Blender"
@@ -107,7 +107,7 @@ def _encode(g: Gaussians) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     bounds = [(lo.astype(np.float32).astype(np.float64), hi.astype(np.float32).astype(np.float64))
               for lo, hi in bounds]
     t = [_normalised(c, lo, hi).reshape(-1, 3)[:n] for c, (lo, hi) in zip(fields, bounds)]
-    alpha = _unorm(1.0 / (1.0 + np.exp(-g.opacity_logits.astype(np.float64))), 8)
+    alpha = _unorm(sigmoid(g.opacity_logits), 8)
     rgb = _unorm(t[2], 8)
     packed = np.stack([_pack_11_10_11(t[0]), _pack_rotation(g.quats), _pack_11_10_11(t[1]),
                        (rgb[:, 0] << np.uint32(24)) | (rgb[:, 1] << np.uint32(16))

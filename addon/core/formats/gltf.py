@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from ..gaussians import Gaussians
+from ..sh import SH_C0
 from ..transform import transform_gaussians
 from ..atomic import atomic_write
 from .errors import SplatFileError
@@ -61,7 +62,6 @@ PREFIX = EXTENSION + ":"
 GLB_MAGIC = 0x46546C67  # "glTF"
 CHUNK_JSON = 0x4E4F534A
 CHUNK_BIN = 0x004E4942
-SH_C0 = 0.28209479177387814
 FLOAT, BYTE, UBYTE, SHORT, USHORT = 5126, 5120, 5121, 5122, 5123
 COMPONENTS = {FLOAT: ("<f4", 4), BYTE: ("<i1", 1), UBYTE: ("<u1", 1), SHORT: ("<i2", 2), USHORT: ("<u2", 2)}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}

@@ -55,6 +55,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..gaussians import Gaussians
+from ..sh import SH_C0
 from . import webp
 from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook
@@ -68,7 +69,6 @@ __all__ = ["load", "load_with_info", "save", "SogInfo", "read_info", "morton_ord
 VERSION = 2
 MAX_COUNT = 1 << 27  # 134M Gaussians: beyond any real scene; bounds what a header can ask for
 MAX_PALETTE = 65536
-SH_C0 = 0.28209479177387814
 OPACITY_EPS = 1e-6  # opacity bytes 0 and 255 decode to these (as splat-transform's reader)
 COEFFS = {1: 3, 2: 8, 3: 15}  # SH bands -> higher-order coefficients per colour channel
 MAX_MEMBER_BYTES = 1 << 30  # one image or meta.json inside a .sog bundle

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gaussians import Gaussians
+from ..gaussians import Gaussians, logit, sigmoid
 from ..sh import SH_C0
 from ..atomic import atomic_write
 from .errors import SplatFileError
@@ -81,12 +81,12 @@ def _log32(scale: np.ndarray) -> np.ndarray:
 def decode_alpha(alpha: np.ndarray) -> np.ndarray:
     """uint8 opacity (round(sigmoid * 255)) -> float32 logit, finite at the ends."""
     p = np.clip(alpha.astype(np.float64) / 255.0, _ALPHA_EDGE, 1.0 - _ALPHA_EDGE)
-    return np.log(p / (1.0 - p)).astype(np.float32)
+    return logit(p).astype(np.float32)
 
 
 def encode_alpha(logits: np.ndarray) -> np.ndarray:
     """float logit -> uint8 round(sigmoid * 255)."""
-    opacity = 0.5 * (1.0 + np.tanh(0.5 * logits.astype(np.float64)))  # overflow-free sigmoid
+    opacity = sigmoid(logits)
     return np.clip(np.rint(opacity * 255.0), 0, 255).astype(np.uint8)
 
 

@@ -148,11 +148,9 @@ def prepare(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False,
             near: float = 0.01, sh_degree: int | None = None, threads: int = 0) -> Prepared:
     """The first half of `compose` (display sRGB), for `compose(..., prepared=)`. Releases the
     GIL while it runs: another thread may do this while the main one reads the render."""
-    viewmat, intrinsics, width, height = native.camera_args(camera)
     threads = native.thread_count(threads)
-    handle, stats = native.splatcore().compose_prepare(
-        *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree),
-        viewmat, intrinsics, width, height, float(near), bool(antialiased), threads)
+    handle, stats = native.compose_prepare(gaussians, camera, sh_degree=sh_degree, near=near,
+                                           antialiased=antialiased, threads=threads)
     return Prepared(handle, camera, threads, stats)
 
 
@@ -174,8 +172,8 @@ def _compose_display(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray
     if out is None:
         out = np.empty((height, width, 4), np.float32)
     depth = np.empty((height, width), np.float32) if with_depth else None
-    stats = dict(native.splatcore().compose_srgb(
-        prepared.handle, mesh_rgba, np.asarray(mesh_depth, np.float32), out, depth, FAR))
+    stats = native.compose_srgb(prepared.handle, mesh_rgba, np.asarray(mesh_depth, np.float32),
+                                out, depth, FAR)
     # The conversions run inside the tile pass: their share of its wall time, on all threads.
     stats["colour_ms"] = stats["ms_colour_cpu"] / (prepared.threads or native.cpu_count())
     stats["native_ms"] = stats["ms_total"] - stats["colour_ms"]

@@ -55,15 +55,14 @@ class RenderResult:
 def project(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False, near: float = 0.01,
             sh_degree: int | None = None, threads: int = 0) -> Projection:
     """Project every Gaussian into `camera` (the renderer's first stage, exposed for tests)."""
-    viewmat, intrinsics, width, height = native.camera_args(camera)
+    native.camera_args(camera)  # the camera checked before anything is allocated
     n = len(gaussians)
     out = Projection(np.zeros((n, 2), np.float32), np.zeros((n, 3), np.float32),
                      np.zeros(n, np.float32), np.zeros(n, np.float32),
                      np.zeros((n, 3), np.float32), np.zeros(n, np.uint8))
-    native.splatcore().project(
-        *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree), viewmat,
-        intrinsics, width, height, float(near), bool(antialiased), native.thread_count(threads),
-        out.xy, out.conic, out.depth, out.opacity, out.rgb, out.valid)
+    native.project(gaussians, camera, out.xy, out.conic, out.depth, out.opacity, out.rgb,
+                   out.valid, sh_degree=sh_degree, near=near, antialiased=antialiased,
+                   threads=threads)
     out.valid = out.valid.view(bool)
     return out
 
@@ -83,7 +82,7 @@ def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | Non
         the half rows its alpha >= 1/255 ellipse reaches: the slow twin of that optimisation, for
         tests and benchmarks; the image is the same bit for bit.
     """
-    viewmat, intrinsics, width, height = native.camera_args(camera)
+    _, _, width, height = native.camera_args(camera)
     if (mesh_rgba is None) != (mesh_depth is None):
         raise ValueError("mesh_rgba and mesh_depth must be given together")
     background = native.background_arg(background)
@@ -93,14 +92,13 @@ def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | Non
     rgb = np.empty((height, width, 3), np.float32)
     alpha = np.empty((height, width), np.float32)
     depth = np.empty((height, width), np.float32)
-    stats = native.splatcore().render(
-        *native.gaussian_args(gaussians), native.resolve_sh_degree(gaussians, sh_degree), viewmat,
-        intrinsics, width, height, float(near), bool(antialiased), native.thread_count(threads),
-        background, mesh_rgba, mesh_depth, rgb, alpha, depth, bool(exhaustive))
-    return RenderResult(rgb, alpha, depth, dict(stats))
+    stats = native.render(gaussians, camera, background, mesh_rgba, mesh_depth, rgb, alpha, depth,
+                          sh_degree=sh_degree, near=near, antialiased=antialiased,
+                          threads=threads, exhaustive=exhaustive)
+    return RenderResult(rgb, alpha, depth, stats)
 
 
 def release_buffers() -> None:
     """Give the working buffers renders keep for the next frame back to the system (after a
     render job: a viewport draw or the next F12 allocates them again)."""
-    native.splatcore().release_buffers()
+    native.release_buffers()

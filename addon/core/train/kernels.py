@@ -140,7 +140,7 @@ def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray
         the projection backward one Gaussian at a time instead of eight side by side).
     Returns (images, state); the images are bit-identical to `render()`'s.
     """
-    viewmat, intrinsics, width, height = native.camera_args(camera)
+    _, _, width, height = native.camera_args(camera)
     background = native.background_arg(background)
     if out is None:
         out = RenderResult(np.empty((height, width, 3), np.float32),
@@ -150,12 +150,12 @@ def render_train(gaussians: Gaussians, camera: Camera, *, background: np.ndarray
     n_contrib = np.empty((height, width), np.int32)
     visible = np.empty(len(gaussians), np.uint8)
     degree = native.resolve_sh_degree(gaussians, sh_degree)
-    stats, handle = native.splatcore().render_train(
-        *native.gaussian_args(gaussians), degree, viewmat, intrinsics, width, height, float(near),
-        bool(antialiased), native.thread_count(threads), background, out.rgb, out.alpha,
-        out.depth, final_t, n_contrib, visible, bool(exhaustive))
+    stats, handle = native.render_train(
+        gaussians, camera, background, out.rgb, out.alpha, out.depth, final_t, n_contrib, visible,
+        sh_degree=degree, near=near, antialiased=antialiased, threads=threads,
+        exhaustive=exhaustive)
     out.stats = dict(stats)
-    info = native.splatcore().train_state_info(handle)
+    info = native.train_state_info(handle)
     state = TrainState(handle, width, height, info["count"], info["sh_coeffs"], degree,
                        bool(antialiased), info["drawn"], info["tile_pairs"], final_t, n_contrib,
                        visible.view(bool))
@@ -176,7 +176,7 @@ def backward(state: TrainState, gaussians: Gaussians, d_rgb: np.ndarray,
     """
     if not isinstance(state, TrainState):
         raise TypeError(f"state must be the TrainState from render_train, got {type(state).__name__}")
-    arrays = native.gaussian_args(gaussians)
+    native.gaussian_args(gaussians)  # a TypeError for anything but Gaussians, first
     if len(gaussians) != state.count or gaussians.sh.shape[1] != state.sh_coeffs:
         raise ValueError(f"the Gaussians (N={len(gaussians)}, K={gaussians.sh.shape[1]}) are not "
                          f"those render_train drew (N={state.count}, K={state.sh_coeffs})")
@@ -190,9 +190,9 @@ def backward(state: TrainState, gaussians: Gaussians, d_rgb: np.ndarray,
         out = Gradients.zeros(state.count, state.sh_coeffs)
     elif not isinstance(out, Gradients) or not out.fits(state.count, state.sh_coeffs):
         raise ValueError("out must be Gradients shaped like the Gaussians (Gradients.zeros_like)")
-    stats = native.splatcore().backward(
-        state.handle, *arrays, d_rgb, d_alpha, d_depth, native.thread_count(threads), out.means,
-        out.log_scales, out.quats, out.opacity_logits, out.sh, out.xy, out.xy_abs)
+    stats = native.backward(
+        state.handle, gaussians, d_rgb, d_alpha, d_depth, out.means, out.log_scales, out.quats,
+        out.opacity_logits, out.sh, out.xy, out.xy_abs, threads=threads)
     out.stats = dict(stats)
     return out
 
@@ -237,8 +237,7 @@ def l1_ssim_loss(image: np.ndarray, target: np.ndarray, *, lambda_dssim: float =
     grad = None
     if need_grad:
         grad = np.empty(image.shape, np.float32) if out_grad is None else out_grad
-    loss, l1, ssim, mse = native.splatcore().l1_ssim(image, target, lam,
-                                                     native.thread_count(threads), grad)
+    loss, l1, ssim, mse = native.l1_ssim(image, target, lam, grad, threads=threads)
     return LossResult(loss, l1, ssim, grad, mse)
 
 
@@ -273,10 +272,9 @@ def adam_step(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_
         rows = np.asarray(rows)
         if rows.dtype == np.bool_:
             rows = rows.view(np.uint8)
-    native.splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1),
-                            float(beta2), float(eps), int(step), native.thread_count(threads),
-                            rows, int(lead), float(lr if lead_lr is None else lead_lr),
-                            -1 if used is None else int(used))
+    native.adam(param, grad, exp_avg, exp_avg_sq, lr=lr, beta1=beta1, beta2=beta2, eps=eps,
+                step=step, threads=threads, rows=rows, lead=lead,
+                lead_lr=lr if lead_lr is None else lead_lr, used=-1 if used is None else used)
 
 
 def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
@@ -292,6 +290,5 @@ def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
     per Gaussian, as the reference's float64 NumPy. Means whose gate is at most 1e-12 (opacity
     above about 0.27: a move below float32 resolution) are left exactly as they are.
     """
-    native.splatcore().position_noise(means, log_scales, quats, opacity_logits,
-                                      np.ascontiguousarray(noise, np.float64), float(scale),
-                                      native.thread_count(threads))
+    native.position_noise(means, log_scales, quats, opacity_logits,
+                          np.ascontiguousarray(noise, np.float64), scale, threads=threads)

@@ -10,21 +10,15 @@ updates the kernels' gradient arrays in place. The SH bands still get two learni
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from . import kernels as tk
-from ..gaussians import Gaussians
+from ..gaussians import Gaussians, logit, sigmoid  # noqa: F401 (logit: for the strategies)
 
 PARAMETERS = ("means", "log_scales", "quats", "opacity_logits", "sh")
 # Learning-rate keys: one per parameter array, except SH, which has one for DC, one for the rest.
 LEARNING_RATES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
-
-
-def logit(p: float) -> float:
-    """The opacity logit of an opacity p in (0, 1)."""
-    return math.log(p / (1.0 - p))
 
 
 class GaussianParameters:
@@ -43,7 +37,7 @@ class GaussianParameters:
 
     def opacities(self) -> np.ndarray:
         """sigmoid(opacity logits), (N,) float64."""
-        return 1.0 / (1.0 + np.exp(-self.params["opacity_logits"].astype(np.float64)))
+        return sigmoid(self.params["opacity_logits"])
 
     @property
     def gaussians(self) -> Gaussians:

@@ -18,8 +18,6 @@ from addon.core.cameras import Camera
 from addon.core.gaussians import Gaussians
 from tests.scenes import playbot_camera, random_camera, random_gaussians, random_mesh_layer
 
-PLAYBOT = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "splats" / "playbot_125k_sh2.ply"
-
 
 def _assert_twins(gaussians: Gaussians, camera: Camera, **options) -> tuple[int, int]:
     """Masked and exhaustive renders are identical; returns their evaluation counts."""
@@ -99,8 +97,7 @@ def test_tiny_images(rng, size):
     _assert_twins(g, random_camera(rng, *size))
 
 
-@pytest.mark.skipif(not PLAYBOT.exists(), reason="../shared/data not present")
-def test_real_capture():
-    gaussians = splat_io.load(PLAYBOT)
+def test_real_capture(shared_data: Path):
+    gaussians = splat_io.load(shared_data / "splats" / "playbot_125k_sh2.ply")
     fast, slow = _assert_twins(gaussians, playbot_camera())
     assert fast < 0.8 * slow

@@ -112,7 +112,7 @@ class MCMCStrategy(Strategy):
         copies = np.bincount(picked, minlength=len(params))[picked] + 1
         new_o, new_s = relocation(opacity[picked], np.exp(params.params["log_scales"][picked]), copies)
         new_o = np.clip(new_o, self.config.prune_opacity, 1.0 - _FLOAT32_EPS)
-        params.params["opacity_logits"][picked] = np.log(new_o / (1.0 - new_o))
+        params.params["opacity_logits"][picked] = logit(new_o)
         params.params["log_scales"][picked] = np.log(new_s)
         return picked
 
