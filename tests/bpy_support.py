@@ -67,7 +67,9 @@ def camera_of(camera_obj, depsgraph) -> Camera:
         clip_start=cam.clip_start, clip_end=cam.clip_end, panorama_type=pano.panorama_type,
         fisheye_fov=pano.fisheye_fov, fisheye_lens=pano.fisheye_lens,
         latitude_min=pano.latitude_min, latitude_max=pano.latitude_max,
-        longitude_min=pano.longitude_min, longitude_max=pano.longitude_max))
+        longitude_min=pano.longitude_min, longitude_max=pano.longitude_max,
+        use_dof=cam.dof.use_dof, aperture_fstop=cam.dof.aperture_fstop,
+        focus_distance=cam.dof.focus_distance))
 
 
 def render_scene(camera_obj, *, near: float = 0.01, use_cache: bool = True):

@@ -97,18 +97,19 @@ def eval_sh(sh: np.ndarray, dirs: np.ndarray, degree: int) -> np.ndarray:
 
 def project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy, width,
             height, *, near=0.01, antialiased=False, sh_degree=None, model="PINHOLE",
-            model_params=(), far=np.inf) -> dict[str, np.ndarray]:
+            model_params=(), far=np.inf, aperture=0.0, focus=1.0) -> dict[str, np.ndarray]:
     """Per-Gaussian screen-space data, as `addon.core.render.renderer.project` documents it.
 
     Returns xy (N, 2), conic (N, 3) = A, B, C of the inverse dilated 2D covariance, depth (N,)
     view-space z, opacity (N,), rgb (N, 3), valid (N,) bool; rows where valid is False are zero.
     Other camera models (`model`, `model_params`, `far`: see `camera_model_project`).
+    Depth of field (`aperture` > 0, `focus`): see `depth_of_field`.
     """
     if model != "PINHOLE":
         return camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, fx,
                                     fy, cx, cy, width, height, near=near, far=far,
                                     antialiased=antialiased, sh_degree=sh_degree, model=model,
-                                    model_params=model_params)
+                                    model_params=model_params, aperture=aperture, focus=focus)
     means, log_scales, opacity_logits = _f64(means), _f64(log_scales), _f64(opacity_logits)
     sh, viewmat = _f64(sh), _f64(viewmat)
     fx, fy, cx, cy, near = (float(v) for v in (fx, fy, cx, cy, near))
@@ -137,17 +138,12 @@ def project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, c
         jac[:, 1, 2] = -fy * ty / (z * z)
         cov_cam = rv @ cov3 @ rv.T
         cov2 = jac @ cov_cam @ np.swapaxes(jac, 1, 2)
-        a, b, c = cov2[:, 0, 0], cov2[:, 0, 1], cov2[:, 1, 1]
-        det_raw = a * c - b * b
-        a, c = a + DILATION, c + DILATION
-        det = a * c - b * b
-        conic = np.stack([c / det, -b / det, a / det], axis=1)
+        conic, mass = depth_of_field(cov2, z, fx, fy, aperture, focus, antialiased, False)
 
         xy = np.stack([fx * x / z + cx, fy * y / z + cy], axis=1)
 
-        opacity = 1.0 / (1.0 + np.exp(-opacity_logits))
-        if antialiased:
-            opacity = opacity * np.sqrt(np.maximum(0.0, det_raw / det))
+        opacity = 1.0 / (1.0 + np.exp(-opacity_logits)) * mass
+        det = 1.0 / (conic[:, 0] * conic[:, 2] - conic[:, 1] ** 2)
 
         centre = -rv.T @ tv
         dirs = means - centre
@@ -286,7 +282,33 @@ def gaussian_args(gaussians) -> tuple:
 
 def camera_model_args(camera) -> dict:
     """A Camera's model, as the keyword arguments of `project()` and `render()`."""
-    return dict(model=camera.model, model_params=tuple(camera.params), far=camera.far)
+    return dict(model=camera.model, model_params=tuple(camera.params), far=camera.far,
+                aperture=camera.aperture, focus=camera.focus)
+
+
+def depth_of_field(cov2, z, fx, fy, aperture, focus, antialiased, ortho):
+    """The conic (N, 3) of 2D covariances `cov2` (N, 2, 2) blurred by a thin lens' circle of
+    confusion and dilated, and the opacity factor that keeps each Gaussian's drawn mass.
+
+    A thin lens of radius `aperture` focused at depth `focus` moves a point at depth z by
+    f a (1/focus - 1/z) pixels for a lens point a (ORTHO: f a (1 - z/focus)), a uniform over the
+    aperture disc, whose covariance is (radius/2)^2 I: so Sigma2 gains
+    (aperture |1/focus - 1/z| / 2)^2 diag(fx^2, fy^2). A Gaussian convolved with a Gaussian stays
+    one, with its integral: the opacity is multiplied by sqrt(det(before) / det(after)), `before`
+    the dilated covariance without the blur (or, antialiased, the raw covariance: the
+    Mip-Splatting compensation), `after` the blurred, dilated one. Without blur and antialiasing
+    the factor is exactly 1."""
+    a, b, c = cov2[:, 0, 0], cov2[:, 0, 1], cov2[:, 1, 1]
+    r = aperture * ((1.0 - z / focus) if ortho else (1.0 / focus - 1.0 / z))
+    blur = 0.25 * r * r if aperture > 0 else np.zeros_like(z)
+    det_raw = a * c - b * b
+    before = det_raw if antialiased else (a + DILATION) * (c + DILATION) - b * b
+    a, c = a + fx * fx * blur + DILATION, c + fy * fy * blur + DILATION
+    det = a * c - b * b
+    conic = np.stack([c / det, -b / det, a / det], axis=1)
+    mass = np.sqrt(np.maximum(0.0, before / det)) if (antialiased or aperture > 0) else \
+        np.ones_like(det)
+    return conic, mass
 
 
 def project_scene(gaussians, camera, **options) -> dict[str, np.ndarray]:
@@ -316,7 +338,8 @@ def _cycles_uv(p: np.ndarray, model: str, params) -> tuple[np.ndarray, np.ndarra
         d[:, 1] -= 1.0                                            # direction_to_mirrorball
         div = 2.0 * np.sqrt(np.maximum(-0.5 * d[:, 1], 0.0))
         d = d / np.where(div > 0, div, 1.0)[:, None]
-        return np.stack([0.5 * (d[:, 0] + 1), 0.5 * (d[:, 2] + 1)], 1), div > 1e-6
+        behind = np.arccos(np.clip(z / r, -1, 1)) >= np.pi - 1e-3  # maps onto the whole rim
+        return np.stack([0.5 * (d[:, 0] + 1), 0.5 * (d[:, 2] + 1)], 1), ~behind
     d = np.stack([z, -x, -y], 1) / r[:, None]                      # forward, left, up
     if model == "EQUIRECTANGULAR":
         lon_min, lon_max, lat_min, lat_max = params                 # Blender's sync of the range
@@ -363,7 +386,7 @@ def wraps(model: str, params) -> bool:
 
 def camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy,
                          width, height, *, near, far, antialiased, sh_degree, model,
-                         model_params) -> dict[str, np.ndarray]:
+                         model_params, aperture=0.0, focus=1.0) -> dict[str, np.ndarray]:
     """`project()` through an orthographic or a panoramic camera (docs/conventions.md,
     "Cameras beyond the pinhole").
 
@@ -409,17 +432,16 @@ def camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, 
             centre = -rv.T @ tv
             dirs = (means - centre) / np.linalg.norm(means - centre, axis=1, keepdims=True)
         cov2 = jac @ cov_cam @ np.swapaxes(jac, 1, 2)
-        a, b, c = cov2[:, 0, 0], cov2[:, 0, 1], cov2[:, 1, 1]
-        det_raw = a * c - b * b
-        a, c = a + DILATION, c + DILATION
-        det = a * c - b * b
-        conic = np.stack([c / det, -b / det, a / det], axis=1)
+        conic, mass = depth_of_field(cov2, depth, fx, fy, aperture, focus, antialiased,
+                                     model == "ORTHO")
+        a, b, c = cov2[:, 0, 0] + DILATION, cov2[:, 0, 1], cov2[:, 1, 1] + DILATION
+        det = 1.0 / (conic[:, 0] * conic[:, 2] - conic[:, 1] ** 2)
         k2 = 2 * np.log(255 * opacity) * (1 + 1e-4) + 1e-4
         band = (period > 0) & ~(k2 * a <= 0.25 * period ** 2)
         conic[band] = np.stack([0 * c, 0 * c, 1 / c], 1)[band]
-        det_raw, det = np.where(band, c - DILATION, det_raw), np.where(band, c, det)
-        if antialiased:
-            opacity = opacity * np.sqrt(np.maximum(0.0, det_raw / det))
+        det = np.where(band, c, det)
+        band_mass = np.sqrt(np.maximum(0.0, (c - DILATION) / c)) if antialiased else 1.0
+        opacity = opacity * np.where(band, band_mass, mass)
         rgb = np.maximum(eval_sh(sh, dirs, degree) + 0.5, 0.0)
         valid = ((depth >= near) & (depth <= far) & shows & (det > 0) & np.isfinite(det)
                  & np.isfinite(xy).all(1) & np.isfinite(conic).all(1))

@@ -65,7 +65,21 @@ def params_of(camera_obj, render, *, use_recorded: bool = False) -> BlenderCamer
         pixel_aspect_x=float(aspect[0]), pixel_aspect_y=float(aspect[1]),
         type=cam.type if cam.type in ("PERSP", "ORTHO", "PANO") else "PERSP",
         ortho_scale=cam.ortho_scale, clip_start=cam.clip_start, clip_end=cam.clip_end,
-        **_panorama_settings(cam))
+        use_dof=bool(cam.dof.use_dof), aperture_fstop=cam.dof.aperture_fstop,
+        focus_distance=focus_distance(camera_obj), **_panorama_settings(cam))
+
+
+def focus_distance(camera_obj) -> float:
+    """The camera's focus distance: its focus object's distance along the view axis where it
+    has one (as Cycles' `blender_camera_focal_distance`, bones aside), else Focus Distance."""
+    dof = camera_obj.data.dof
+    target = dof.focus_object
+    if target is None:
+        return float(dof.focus_distance)
+    m = np.array(camera_obj.matrix_world, np.float64)
+    axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
+    offset = m[:3, 3] - np.array(target.matrix_world, np.float64)[:3, 3]
+    return float(abs(axis @ offset))
 
 
 def camera_of(camera_obj, render, *, use_recorded: bool = False) -> Camera:
@@ -94,7 +108,8 @@ def render_problem(camera_obj, engine: str | None = None) -> str | None:
         settings = _panorama_settings(cam)
         kind = settings.get("panorama_type", "")
         probe = BlenderCameraParams(np.eye(4), 50.0, 36.0, 24.0, "AUTO", 0.0, 0.0, 4, 4,
-                                    type="PANO", panorama_type=kind)
+                                    type="PANO", panorama_type=kind,
+                                    use_dof=bool(cam.dof.use_dof))
         reason = unsupported_camera(probe)
         if reason:
             return f"camera {camera_obj.name!r}: {reason}"

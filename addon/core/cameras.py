@@ -42,6 +42,8 @@ class Camera:
     camera-space direction mapped to Cycles' (u, v) by the model (with `params`), then
     (fx u + cx, cy - fy v); depth is the distance from the camera centre, not z.
     `far`: Gaussians deeper than this are culled (a camera's clip_end; inf for none).
+    `aperture`, `focus`: depth of field (PINHOLE and ORTHO; aperture 0: none), a thin lens of
+    that radius in world units focused at view depth `focus` (docs/conventions.md).
     """
 
     world_to_camera: np.ndarray  # (4, 4) float64, rigid
@@ -54,6 +56,8 @@ class Camera:
     model: str = "PINHOLE"
     params: tuple[float, ...] = ()
     far: float = float("inf")
+    aperture: float = 0.0
+    focus: float = 1.0
 
     def __post_init__(self) -> None:
         m = np.array(self.world_to_camera, dtype=np.float64)
@@ -76,6 +80,13 @@ class Camera:
         self.far = float(self.far)
         if np.isnan(self.far):
             raise ValueError("far must not be NaN")
+        self.aperture, self.focus = float(self.aperture), float(self.focus)
+        if not (np.isfinite(self.aperture) and self.aperture >= 0 and np.isfinite(self.focus)
+                and self.focus > 0):
+            raise ValueError(f"depth of field needs aperture >= 0 and focus > 0, got "
+                             f"{self.aperture}, {self.focus}")
+        if self.aperture > 0 and self.model not in ("PINHOLE", "ORTHO"):
+            raise ValueError("depth of field is drawn through pinhole and orthographic cameras only")
 
     @property
     def is_pinhole(self) -> bool:
@@ -137,6 +148,8 @@ class BlenderCameraParams:
     Gaussians beyond clip_end; clip_start is the render's near plane, see `camera_near`).
     panorama_type, fisheye_fov, fisheye_lens, latitude_min/max, longitude_min/max: Blender's
     panorama settings (radians, mm).
+    use_dof, aperture_fstop, focus_distance: the camera's depth of field (the focus distance
+    along the view axis, a focus object's already resolved: `camera_adapter`).
     """
 
     matrix_world: np.ndarray
@@ -162,6 +175,9 @@ class BlenderCameraParams:
     latitude_max: float = np.pi / 2
     longitude_min: float = -np.pi
     longitude_max: float = np.pi
+    use_dof: bool = False
+    aperture_fstop: float = 2.8
+    focus_distance: float = 10.0
 
     def __post_init__(self) -> None:
         m = np.array(self.matrix_world, dtype=np.float64)
@@ -171,7 +187,7 @@ class BlenderCameraParams:
         for name in ("lens", "sensor_width", "sensor_height", "shift_x", "shift_y",
                      "pixel_aspect_x", "pixel_aspect_y", "ortho_scale", "clip_start", "clip_end",
                      "fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max",
-                     "longitude_min", "longitude_max"):
+                     "longitude_min", "longitude_max", "aperture_fstop", "focus_distance"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value}")
@@ -206,6 +222,9 @@ class BlenderCameraParams:
 
 def unsupported_camera(params: BlenderCameraParams) -> str | None:
     """Why splats cannot be rendered through this camera, or None when they can."""
+    if params.type == "PANO" and params.use_dof:
+        return ("depth of field through a panoramic camera is not supported (splats render "
+                "with it through perspective and orthographic cameras): turn it off")
     if params.type == "PANO" and params.panorama_type not in PANORAMA_TYPES:
         return (f"the {params.panorama_type.replace('_', ' ').lower()} panorama is not supported "
                 f"(splats render through {', '.join(PANORAMA_TYPES).replace('_', ' ').lower()} "
@@ -279,7 +298,21 @@ def camera_from_blender(params: BlenderCameraParams) -> Camera:
     cx = 0.5 * width - params.shift_x * viewfac
     cy = 0.5 * height + params.shift_y * viewfac / ycor
 
-    return Camera(_world_to_camera(params), fx, fy, cx, cy, width, height)
+    aperture, focus = depth_of_field(params)
+    return Camera(_world_to_camera(params), fx, fy, cx, cy, width, height, aperture=aperture,
+                  focus=focus)
+
+
+def depth_of_field(params: BlenderCameraParams) -> tuple[float, float]:
+    """(aperture radius in world units, focus distance) of Cycles' thin lens for `params`
+    (`blender_camera_from_object`): lens (mm, as metres) / (2 f-stop) for a perspective camera,
+    1 / (2 f-stop) for an orthographic one, f-stop at least 1e-5; (0, 1) without depth of field.
+    The aperture's blades and anamorphic ratio are not modelled (a round aperture)."""
+    if not params.use_dof or params.type == "PANO":
+        return 0.0, 1.0
+    fstop = max(params.aperture_fstop, 1e-5)
+    aperture = (1.0 if params.type == "ORTHO" else params.lens * 1e-3) / (2.0 * fstop)
+    return aperture, max(params.focus_distance, 1e-6)
 
 
 def _world_to_camera(params: BlenderCameraParams) -> np.ndarray:
@@ -321,9 +354,10 @@ def _special_camera_from_blender(params: BlenderCameraParams, width: int, height
             fit = "HORIZONTAL" if aspx * width >= aspy * height else "VERTICAL"
         viewfac = float(width) if fit == "HORIZONTAL" else ycor * height
         fx = viewfac / params.ortho_scale
+        aperture, focus = depth_of_field(params)
         return Camera(world_to_camera, fx, fx / ycor, 0.5 * width - params.shift_x * viewfac,
                       0.5 * height + params.shift_y * viewfac / ycor, width, height,
-                      model="ORTHO", far=params.clip_end)
+                      model="ORTHO", far=params.clip_end, aperture=aperture, focus=focus)
     reason = unsupported_camera(params)
     if reason:
         raise ValueError(reason)

@@ -94,6 +94,11 @@ typedef struct {
     int model;                  /* sc_model */
     double far;                 /* Gaussians deeper than this are culled; <= 0: no limit */
     double params[SC_MODEL_PARAMS];
+    /* Depth of field (PINHOLE and ORTHO; 0: none): a thin lens of this aperture radius (world
+     * units) focused at depth `focus`. Each Gaussian's screen covariance gains the covariance
+     * of its circle of confusion, (r/2)^2 diag(fx^2, fy^2) with r = aperture |1/focus - 1/z|
+     * (ORTHO: aperture |1 - z/focus|), and its opacity falls so that its drawn mass stays. */
+    double aperture, focus;
 } sc_camera;
 
 typedef struct {

@@ -308,8 +308,28 @@ typedef struct {
     double jw[2][3];           /* J W (W the camera rotation) */
     double a_rows[2][3];       /* A = J W R S */
     double a0, b0, c0;         /* Sigma2 before the dilation: [[a0, b0], [b0, c0]] = A A^T */
-    double a, b, c, det;       /* the dilated Sigma2 and its determinant */
+    double dof_x, dof_y;       /* the circle of confusion's covariance (diagonal; 0: none) */
+    double a, b, c, det;       /* Sigma2 with it, dilated, and its determinant */
 } sc_ewa;
+
+/* The circle of confusion's variance per unit focal length squared at view depth z
+ * (sc_camera's aperture and focus): (r/2)^2. */
+static inline double sc_dof_blur(const sc_camera *cam, double z) {
+    if (!(cam->aperture > 0.0)) return 0.0;
+    const double r = cam->aperture * (cam->model == SC_ORTHO ? 1.0 - z / cam->focus
+                                                             : 1.0 / cam->focus - 1.0 / z);
+    return 0.25 * r * r;
+}
+
+/* The opacity factor that keeps a Gaussian's drawn mass through the depth-of-field blur and,
+ * if `antialiased`, the dilation: sqrt(det(before) / det), `before` the raw Sigma2 (antialiased)
+ * or the dilated one without the blur. 1 exactly without either. */
+static inline double sc_mass_factor(const sc_ewa *e, int antialiased) {
+    const double before = antialiased ? e->a0 * e->c0 - e->b0 * e->b0
+                                      : (e->a0 + SC_DILATION) * (e->c0 + SC_DILATION) - e->b0 * e->b0;
+    const double ratio = before / e->det;
+    return sqrt(ratio > 0.0 ? ratio : 0.0);
+}
 
 /* Rotation matrix (row-major) of a quaternion w,x,y,z; normalises (into unit[4]); zero means
  * identity. Returns |q|^2. */
@@ -373,7 +393,9 @@ static SC_ALWAYS_INLINE int sc_ewa_project(const sc_gaussians *g, int64_t i, con
     e->a0 = a0v[0] * a0v[0] + a0v[1] * a0v[1] + a0v[2] * a0v[2];
     e->b0 = a0v[0] * a1v[0] + a0v[1] * a1v[1] + a0v[2] * a1v[2];
     e->c0 = a1v[0] * a1v[0] + a1v[1] * a1v[1] + a1v[2] * a1v[2];
-    e->a = e->a0 + SC_DILATION, e->b = e->b0, e->c = e->c0 + SC_DILATION;
+    const double blur = sc_dof_blur(cam, z);
+    e->dof_x = fx * fx * blur, e->dof_y = fy * fy * blur;
+    e->a = e->a0 + e->dof_x + SC_DILATION, e->b = e->b0, e->c = e->c0 + e->dof_y + SC_DILATION;
     e->det = e->a * e->c - e->b * e->b;
     return e->det > 0.0 && isfinite(e->det);
 }

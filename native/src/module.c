@@ -251,7 +251,7 @@ static const arg_spec GAUSSIAN_ARGS[] = {
 
 static const arg_spec CAMERA_ARGS[] = {
     {"world_to_camera", 'd', 2, {4, 4}, 0},
-    {"intrinsics", 'd', 1, {ANY}, 0}, /* (4,) or (6 + SC_MODEL_PARAMS,): parse_common */
+    {"intrinsics", 'd', 1, {ANY}, 0}, /* (4,) or (8 + SC_MODEL_PARAMS,): parse_common */
 };
 
 /* The size a call bound to a named dimension. */
@@ -284,18 +284,27 @@ static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_d
     const Py_buffer *v[COUNT(CAMERA_ARGS)];
     if (check_args(b, d, CAMERA_ARGS, COUNT(CAMERA_ARGS), objs + 5, v) != 0) return -1;
     const double *viewmat = data(v[0]), *intr = data(v[1]);
-    /* intrinsics: fx fy cx cy (a pinhole), or those, the model, far and SC_MODEL_PARAMS. */
-    const Py_ssize_t n_intr = v[1]->shape[0];
-    if (n_intr != 4 && n_intr != 6 + SC_MODEL_PARAMS) {
-        PyErr_Format(PyExc_ValueError, "intrinsics must have shape (4,) or (%d,), got (%zd,)",
-                     6 + SC_MODEL_PARAMS, n_intr);
+    /* intrinsics: fx fy cx cy (a pinhole), or those, the model, far, aperture, focus and
+     * SC_MODEL_PARAMS (sc_camera). */
+    const Py_ssize_t n_intr = v[1]->shape[0], n_long = 8 + SC_MODEL_PARAMS;
+    if (n_intr != 4 && n_intr != n_long) {
+        PyErr_Format(PyExc_ValueError, "intrinsics must have shape (4,) or (%zd,), got (%zd,)",
+                     n_long, n_intr);
         return -1;
     }
-    const double model = n_intr == 4 ? SC_PINHOLE : intr[4], far = n_intr == 4 ? 0.0 : intr[5];
+    const int pinhole_only = n_intr == 4;
+    const double model = pinhole_only ? SC_PINHOLE : intr[4], far = pinhole_only ? 0.0 : intr[5];
+    const double aperture = pinhole_only ? 0.0 : intr[6], focus = pinhole_only ? 1.0 : intr[7];
     if (!(model >= 0 && model < SC_MODEL_COUNT && model == (int)model) || isnan(far) ||
-        !all_finite_d(intr + (n_intr == 4 ? 0 : 6), n_intr == 4 ? 0 : SC_MODEL_PARAMS)) {
+        !all_finite_d(intr + (pinhole_only ? 0 : 8), pinhole_only ? 0 : SC_MODEL_PARAMS)) {
         PyErr_SetString(PyExc_ValueError, "intrinsics: unknown camera model or non-finite "
                                           "model parameters");
+        return -1;
+    }
+    if (!(aperture >= 0 && isfinite(aperture)) || !(focus > 0 && isfinite(focus)) ||
+        (aperture > 0 && model >= SC_EQUIRECTANGULAR)) {
+        value_error("depth of field needs a finite aperture >= 0 and focus > 0, and a pinhole or "
+                    "orthographic camera; got aperture %g, focus %g", aperture, focus);
         return -1;
     }
     if (!all_finite_d(viewmat, 16) || !all_finite_d(intr, 4)) {
@@ -338,8 +347,8 @@ static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_d
     memcpy(cam->world_to_camera, viewmat, sizeof cam->world_to_camera);
     cam->fx = intr[0], cam->fy = intr[1], cam->cx = intr[2], cam->cy = intr[3];
     cam->width = width, cam->height = height;
-    cam->model = (int)model, cam->far = far;
-    for (int k = 0; k < SC_MODEL_PARAMS; ++k) cam->params[k] = n_intr == 4 ? 0.0 : intr[6 + k];
+    cam->model = (int)model, cam->far = far, cam->aperture = aperture, cam->focus = focus;
+    for (int k = 0; k < SC_MODEL_PARAMS; ++k) cam->params[k] = pinhole_only ? 0.0 : intr[8 + k];
     SIZE(d, DIM_H) = height, SIZE(d, DIM_W) = width;
     opt->sh_degree = sh_degree;
     opt->near = near;
@@ -619,8 +628,9 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
                      &opt) != 0)
         goto fail;
     opt.exhaustive = exhaustive;
-    if (cam.model != SC_PINHOLE) {
-        PyErr_SetString(PyExc_ValueError, "training renders through pinhole cameras only");
+    if (cam.model != SC_PINHOLE || cam.aperture > 0) {
+        PyErr_SetString(PyExc_ValueError, "training renders through pinhole cameras only (no "
+                                          "depth of field)");
         goto fail;
     }
     if (parse_image(&b, &d, image_objs, &image) != 0 ||

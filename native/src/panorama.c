@@ -50,9 +50,10 @@ static int radial(const sc_camera *cam, double theta, double *g, double *dg, dou
         *g = 2.0 * k[0] * sin(0.5 * theta), *dg = k[0] * cos(0.5 * theta);
         *su = 1.0 / k[2], *sv = 1.0 / k[3];
         return theta <= 0.5 * k[1];
-    default: /* SC_MIRRORBALL: the ball's normal bisects the view and the reflected ray */
+    default: /* SC_MIRRORBALL: the ball's normal bisects the view and the reflected ray. Straight
+              * behind (within 1e-3 rad) maps onto the whole rim: not drawn. */
         *g = sin(0.5 * theta), *dg = 0.5 * cos(0.5 * theta), *su = *sv = 0.5;
-        return theta < PI * (1.0 - 1e-9);
+        return theta < PI - 1e-3;
     }
 }
 

@@ -68,10 +68,7 @@ static int project_one(const job *j, int64_t i, sc_splat *s) {
     const double a = e.a, b = e.b, c = e.c, det = e.det;
 
     double opacity = sc_sigmoid(g->opacity_logits[i]);
-    if (j->opt->antialiased) {
-        const double ratio = (e.a0 * e.c0 - e.b0 * e.b0) / det;
-        opacity *= sqrt(ratio > 0.0 ? ratio : 0.0);
-    }
+    if (j->opt->antialiased || cam->aperture > 0.0) opacity *= sc_mass_factor(&e, j->opt->antialiased);
 
     double dir[3];
     sc_view_dir(g->means + 3 * i, j->campos, dir);
@@ -151,6 +148,7 @@ typedef struct {
     float lo_x, hi_x, lo_y, hi_y; /* the guard band of x/z and y/z (0 for ORTHO) */
     int cull;
     int ortho;                    /* SC_ORTHO: x, y instead of x/z, y/z; J constant */
+    float aperture, inv_focus;    /* depth of field (sc_camera), aperture 0: none */
 } fast_job;
 
 /* One batch: lane l holds Gaussian idx[l]. */
@@ -202,6 +200,8 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
     const float dilation = (float)SC_DILATION;
     const float lo_x = fj->lo_x, hi_x = fj->hi_x, lo_y = fj->lo_y, hi_y = fj->hi_y;
     const float aa = fj->base.opt->antialiased ? 1.0f : 0.0f;
+    const float aperture = fj->aperture, inv_focus = fj->inv_focus;
+    const int keep_mass = fj->base.opt->antialiased || aperture > 0.0f; /* sc_mass_factor */
     const int width = cam->width, height = cam->height;
     for (int l = 0; l < LANES; ++l) {
         const float inv_z = ortho ? 1.0f : 1.0f / pf[2][l]; /* ORTHO: the band is 0, so J's */
@@ -239,12 +239,19 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
         const float e0 = u[1] * t[2] - u[2] * t[1], e1 = u[2] * t[0] - u[0] * t[2];
         const float e2 = u[0] * t[1] - u[1] * t[0];
         const float det0 = e0 * e0 + e1 * e1 + e2 * e2;
-        const float det = det0 + dilation * (a0 + c0) + dilation * dilation;
+        /* The circle of confusion (sc_dof_blur): 0 without depth of field, then a1 = a0 etc.
+         * exactly. */
+        const float rz = aperture * (ortho ? 1.0f - pf[2][l] * inv_focus : inv_focus - inv_z);
+        const float blur = 0.25f * rz * rz, bx = fx * fx * blur, by = fy * fy * blur;
+        const float a1 = a0 + bx, c1 = c0 + by, det1 = det0 + bx * c0 + by * a0 + bx * by;
+        const float det = det1 + dilation * (a1 + c1) + dilation * dilation;
         const float inv_det = 1.0f / det;
-        const float ca = (c0 + dilation) * inv_det, cb = -b0 * inv_det, cc = (a0 + dilation) * inv_det;
+        const float ca = (c1 + dilation) * inv_det, cb = -b0 * inv_det, cc = (a1 + dilation) * inv_det;
         o->ca[l] = ca, o->cb[l] = cb, o->cc[l] = cc;
         const float sigmoid = 1.0f / (1.0f + exp_any(-in[10][l]));
-        const float opacity = sigmoid * (aa * sqrtf(det0 * inv_det) + (1.0f - aa));
+        const float before = aa * det0 + (1.0f - aa) * (det0 + dilation * (a0 + c0) + dilation * dilation);
+        const float mass = sqrtf(before * inv_det);
+        const float opacity = sigmoid * (keep_mass ? mass : 1.0f);
         o->opacity[l] = opacity;
         /* x * 0 == 0 exactly when x is finite. */
         const float finite = o->x[l] * 0.0f + o->y[l] * 0.0f + det * 0.0f + ca * 0.0f +
@@ -319,6 +326,9 @@ static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int6
     const double near = fj->base.opt->near, far = sc_far(cam), fx = cam->fx, fy = cam->fy;
     const double cx = cam->cx, cy = cam->cy;
     const int ortho = fj->ortho;
+    const double aperture = cam->aperture > 0.0 ? cam->aperture : 0.0;
+    const double inv_focus = aperture > 0.0 ? 1.0 / cam->focus : 0.0;
+    const double f2 = fx > fy ? fx * fx : fy * fy;
     const double lo_x = fj->lo_x, hi_x = fj->hi_x, lo_y = fj->lo_y, hi_y = fj->hi_y;
     const double width = cam->width, height = cam->height;
     const int cull = fj->cull;
@@ -336,8 +346,10 @@ static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int6
         /* Not fmaxf, a library call that stops vectorisation (the inputs are finite here). */
         const float s0 = scales[3 * i], s1 = scales[3 * i + 1], s2 = scales[3 * i + 2];
         const float s12 = s1 > s2 ? s1 : s2, largest = s0 > s12 ? s0 : s12;
+        const double rz = aperture * (ortho ? 1.0 - z * inv_focus : inv_focus - inv_z);
+        const double blur = 0.25 * rz * rz * f2; /* the circle of confusion, pixels^2 */
         const double radius =
-            sqrt(11.1 * (j2 * (double)exp_any(2.0f * largest) + SC_DILATION)) * 1.001 + 1.0;
+            sqrt(11.1 * (j2 * (double)exp_any(2.0f * largest) + SC_DILATION + blur)) * 1.001 + 1.0;
         const double x = fx * rx + cx, y = fy * ry + cy;
         /* NaN or inf in the bound keeps the Gaussian (the full path decides). */
         const int outside = (x + radius < 0.0) | (x - radius > width) | (y + radius < 0.0) |
@@ -457,6 +469,8 @@ sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_
     fj.lo_y = (float)(-(cam->cy / cam->fy) - SC_GUARD * tan_y);
     fj.hi_y = (float)((cam->height - cam->cy) / cam->fy + SC_GUARD * tan_y);
     if (fj.ortho) fj.lo_x = fj.hi_x = fj.lo_y = fj.hi_y = 0.0f; /* no clamp: J is constant */
+    fj.aperture = cam->aperture > 0.0 ? (float)cam->aperture : 0.0f;
+    fj.inv_focus = cam->aperture > 0.0 ? (float)(1.0 / cam->focus) : 0.0f;
     sc_parallel_for(opt->threads, g->count, CHUNK, project_fast_range, &fj);
     long long bad = atomic_load(&fj.base.first_bad);
     if (bad < g->count) {

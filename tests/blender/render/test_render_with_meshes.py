@@ -414,6 +414,30 @@ def test_panoramic_camera_is_the_composite(rng, tmp_path, kind):
     assert_close_8bit(written, standard_8bit(expected), kind)
 
 
+def test_depth_of_field_blurs_the_splats(rng, tmp_path):
+    import dataclasses
+    scene, splats, cube, plane, camera = build_scene(rng, "BLENDER_WORKBENCH")
+    camera.data.dof.use_dof = True
+    camera.data.dof.aperture_fstop = 0.1  # circles of confusion of 1-2 pixels at 32x24
+    camera.data.dof.focus_distance = 2.0
+    written = read_png(render_still(scene, tmp_path / "dof"))
+    exr_path = render_still(scene, tmp_path / "layers", multilayer=True)
+    expected, mesh_rgba, channels, gaussians, cam = expected_frame(scene, camera, exr_path)
+    assert cam.aperture == pytest.approx(0.035 / 0.2) and cam.focus == pytest.approx(2.0)
+    assert_close_8bit(written, standard_8bit(expected), "depth of field")
+    _, mesh_depth, _ = mesh_layers(exr_path)
+    sharp = native_composite(gaussians, dataclasses.replace(cam, aperture=0.0), mesh_rgba,
+                             mesh_depth)
+    assert np.abs(written - standard_8bit(sharp)).max() > 10  # the blur shows
+
+
+def test_depth_of_field_through_a_panorama_fails(rng, tmp_path):
+    scene, splats, cube, plane, camera = build_scene(rng, "CYCLES")
+    camera.data.type = "PANO"
+    camera.data.dof.use_dof = True
+    _render_fails_with(scene, tmp_path, "depth of field")
+
+
 def test_panoramic_camera_without_cycles_fails(rng, tmp_path):
     scene, splats, cube, plane, camera = build_scene(rng, "BLENDER_WORKBENCH")
     camera.data.type = "PANO"

@@ -373,3 +373,40 @@ def test_bad_model_parameters_are_refused(monkeypatch):
     monkeypatch.setattr(native, "camera_args", unknown_model)
     with pytest.raises(ValueError, match="model"):
         api.project(random_gaussians(np.random.default_rng(0), 3, 0), camera)
+
+
+# --------------------------------------------------------------------------- depth of field
+
+@pytest.mark.parametrize("model", ["PINHOLE", "ORTHO"])
+@pytest.mark.parametrize("antialiased", [False, True])
+def test_depth_of_field_matches_reference(rng, model, antialiased):
+    width, height = _size(rng)
+    gaussians = random_gaussians(rng, 800, 2)
+    camera = random_camera(rng, width, height) if model == "PINHOLE" else \
+        ortho_camera(rng, width, height)
+    # (an orthographic camera's aperture is 1 / (2 f-stop) world units: wider)
+    low, high = (0.05, 0.4) if model == "PINHOLE" else (0.5, 1.5)
+    camera = dataclasses.replace(camera, aperture=float(rng.uniform(low, high)),
+                                 focus=float(rng.uniform(4.0, 8.0)))
+    near = 0.01 if model == "PINHOLE" else -100.0
+    got = api.project(gaussians, camera, antialiased=antialiased, near=near)
+    want = ref.project_scene(gaussians, camera, antialiased=antialiased, near=near)
+    assert_projection_close(got, want, gaussians, camera)
+    sharp = api.project(gaussians, dataclasses.replace(camera, aperture=0.0), near=near,
+                        antialiased=antialiased)
+    assert (got.conic[got.valid, 0] < 0.9 * sharp.conic[got.valid, 0]).mean() > 0.1  # blurred
+    image = api.render(gaussians, camera, antialiased=antialiased, near=near)
+    assert_images_match(image, ref.render_scene(gaussians, camera, antialiased=antialiased,
+                                                near=near))
+
+
+def test_depth_of_field_off_is_bit_for_bit_the_sharp_render(rng):
+    gaussians, camera = random_scene(rng, 500, 64, 48, 1)
+    a = api.render(gaussians, camera)
+    b = api.render(gaussians, dataclasses.replace(camera, aperture=0.0, focus=3.0))
+    assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.alpha, b.alpha)
+
+
+def test_depth_of_field_is_refused_for_panoramas_and_training():
+    with pytest.raises(ValueError, match="depth of field"):
+        Camera(np.eye(4), 10, 10, 0, 10, 10, 10, model="MIRRORBALL", aperture=0.1)

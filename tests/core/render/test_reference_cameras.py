@@ -109,3 +109,79 @@ def test_fisheyes_show_nothing_beyond_their_field_of_view():
         assert not shows[0]
     _, shows = ref._cycles_uv(behind, "MIRRORBALL", ())
     assert not shows[0] and shows[1]  # the mirror ball sees all but straight behind
+
+
+# ------------------------------------------------------------------------ depth of field
+
+def _scene(rng, n=200):
+    gaussians = random_gaussians(rng, n, 1, stray=0.0)
+    return gaussians, random_camera(rng, 64, 48)
+
+
+def test_depth_of_field_without_aperture_or_in_focus_changes_nothing(rng):
+    gaussians, camera = _scene(rng)
+    args = (*ref.gaussian_args(gaussians), *ref.camera_args(camera))
+    sharp = ref.project(*args)
+    np.testing.assert_array_equal(ref.project(*args, aperture=0.0, focus=3.0)["conic"],
+                                  sharp["conic"])
+    # A Gaussian exactly at the focus depth is not blurred.
+    z = sharp["depth"][0]
+    focused = ref.project(*args, aperture=0.05, focus=z)
+    np.testing.assert_allclose(focused["conic"][0], sharp["conic"][0], rtol=1e-12)
+    np.testing.assert_allclose(focused["opacity"][0], sharp["opacity"][0], rtol=1e-12)
+
+
+@pytest.mark.parametrize("antialiased", [False, True])
+def test_depth_of_field_keeps_each_gaussians_drawn_mass(rng, antialiased):
+    # opacity * sqrt(det(conic^-1)) is what a Gaussian adds up to over the image (below the
+    # 0.99 clamp); the blur spreads it without changing it.
+    gaussians, camera = _scene(rng)
+    args = (*ref.gaussian_args(gaussians), *ref.camera_args(camera))
+    sharp = ref.project(*args, antialiased=antialiased)
+    blurred = ref.project(*args, antialiased=antialiased, aperture=0.3, focus=4.0)
+
+    def mass(p):
+        a, b, c = p["conic"].T
+        return p["opacity"] / np.sqrt(a * c - b * b)
+    area = lambda p: 1 / np.sqrt(p["conic"][:, 0] * p["conic"][:, 2] - p["conic"][:, 1] ** 2)  # noqa: E731
+    v = sharp["valid"]
+    assert (area(blurred)[v] > area(sharp)[v] * 1.01).mean() > 0.5  # most are blurred
+    # (antialiased: the raw Gaussian's mass; else the dilated one's, which is what such splats
+    # draw)
+    np.testing.assert_allclose(mass(blurred)[v], mass(sharp)[v], rtol=1e-9)
+
+
+def test_depth_of_field_matches_a_thin_lens_average_of_pinholes(rng):
+    # Independent: a thin lens is the average of pinhole views from points of its aperture,
+    # each looking through the same focus plane (a shifted pinhole: the camera moved by `a` in
+    # its own plane, its principal point moved by f a / focus). For one small, faint Gaussian
+    # its averaged image has the blurred Gaussian's mass, centre and second moments (the disc's
+    # blur is not a Gaussian, but has the same covariance).
+    from tests.scenes import random_gaussians as rg
+    g = rg(rng, 1, 0)
+    mean = np.array([[0.1, -0.05, 5.0]], np.float32)
+    args = (mean, np.full((1, 3), np.log(0.1), np.float32), np.float32([[1, 0, 0, 0]]),
+            np.float32([2.0]), g.sh)  # opaque enough that the 1/255 cut-off trims little
+    f, w, h, aperture, focus = 60.0, 64, 48, 0.5, 3.0  # a circle of confusion 4 px across
+    blurred = ref.render(*args, np.eye(4), f, f, 32, 24, w, h, aperture=aperture, focus=focus)
+    # Uniform samples of the aperture disc (a polar grid: exact moments of the disc).
+    radii = aperture * np.sqrt((np.arange(24) + 0.5) / 24)
+    angles = np.arange(32) * 2 * np.pi / 32
+    total = np.zeros((h, w))
+    for r in radii:
+        for t in angles:
+            a = np.array([r * np.cos(t), r * np.sin(t)])
+            view = np.eye(4)
+            view[:2, 3] = -a
+            image = ref.render(*args, view, f, f, 32 + f * a[0] / focus, 24 + f * a[1] / focus, w, h)
+            total += image["alpha"]
+    total /= len(radii) * len(angles)
+    ys, xs = np.mgrid[:h, :w] + 0.5
+
+    def moments(alpha):
+        m = alpha.sum()
+        cx, cy = (alpha * xs).sum() / m, (alpha * ys).sum() / m
+        return m, cx, cy, (alpha * (xs - cx) ** 2).sum() / m, (alpha * (ys - cy) ** 2).sum() / m
+    got, want = moments(blurred["alpha"]), moments(total)
+    np.testing.assert_allclose(got[:3], want[:3], rtol=0.02)
+    np.testing.assert_allclose(got[3:], want[3:], rtol=0.08)  # the 1/255 cut-off trims both
