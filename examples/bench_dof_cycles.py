@@ -53,7 +53,7 @@ def build(bpy):
     material.node_tree.links.new(emit.outputs[0], out.inputs["Surface"])
     centres = []
     for k, depth in enumerate(DEPTHS):
-        x = (k - 2) * 0.32 * depth  # spread across the frame at every depth
+        x = (k - 2) * 0.13 * depth  # spread across the frame at every depth
         bpy.ops.mesh.primitive_uv_sphere_add(radius=RADIUS, location=(x, depth, 0.0),
                                              segments=48, ring_count=24)
         bpy.context.active_object.data.materials.append(material)

@@ -11,7 +11,10 @@
  *
  * Pipeline (one stage per file in src/):
  *   project.c    per Gaussian: EWA projection, SH colour, opacity, screen footprint (float,
- *                vectorised, with frustum culling before the covariance work)
+ *                vectorised, with frustum culling before the covariance work); pinhole and
+ *                orthographic cameras, with an optional thin-lens depth of field
+ *   panorama.c   the same through panoramic cameras (equirectangular, fisheyes, mirror ball):
+ *                the local Jacobian of the mapping at each mean, the seam's copies, in double
  *   sh.c         spherical harmonics degree 0..3 (the reference constants)
  *   sort.c       stable radix sort of Gaussians by view depth
  *   binning.c    Gaussian -> 16x16 tile lists, depth-ordered, exact ellipse/tile overlap
