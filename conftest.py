@@ -36,14 +36,32 @@ def rng(request: pytest.FixtureRequest) -> np.random.Generator:
     return np.random.default_rng(seed)
 
 
-@pytest.fixture
-def shared_data() -> Path:
-    """../shared/data, the real captures and splats. Without it the test is skipped (a fresh
-    clone: `pytest -ra` sums these skips up in one line), or fails where CI sets
-    SPLAT_REQUIRE_SHARED_DATA."""
+def _require_shared_data() -> Path:
+    """../shared/data, or a skip (a failure where SPLAT_REQUIRE_SHARED_DATA is set)."""
     if not SHARED_DATA.is_dir():
         if os.environ.get(REQUIRE_SHARED_DATA):
             pytest.fail(f"{SHARED_DATA} is missing and {REQUIRE_SHARED_DATA} is set: this test "
                         f"{MISSING_SHARED_DATA}")
         pytest.skip(MISSING_SHARED_DATA)
     return SHARED_DATA
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    """../shared/data, the real captures and splats. Without it the test is skipped (a fresh
+    clone: `pytest -ra` sums these skips up in one line), or fails where CI sets
+    SPLAT_REQUIRE_SHARED_DATA."""
+    return _require_shared_data()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
+    """Skips for want of ../shared/data all report this file's place, so that `-ra` sums them
+    up in one line ("SKIPPED [N] conftest.py: needs the real captures ...") instead of one a
+    test."""
+    report = yield
+    if report.skipped and isinstance(report.longrepr, tuple) and \
+            MISSING_SHARED_DATA in str(report.longrepr[2]):
+        report.longrepr = (__file__, _require_shared_data.__code__.co_firstlineno - 1,
+                          report.longrepr[2])
+    return report

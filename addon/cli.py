@@ -259,7 +259,8 @@ def _convert(args: argparse.Namespace) -> None:
 def build_parser(prog: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog, description="Gaussian Splatting for Blender, from the command line.",
-        epilog="Each verb has --help. Options left out take the operator's default (README).")
+        epilog="Each verb has --help. Options left out take the operator's default "
+               "(docs/guide/blender.md).")
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
 
     p = verbs.add_parser("import-colmap", help="COLMAP cameras, photos and points to a .blend",

@@ -151,7 +151,7 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
     ("extra_cpu", the same way), the first render's gather ("gather_first"), the splat count,
     and the frame's peak memory (MB): "rss_plain_mb", "rss_splats_mb",
     "numpy_splats_mb" (see the module docstring)."""
-    from addon.blender.render import compositor_bridge, hooks as render_hooks
+    from addon.blender.render import hooks as render_hooks
     from addon.blender import splat_object
 
     scene = build(splats, random=random, size=size, samples=samples)

@@ -266,8 +266,8 @@ def step_times(dataset: ColmapDataset, counts: tuple[int, ...]) -> None:
                                  threads=threads)
                 t4 = time.perf_counter()
                 times.append((t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0))
-            f, l, b, a, t = (1000 * np.median(times, axis=0))
-            print(f"{count:>9} {threads:>7} {f:>8.1f} {l:>6.1f} {b:>8.1f} {a:>6.1f} {t:>6.1f}")
+            f, loss, b, a, t = (1000 * np.median(times, axis=0))
+            print(f"{count:>9} {threads:>7} {f:>8.1f} {loss:>6.1f} {b:>8.1f} {a:>6.1f} {t:>6.1f}")
 
 
 def parse_variant(text: str) -> tuple[str, dict]:

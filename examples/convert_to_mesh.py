@@ -9,7 +9,7 @@ Loads the .ply as a splat object, runs the conversion (`mesh_convert.convert_to_
 `bpy.ops.splat.convert_to_mesh` runs), packs the texture into the .blend and prints the
 triangle count, texture size and time per stage. Without the statistics, the command line does
 the same: `python -m addon convert-to-mesh scene.ply --out mesh.blend` (or `blender -c
-gaussian_splatting convert-to-mesh ...`; README "Command line").
+gaussian_splatting convert-to-mesh ...`; docs/guide/scripts.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The README's demo: load the shipped splat scene and render it to out/demo.png.
 
-Run with the project's environment: `.venv/bin/python examples/demo.py` (see README).
+Run with the project's environment: `.venv/bin/python examples/demo.py` (the README's first command).
 """
 
 from __future__ import annotations

@@ -32,9 +32,14 @@ import shutil
 import sys
 import tempfile
 import time
+from typing import TYPE_CHECKING
 from pathlib import Path
 
 import numpy as np
+
+if TYPE_CHECKING:  # the annotations only; both are imported where used
+    import bpy
+    import pycolmap
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))

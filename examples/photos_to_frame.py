@@ -42,8 +42,8 @@ def verb(*args: str) -> None:
 
 
 def standard_view(trained: Path, out: Path) -> None:
-    """The trained scene under the Standard view transform: splats look as trained (README
-    "Colour"); Blender's default (AgX) would wash them out."""
+    """The trained scene under the Standard view transform: splats look as trained (docs/guide/
+    blender.md, "Colour"); Blender's default (AgX) would wash them out."""
     import bpy
 
     bpy.ops.wm.open_mainfile(filepath=str(trained))

@@ -12,7 +12,7 @@ It loads the splats, adds a glossy monkey orbiting through them (in front of and
 splats as it goes round) on a mesh pedestal, a sun and a camera, then renders
 `headless_still.png` with `bpy.ops.render.render(write_still=True)` and
 `headless_0001.png`... with `bpy.ops.render.render(animation=True)`. Nothing else is needed:
-the add-on composes the splats into every render (see README "Rendering with meshes").
+the add-on composes the splats into every render (see docs/guide/blender.md, "Rendering with meshes").
 
 Inside Blender the installed extension is used when it is enabled; otherwise (and with the
 bpy wheel) the add-on is registered from this repository.

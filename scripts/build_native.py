@@ -10,8 +10,8 @@ PyPI package, installed here from native/build-requirements.txt when it is missi
 target is compiled with the same flags as native/setup.py; the CPython 3.11 limited-API headers
 come from the Python running this script (they only depend on the target through pyconfig.h:
 Linux and macOS are LP64 like this host; Windows gets native/platform/windows/pyconfig.h and an
-import library for python3.dll generated with `zig dlltool`). See the README, "Building the
-native module for other platforms", for why it is an abi3 extension rather than a ctypes library.
+import library for python3.dll generated with `zig dlltool`). See docs/development.md, "Building
+the native module for other platforms", for why it is an abi3 extension rather than a ctypes library.
 
 `build_native_wheel(platform, out_dir)` is the interface scripts/build_extension.py calls.
 """

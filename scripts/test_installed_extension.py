@@ -315,7 +315,7 @@ def stage_install(bpy, zip_path: Path) -> None:
             origin = Path(module.__file__)
             # splatcore exists only in the zip; bpy itself may have loaded zstandard already.
             assert name != "splatcore" or origin.is_relative_to(user), f"loaded from {origin}"
-            c.detail = (f"from the extension" if origin.is_relative_to(user) else
+            c.detail = ("from the extension" if origin.is_relative_to(user) else
                         f"from {origin.parent}")
     bpy.ops.wm.save_userpref()
 

@@ -4,8 +4,12 @@ re-projection through our cameras, and synthetic COLMAP workspaces with photos."
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # the annotations only; imported where used
+    import pycolmap
 
 
 def colmap_own_residuals(model_dir: Path) -> dict[str, np.ndarray]:

@@ -299,12 +299,14 @@ class SPLAT_OT_clean_up(bpy.types.Operator):
     use_opacity: BoolProperty(name="Transparent", default=True,
                               description="Remove splats less opaque than Min Opacity")
     min_opacity: FloatProperty(name="Min Opacity", default=0.01, min=0.0, max=1.0)
-    use_size: BoolProperty(name="Tiny", default=True,
-                           description="Remove splats smaller than a fraction of the median size")
-    min_size_fraction: FloatProperty(name="Min Size (of median)", default=0.05, min=0.0, max=1.0,
-                                     subtype="FACTOR")
-    use_isolated: BoolProperty(name="Isolated", default=True,
-                               description="Remove splats with few neighbours around them")
+    use_size: BoolProperty(
+        name="Tiny", default=True,
+        description="Remove splats smaller than a fraction of the median size")
+    min_size_fraction: FloatProperty(
+        name="Min Size (of median)", default=0.05, min=0.0, max=1.0, subtype="FACTOR")
+    use_isolated: BoolProperty(
+        name="Isolated", default=True,
+        description="Remove splats with few neighbours around them")
     radius: FloatProperty(name="Radius", default=0.0, min=0.0, unit="LENGTH",
                           description="Neighbourhood size in world units; 0: 2% of the extent "
                                       "of the central 98% of the splats")

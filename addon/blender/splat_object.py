@@ -1,6 +1,6 @@
 """The splat object: a mesh with one vertex per Gaussian and its parameters as point attributes.
 
-Attribute names (all on the POINT domain, object space; see README "Splats in Blender"):
+Attribute names (all on the POINT domain, object space; see docs/guide/blender.md, "The splat object"):
 
     position       FLOAT_VECTOR  the Gaussian's centre (the vertex position)
     rotation       QUATERNION    orientation w, x, y, z (need not be normalised; all zero = identity);

@@ -74,7 +74,10 @@ static Py_ssize_t type_size(char type) { return type == 'd' ? 8 : type == 'f' ||
  * and check_args() validates them in order, so every array gets the same checks and messages:
  * the buffer protocol, writability, dtype, C-contiguity (unless STRIDED), shape, and finiteness
  * where asked. Shapes may use named sizes: the first argument with one binds it, later ones must
- * match it. Scalar arguments are parsed by PyArg_ParseTuple and checked where they are used. */
+ * match it. Scalar arguments are parsed by PyArg_ParseTuple and checked where they are used.
+ * A new array argument is a row in its entry point's table (and its object in the
+ * PyArg_ParseTuple list, in the table's order); a shared group (GAUSSIAN_ARGS, CAMERA_ARGS,
+ * IMAGE_ARGS) is one table that every entry point taking it passes to check_args. */
 
 /* A dimension of a shape: a size (>= 0), ANY, or a named size (N Gaussians, at most
  * MAX_GAUSSIANS; K SH coefficients per colour channel, 1, 4, 9 or 16; H and W an image's rows

@@ -71,7 +71,8 @@ def test_operator_converts_the_active_splat_object(capsys):
     uvr = uv.reshape(-1, 2)
     top = co[loop_v, 2] > 1.5
     bottom = co[loop_v, 2] < 0.5
-    sample = lambda m: px[(uvr[m, 1] * 63).round().astype(int), (uvr[m, 0] * 63).round().astype(int), :3]
+    def sample(m):
+        return px[(uvr[m, 1] * 63).round().astype(int), (uvr[m, 0] * 63).round().astype(int), :3]
     assert sample(top)[:, 0].mean() > 0.6 and sample(top)[:, 2].mean() < 0.3
     assert sample(bottom)[:, 2].mean() > 0.6 and sample(bottom)[:, 0].mean() < 0.3
 

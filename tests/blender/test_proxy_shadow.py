@@ -1,6 +1,6 @@
 """A mesh standing on a captured (splat) floor casts its shadow onto it in the final render
 (bpy, Cycles): the floor's proxy (`mesh_convert.make_proxy`, a shadow catcher) catches the
-shadow and the compositor bridge multiplies it over the composite (README, "Splats to meshes").
+shadow and the compositor bridge multiplies it over the composite (docs/guide/meshes.md).
 
 The scene: a flat opaque layer of yellow Gaussians at z = 0 (4 x 4 units), its proxy (a plane
 made a proxy by hand, or the floor converted with `proxy=True`), a 0.6 cube standing on it, a

@@ -126,7 +126,7 @@ def test_drawn_splats_are_occluded_by_a_mesh_in_front(rng, kind):
     bs.reset_scene()
     g = random_gaussians(rng, 500, 1, radius=1.0, stray=0.0)
     g.opacity_logits[:] = np.abs(g.opacity_logits) + 2.0  # mostly opaque: a clear test
-    splats = splat_object.create_splat_object(g, "Splats")
+    splat_object.create_splat_object(g, "Splats")
     bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.4, -2.5, 0.0))
     cube = bpy.context.active_object
     bpy.ops.mesh.primitive_plane_add(size=40, location=(0, 3.0, 0), rotation=(math.pi / 2, 0, 0))

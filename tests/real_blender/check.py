@@ -18,7 +18,6 @@ the figures; fails when they are off (see `viewport_figures`).
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path

@@ -21,7 +21,7 @@ import time
 import traceback
 
 import bpy
-from mathutils import Matrix, Vector
+from mathutils import Vector
 
 ADDON = "bl_ext.user_default.gaussian_splatting"
 args = sys.argv[sys.argv.index("--") + 1:]

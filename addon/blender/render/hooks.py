@@ -220,7 +220,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
                     main.frame_current, splat_passes(frame, main, full, region))
         if shadow is not None and shadow.shape[:2] == rgba.shape[:2]:
             # Proxies (shadow catchers) are left out of the mesh layer; their shadows darken
-            # the composite, splats included (README, "Splats to meshes").
+            # the composite, splats included (docs/guide/meshes.md).
             rgba = apply_shadow_catcher(rgba, shadow)
         before_write = time.perf_counter()
         write_result(self, rgba, depth if bridge.uses_depth(main) else None, origin, full, region)

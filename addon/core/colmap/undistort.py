@@ -84,7 +84,8 @@ def undistort_points(intr: PinholeIntrinsics, camera: Camera, xy: np.ndarray) ->
                      camera.fy * normalised[:, 1] + camera.cy], 1)
 
 
-def undistortion_map(intr: PinholeIntrinsics, camera: Camera, photo_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def undistortion_map(intr: PinholeIntrinsics, camera: Camera,
+                     photo_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """For each pixel centre of the pinhole `camera`: where it lies in the distorted photo of
     size `photo_size` (continuous coordinates, pixel centres at i + 0.5)."""
     u = (np.arange(camera.width) + 0.5 - camera.cx) / camera.fx

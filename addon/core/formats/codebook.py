@@ -2,15 +2,16 @@
 
 `scalar_codebook(values, size)` -> (codebook ascending, labels): `size` values that minimise the
 squared error of the pooled `values`, found by dynamic programming over a 1024-bin histogram
-(the optimal 1D k-means on bins, with no entry spanning more than 128 bins). Bins count with weight sqrt(count), not count: the
-sparse tails (a few very large Gaussians, saturated colours) then keep codebook entries of their
-own instead of being clipped into the dense middle. Every value then takes its nearest entry.
+(the optimal 1D k-means on bins, with no entry spanning more than 128 bins). Bins count with
+weight sqrt(count), not count: the sparse tails (a few very large Gaussians, saturated colours)
+then keep codebook entries of their own instead of being clipped into the dense middle. Every
+value then takes its nearest entry.
 
 `palette(points, size)` -> (centroids, labels): k-means with up to 65536 centroids on up to 45
 dimensions, which flat Lloyd iterations cannot afford on a CPU (N x K x D per pass). It runs in
 two levels: `coarse` k-means cells first (placed from a sample of 64 points a cell), then each
-cell's points get their own k-means with a share of `size` proportional to the cell's count. Cost per pass ~ N x (coarse +
-size/coarse) x D, about 1/256 of the flat version at 65536 centroids, with BLAS doing the
+cell's points get their own k-means with a share of `size` proportional to the cell's count.
+Cost per pass ~ N x (coarse + size/coarse) x D, about 1/256 of the flat version at 65536 centroids, with BLAS doing the
 distances. Seeded: the same input gives the same palette.
 """
 

@@ -4,7 +4,7 @@ A file's size alone does not bound what it decodes to: `.spz` is compressed (zst
 ratios in the thousands on degenerate data), and a PLY header is free to declare anything its
 file size allows. So every reader refuses a file that declares more than `MAX_GAUSSIANS`
 Gaussians, from the header, before it decompresses or allocates. Loading N Gaussians peaks at
-N x 125-730 bytes, by format and SH degree (measured: the README's "Splat files"), so the
+N x 125-730 bytes, by format and SH degree (measured: docs/guide/formats.md), so the
 default ceiling keeps a load under about 7.5 GB. Raise it for bigger scenes: set
 `MAX_GAUSSIANS` here, or the environment variable SPLAT_MAX_GAUSSIANS before the add-on loads.
 """

@@ -55,7 +55,6 @@ from typing import Any, Callable
 import numpy as np
 
 from ..gaussians import Gaussians
-from ..sh import SH_C0
 from . import webp
 from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook

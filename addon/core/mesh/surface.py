@@ -1,6 +1,6 @@
 """Surfaces from splats: cameras around an object, TSDF fusion of rendered depth, surface nets.
 
-The pipeline (see README, "Splats to meshes"):
+The pipeline (see docs/guide/meshes.md):
 
 1. `fibonacci_cameras` puts cameras on a sphere around the splats (or the caller brings the
    COLMAP cameras the splats were trained from); `render_views` renders each with the native

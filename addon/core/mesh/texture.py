@@ -32,7 +32,6 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..cameras import Camera
 from .surface import Cancelled, View, barycentric, project_points, raster_candidates, vertex_normals
 
 

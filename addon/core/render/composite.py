@@ -250,7 +250,7 @@ def embed(rgba: np.ndarray, depth: np.ndarray, region: Region, width: int, heigh
 
 
 def apply_shadow_catcher(rgba: np.ndarray, shadow: np.ndarray) -> np.ndarray:
-    """Darken a composite by Cycles' "Shadow Catcher" pass (README, "Splats to meshes").
+    """Darken a composite by Cycles' "Shadow Catcher" pass (docs/guide/meshes.md).
 
     With that pass on, Cycles leaves shadow catchers (the proxies of splat objects) out of the
     Combined pass: they are transparent there, so the splats they stand for are composed as if

@@ -54,18 +54,18 @@ class TrainConfig:
     # then stays (not in the reference, whose rates are tuned for 30k steps). Twice the rates at
     # the start, the reference's from step 2000: cup, 1 thread, defaults, held-out PSNR at
     # 15 / 23 / 30 CPU s, mean of seeds 0, 1, 2: 27.23 / 27.83 / 28.07 dB against 26.36 / 27.38 /
-    # 27.64; beer level or better at 10 to 40 s (README, "Learning-rate schedule"). 2x throughout
-    # no better than 1x by 23 s; 3 to 0.5 0.25 dB better on cup but 0.5 to 1.2 dB worse on beer
-    # from 25 s (its rates stay halved). 3 to 1 was level with 2 to 1 while "auto" grew 5 % an
-    # interval; with its 10 % (`auto_growth`) it is better on cup and beer (README, "Issue 17's
-    # one-thread target").
+    # 27.64; beer level or better at 10 to 40 s (docs/benchmarks/training.md, "Learning-rate
+    # schedule"). 2x throughout no better than 1x by 23 s; 3 to 0.5 0.25 dB better on cup but
+    # 0.5 to 1.2 dB worse on beer from 25 s (its rates stay halved). 3 to 1 was level with 2 to
+    # 1 while "auto" grew 5 % an interval; with its 10 % (`auto_growth`) it is better on cup and
+    # beer (docs/benchmarks/training.md, "Issue 17's one-thread target").
     lr_scale_start: float = 3.0
     lr_scale_end: float = 1.0
     lr_scale_steps: int = 2000
     # Coarse to fine (not in the reference): the first steps train on images halved
     # `coarse_levels` times (box-filtered), the resolution doubling at even intervals until full
     # at step `coarse_until` (or half of `steps`, if sooner). 0 levels: off. On by measurement
-    # (README, "Densification strategies, stopping, coarse to fine"): a better held-out PSNR
+    # (docs/benchmarks/training.md, "Strategies"): a better held-out PSNR
     # per CPU second on cup, beer and the demo scene with the "default" strategy.
     coarse_levels: int = 2
     coarse_until: int = 1000
@@ -111,5 +111,5 @@ class TrainConfig:
     # Adam over only the Gaussians each step drew (gsplat's `visible_adam`): the others keep
     # their parameters and moments. None: the strategy's choice (`Strategy.sparse_adam`), on for
     # "mcmc" and "auto" (cup, 2000 steps, 2 seeds: +1.0 dB with mcmc, +0.6/+0.7 dB with auto),
-    # off for "default" (-0.5 to -0.7 dB; README, "Training kernels").
+    # off for "default" (-0.5 to -0.7 dB; docs/benchmarks/training.md, "Training kernels").
     sparse_adam: bool | None = None

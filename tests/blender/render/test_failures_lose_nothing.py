@@ -250,7 +250,7 @@ def test_failed_render_keeps_the_previous_file(monkeypatch, tmp_path):
 
 
 def test_a_render_that_succeeds_replaces_the_previous_file_and_leaves_nothing_aside(monkeypatch, tmp_path):
-    scene = _failing_render(monkeypatch, tmp_path)
+    _failing_render(monkeypatch, tmp_path)
     monkeypatch.undo()  # the composite works again
     bpy.ops.render.render(write_still=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]

@@ -209,7 +209,8 @@ def test_bake_in_the_background_stops_on_esc_and_writes_the_ply(tmp_path) -> Non
     harness = _Harness(running.key)
     running.job.start()
     deadline = time.monotonic() + 30
-    tick = lambda: harness.modal(bpy.context, SimpleNamespace(type="TIMER", value="NOTHING"))
+    def tick():
+        return harness.modal(bpy.context, SimpleNamespace(type="TIMER", value="NOTHING"))
     while running.target() is None and time.monotonic() < deadline:
         assert tick() == {"PASS_THROUGH"}
         time.sleep(0.02)

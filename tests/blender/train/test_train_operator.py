@@ -174,7 +174,7 @@ def test_training_takes_the_cameras_and_points_as_they_are_in_the_scene(demo) ->
     assert dataset.cameras[i].fx == pytest.approx(rigged.cameras[VIEW].fx / 4, rel=1e-3)
     assert np.array_equal(dataset.points.xyz, rigged.points.xyz)
 
-    # One camera on its own: it trains as it now is (README: a camera moved by hand).
+    # One camera on its own: it trains as it now is (docs/guide/training.md: a camera moved by hand).
     cameras[3].location.x += 1.0
     bpy.context.view_layer.update()
     alone = source_of(demo.collection)

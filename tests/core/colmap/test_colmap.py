@@ -260,7 +260,7 @@ def test_photo_bit_depths_orientation_and_downscaled_folder(tmp_path, rng):
             image_io.write_pixels(path, np.round(pixels * 65535).astype(np.uint16)
                                 if path.suffix == ".png" else np.round(pixels * 255).astype(np.uint8))
 
-    rec = synthetic_workspace(tmp_path / "w", cameras, images, rng=rng, photo_writer=writer)
+    synthetic_workspace(tmp_path / "w", cameras, images, rng=rng, photo_writer=writer)
     # d.jpg: store it sideways with EXIF orientation 6 (display = rotate 90 degrees clockwise)
     upright = image_io.read_pixels(tmp_path / "w" / "images" / "d.jpg")
     spec = oiio.ImageSpec(upright.shape[0], upright.shape[1], 3, "uint8")

@@ -1,5 +1,5 @@
-"""Bad arguments raise TypeError or ValueError naming the problem, never crash (README, "Rendering
-from a script"): at the Python API (`addon.core.render.renderer`) and directly at `splatcore`, whose
+"""Bad arguments raise TypeError or ValueError naming the problem, never crash (docs/guide/
+scripts.md): at the Python API (`addon.core.render.renderer`) and directly at `splatcore`, whose
 positional signatures are what render.py passes."""
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def test_native_project_rejects(splatcore, case):
 
 
 @pytest.mark.parametrize("case", list(COMMON_CASES))
-def test_native_render_rejects(splatcore, case):
+def test_native_render_rejects_common(splatcore, case):
     change, error, keyword = COMMON_CASES[case]
     with pytest.raises(error, match=keyword):
         splatcore.render(*render_args(**change))

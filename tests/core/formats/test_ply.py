@@ -405,7 +405,8 @@ def _truncated(tmp_path, g):
 
 def _huge_count(tmp_path, g):
     path = standard_file(tmp_path, g)
-    return header_only(tmp_path, "", body=path.read_bytes().replace(b"element vertex 9", b"element vertex 1000000000000"))
+    body = path.read_bytes().replace(b"element vertex 9", b"element vertex 1000000000000")
+    return header_only(tmp_path, "", body=body)
 
 
 def _list_before_vertex(tmp_path, g):
@@ -452,7 +453,8 @@ HEAD = "ply\nformat binary_little_endian 1.0\n"
 BAD_FILES = {
     "not_ply": (lambda t, g: header_only(t, "hello world\n" * 10), "not a PLY"),
     "empty": (lambda t, g: header_only(t, ""), "not a PLY"),
-    "truncated_header": (lambda t, g: header_only(t, HEAD + "element vertex 3\nproperty float x\n"), "truncated header"),
+    "truncated_header": (lambda t, g: header_only(t, HEAD + "element vertex 3\nproperty float x\n"),
+                         "truncated header"),
     "no_end_header": (lambda t, g: header_only(t, HEAD + "comment x\n" * 120_000), "end_header"),
     "unknown_format": (lambda t, g: header_only(t, "ply\nformat binary_middle_endian 1.0\nend_header\n"), "format"),
     "unknown_type": (lambda t, g: header_only(t, HEAD + "element vertex 1\nproperty float128 x\nend_header\n"), "type"),

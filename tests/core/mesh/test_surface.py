@@ -9,9 +9,7 @@ import pytest
 from addon.core.mesh import surface as S
 from addon.core.mesh import texture as T
 from addon.core.cameras import Camera
-from addon.core.gaussians import Gaussians
 
-from addon.core.sh import SH_C0
 from scenes import sphere_gaussians
 
 

@@ -1,4 +1,4 @@
-"""Hard numerical cases (README, "Tests"), each with the behaviour it must have, compared
+"""Hard numerical cases (docs/development.md, "Tests"), each with the behaviour it must have, compared
 with the float64 reference where that is meaningful. Tolerances: tests/checks.py unless stated."""
 
 from __future__ import annotations

@@ -214,7 +214,8 @@ def render_loop(means, log_scales, quats, logits, sh, viewmat, fx, fy, cx, cy, w
         pc = [sum(rv[i][k] * m[k] for k in range(3)) + tv[i] for i in range(3)]
         if pc[2] < near:
             continue
-        lim = lambda c, f, size: (-c / f - 0.3 * size / (2 * f), (size - c) / f + 0.3 * size / (2 * f))
+        def lim(c, f, size):
+            return (-c / f - 0.3 * size / (2 * f), (size - c) / f + 0.3 * size / (2 * f))
         lo, hi = lim(cx, fx, width)
         tx = pc[2] * min(hi, max(lo, pc[0] / pc[2]))
         lo, hi = lim(cy, fy, height)

@@ -1,4 +1,4 @@
-"""The image is bit-identical for any thread count (README, "Rendering from a script"). No reference
+"""The image is bit-identical for any thread count (docs/guide/scripts.md). No reference
 needed: the same scene rendered with threads = 1, 2, 3, 7 and 0 (all cores) must be equal."""
 
 from __future__ import annotations
