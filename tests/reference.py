@@ -434,7 +434,7 @@ def camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, 
         cov2 = jac @ cov_cam @ np.swapaxes(jac, 1, 2)
         conic, mass = depth_of_field(cov2, depth, fx, fy, aperture, focus, antialiased,
                                      model == "ORTHO")
-        a, b, c = cov2[:, 0, 0] + DILATION, cov2[:, 0, 1], cov2[:, 1, 1] + DILATION
+        a, c = cov2[:, 0, 0] + DILATION, cov2[:, 1, 1] + DILATION
         det = 1.0 / (conic[:, 0] * conic[:, 2] - conic[:, 1] ** 2)
         k2 = 2 * np.log(255 * opacity) * (1 + 1e-4) + 1e-4
         band = (period > 0) & ~(k2 * a <= 0.25 * period ** 2)
