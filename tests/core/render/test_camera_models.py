@@ -410,3 +410,25 @@ def test_depth_of_field_off_is_bit_for_bit_the_sharp_render(rng):
 def test_depth_of_field_is_refused_for_panoramas_and_training():
     with pytest.raises(ValueError, match="depth of field"):
         Camera(np.eye(4), 10, 10, 0, 10, 10, 10, model="MIRRORBALL", aperture=0.1)
+
+
+@pytest.mark.parametrize("kind", ["fisheye_equidistant", "fisheye_equisolid", "mirrorball"])
+def test_nothing_is_drawn_outside_the_image_circle(rng, kind):
+    # Cycles traces no ray there: a composite keeps the mesh layer's pixels bit for bit, a
+    # splat layer is empty; inside, the splats are drawn.
+    from addon.core.cameras import image_coverage
+    from addon.core.render.composite import compose, splat_layer
+    gaussians = random_gaussians(rng, 400, 1, radius=4.0)
+    gaussians.log_scales += np.float32(1.0)  # large: they would spill over the circle's edge
+    camera = panorama_camera(rng, 64, 40, *PANORAMAS[kind])
+    mesh_rgba, mesh_depth = random_mesh_layer(rng, 64, 40, depth_range=(0.5, 5.0))
+    outside = ~image_coverage(camera)
+    assert 0.1 < outside.mean() < 0.6
+    alone = api.render(gaussians, camera)
+    assert alone.alpha[outside].max() > 0.1  # the renderer alone does draw there
+    for space in ("SRGB", "LINEAR"):
+        result = compose(gaussians, camera, mesh_rgba, mesh_depth, color_space=space)
+        assert np.array_equal(result.rgba[outside], mesh_rgba[outside])
+        assert np.abs(result.rgba[~outside] - mesh_rgba[~outside]).max() > 0.1
+    layer = splat_layer(gaussians, camera)
+    assert (layer.rgba[outside] == 0).all() and layer.rgba[~outside, 3].max() > 0.1
