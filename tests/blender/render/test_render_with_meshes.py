@@ -379,6 +379,7 @@ def test_panoramic_camera_is_the_composite(rng, tmp_path, kind):
     pano.panorama_type = kind
     pano.fisheye_fov = math.radians(160)
     pano.fisheye_lens = 6.0
+    camera.data.shift_x, camera.data.shift_y = 0.06, -0.04  # moves the viewplane (Cycles)
     written = read_png(render_still(scene, tmp_path / "pano"))
     exr_path = render_still(scene, tmp_path / "layers", multilayer=True)
     mesh_rgba, mesh_depth, _ = mesh_layers(exr_path)
@@ -398,12 +399,15 @@ def test_panoramic_camera_is_the_composite(rng, tmp_path, kind):
     # the cube's upper right corner, whose mirror images (left-right, up-down) are off it.
     from addon.core.gaussians import Gaussians
     from addon.core.render.renderer import project
-    probe = Gaussians(np.float32([[0.65, -2.96, 0.45]]), np.full((1, 3), -5, np.float32),
-                      np.float32([[1, 0, 0, 0]]), np.float32([5]), np.zeros((1, 1, 3), np.float32))
-    col, row = (int(v) for v in project(probe, cam).xy[0])
+    # (mirrored about the image of the view axis, which the shift moves)
+    probe = Gaussians(np.float32([[0.65, -2.96, 0.45], [0.0, -2.96, 0.0]]),
+                      np.full((2, 3), -5, np.float32), np.float32([[1, 0, 0, 0]] * 2),
+                      np.float32([5, 5]), np.zeros((2, 1, 3), np.float32))
+    (x, y), (x0, y0) = project(probe, cam).xy
+    col, row = int(x), int(y)
     assert mesh_depth[row, col] < 3.6
-    assert mesh_depth[row, cam.width - 1 - col] > 3.6
-    assert mesh_depth[cam.height - 1 - row, col] > 3.6
+    assert mesh_depth[row, int(2 * x0 - x)] > 3.6
+    assert mesh_depth[int(2 * y0 - y), col] > 3.6
     mesh_8 = standard_8bit(mesh_rgba)
     assert np.abs(written[on_cube] - mesh_8[on_cube]).max() <= 1
     if kind != "EQUIRECTANGULAR":  # outside the image circle: no splats, whatever is there
