@@ -8,6 +8,10 @@ and the demo scene.
                                                                # the quality knobs and the error
                                                                # against the float64 reference
     .venv/bin/python examples/bench_render.py --no-f12         # without the F12 table (no bpy)
+    .venv/bin/python examples/bench_render.py --cameras        # only the camera-type table:
+                                                               # pinhole, orthographic and each
+                                                               # panorama on PLAYBOT, and their
+                                                               # error against float64
     /work/main/.venv/bin/python examples/bench_render.py --code /work/main
                                            # the same table for another checkout's code (before/after)
 
@@ -189,6 +193,70 @@ def main_table(args) -> None:
                  "Meval", "no masks", "peak MiB", "working MiB"])
 
 
+# ---------------------------------------------------------------- --cameras
+
+
+def camera_types(make_camera, width: int, height: int) -> list[tuple[str, object]]:
+    """The pinhole view `make_camera(width, height)` and, from the same pose, an orthographic
+    view of the same width at the target (the pinhole's field at its target distance), and each
+    panorama (equirectangular at 2:1, the fisheyes and the mirror ball square)."""
+    import dataclasses
+    import math
+
+    from addon.core.cameras import Camera
+
+    pinhole = make_camera(width, height)
+    distance = 2.7  # about the target distance of the scenes' cameras
+    ortho = dataclasses.replace(pinhole, model="ORTHO", fx=pinhole.fx / distance,
+                                fy=pinhole.fy / distance)
+    side = height
+    dof = dataclasses.replace(pinhole, aperture=0.05 / (2 * 1.4), focus=distance)  # 50 mm f/1.4
+    out = [("pinhole", pinhole), ("pinhole, depth of field", dof), ("orthographic", ortho)]
+    pose = pinhole.world_to_camera
+    full = (-math.pi, math.pi, -math.pi / 2, math.pi / 2)
+    for name, model, params, w, h in [
+            ("equirectangular", "EQUIRECTANGULAR", full, 2 * round(side * 1024 / 1080),
+             round(side * 1024 / 1080)),
+            ("fisheye equidistant 180", "FISHEYE_EQUIDISTANT", (math.pi,), side, side),
+            ("fisheye equisolid 10.5mm", "FISHEYE_EQUISOLID", (10.5, math.pi, 36.0, 36.0), side,
+             side),
+            ("mirror ball", "MIRRORBALL", (), side, side)]:
+        out.append((name, Camera(pose, w, h, 0.0, h, w, h, model=model, params=params)))
+    return out
+
+
+def camera_table(args) -> None:
+    """Per camera type: the frame's stages on PLAYBOT (or a synthetic scene), and the error
+    against the float64 reference on a small synthetic frame of the same camera type."""
+    from addon.core import splat_io
+
+    if PLAYBOT.exists():
+        name, gaussians, make_camera = "playbot 125k SH2", splat_io.load(PLAYBOT), playbot_camera
+    else:
+        name, gaussians, make_camera = "synthetic 1M SH3", synthetic(1_000_000), synthetic_camera
+    rows = []
+    for label, camera in camera_types(make_camera, 1920, 1080):
+        row = [label, f"{camera.width}x{camera.height}",
+               *measure(gaussians, camera, args.repeats, args.threads)[:8]]
+        rows.append(row)
+        print("  ".join(row), file=sys.stderr, flush=True)
+    print(f"Camera types on {name} ({args.threads} threads, median of {args.repeats}); the "
+          "pinhole and orthographic views are 1920x1080 from the same pose, the equirectangular "
+          "2048x1024 from that pose, the others 1080x1080")
+    table(rows, ["camera", "size", "ms", "project", "sort", "bin", "composite", "drawn",
+                 "Mpairs", "Meval"])
+    small = synthetic(10_000)
+    rows = []
+    for label, camera in camera_types(synthetic_camera, 160, 90):
+        near = -10.0 if camera.model == "ORTHO" else 0.01
+        rows.append([label, f"{camera.width}x{camera.height}",
+                     reference_error(small, camera, near=near)])
+        print("  ".join(rows[-1]), file=sys.stderr, flush=True)
+    print("Native against the float64 reference per camera type (synthetic 10k SH3; max abs "
+          "error of rgb and alpha)")
+    table(rows, ["camera", "size", "max error"])
+
+
 # ---------------------------------------------------------------- --more
 
 
@@ -270,12 +338,17 @@ def main() -> None:
     parser.add_argument("--code", type=Path, default=ROOT,
                         help="checkout whose addon/ to run (its native module is the one "
                              "installed in the Python that runs this script)")
+    parser.add_argument("--cameras", action="store_true",
+                        help="only the table per camera type (pinhole, orthographic, panoramas)")
     parser.add_argument("--no-f12", dest="f12", action="store_false",
                         help="skip the F12 table (Blender's Cycles with and without splats)")
     args = parser.parse_args()
     args.f12 = args.f12 and args.code.resolve() == ROOT
     args.repeats = args.repeats or (3 if args.quick else 7)
     import_code(args.code.resolve())
+    if args.cameras:
+        camera_table(args)
+        return
     main_table(args)
     if args.more:
         more_tables(args)

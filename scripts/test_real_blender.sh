@@ -14,9 +14,10 @@
 # be gathered, a native error), each of which must fail the render with a non-zero exit code and
 # no file; and the UI under Xvfb: F12 as a user presses it (tests/real_blender/ui_f12.py, the
 # Render Result held against the native composite), Solid and Material Preview screenshots of the viewport held
-# against the native render (tests/real_blender/viewport_figures.py), and the splat object's
-# display through import, Clean Up, undo and redo (scripts/test_undo_display.sh). Exits non-zero
-# on any failure, after a summary table.
+# against the native render (tests/real_blender/viewport_figures.py); F12 and -a through an
+# orthographic, an equirectangular and a fisheye camera, and the Front/Right/Top orthographic
+# viewports; the splat object's display through import, Clean Up, undo and redo
+# (scripts/test_undo_display.sh). Exits non-zero on any failure, after a summary table.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 RB=${REAL_BLENDER_SCRIPTS:-$(cd ../shared/real-blender 2>/dev/null && pwd)}
@@ -87,6 +88,31 @@ for suite in $SUITES; do
     done
     note "$suite" "-a (2 frames)" $ok "$detail"
 
+    # Orthographic and panoramic cameras (scene_kit.CAMERA_KINDS): F12 and -a, each frame held
+    # against the native composite with the meshes Blender rendered through the same camera.
+    for kind in ORTHO EQUIRECTANGULAR FISHEYE_EQUISOLID; do
+        k=$(echo "$kind" | tr 'A-Z' 'a-z')
+        run blender -b $t/scene.blend --python $t/render_still.py -- $t/out/f12_$k --camera $kind
+        rc=$?; run blender -b $t/scene.blend --python $t/render_still.py -- $t/out/meshes_$k \
+            --no-splats --multilayer --camera $kind
+        if [ $rc = 0 ] && [ -f "$io/out/meshes_$k.exr" ]; then
+            detail=$($PY tests/real_blender/check.py render "$io/out/f12_$k.png" "$io/out/meshes_$k.exr" "$io/splats.npz" $kind)
+            rc=$?; note "$suite" "F12 $k" "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
+        else
+            note "$suite" "F12 $k" FAIL "rc $rc"
+        fi
+        run blender -b $t/scene.blend --python-expr "import bpy, sys; sys.path.insert(0, '$t'); \
+import scene_kit; scene_kit.set_camera_kind(bpy.context.scene.camera.data, '$kind')" \
+            -o $t/out/anim_${k}_#### -a
+        rc=$?; ok=ok; detail="rc $rc"
+        for frame in 0001 0002; do
+            if [ $rc != 0 ] || ! line=$($PY tests/real_blender/check.py render "$io/out/anim_${k}_$frame.png" \
+                    "$io/out/meshes_$k.exr" "$io/splats.npz" $kind); then ok=FAIL; fi
+            detail="${line#*: }"
+        done
+        note "$suite" "-a $k" $ok "$detail"
+    done
+
     for kind in module gather compose; do
         rm -f "$io"/out/fail_*
         run blender -b $t/scene.blend --python $t/force_failure.py -o $t/out/fail_#### -a -- $kind
@@ -119,6 +145,20 @@ for suite in $SUITES; do
             rc=$?; note "$suite" "viewport $shading" "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
         else
             note "$suite" "viewport $shading" FAIL "no screenshot (see $io/ui/ui.log)"
+        fi
+    done
+    # Orthographic viewports (numpad 1, 3, 7), Solid: the splats drawn as the native
+    # orthographic render of the same view.
+    for view in FRONT RIGHT TOP; do
+        rm -rf "$io/ui_$view" && mkdir -p "$io/ui_$view"
+        timeout 400 "$RB/run.sh" "$suite" sh -c "SPLAT_VIEW=$view xvfb-run -a -s '-screen 0 1600x900x24' \
+            blender $t/scene.blend --python $t/viewport_shot.py -- $t/ui_$view SOLID > $t/ui_$view/ui.log 2>&1"
+        if [ -f "$io/ui_$view/solid_plain.png" ]; then
+            detail=$($PY tests/real_blender/check.py viewport "$io/ui_$view/solid_splats.png" \
+                "$io/ui_$view/solid_plain.png" "$io/ui_$view/view.json" "$io/splats.npz")
+            rc=$?; note "$suite" "viewport ortho $view" "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
+        else
+            note "$suite" "viewport ortho $view" FAIL "no screenshot (see $io/ui_$view/ui.log)"
         fi
     done
     if [ -f "$io/ui/view.json" ] && ! $PY -c "import json, sys; e = json.load(open(sys.argv[1]))['errors']; print(*e); sys.exit(bool(e))" \

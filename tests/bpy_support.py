@@ -52,16 +52,24 @@ def add_camera(name: str = "Camera", *, location=(0.0, -6.0, 0.0), rotation=(np.
 
 
 def camera_of(camera_obj, depsgraph) -> Camera:
-    """The pinhole camera Blender renders for the evaluated camera object and the scene."""
+    """The camera Blender renders for the evaluated camera object and the scene (perspective,
+    orthographic or panoramic)."""
     evaluated = camera_obj.evaluated_get(depsgraph)
     cam, r = evaluated.data, depsgraph.scene.render
+    pano = cam if hasattr(cam, "panorama_type") else cam.cycles
     return camera_from_blender(BlenderCameraParams(
         matrix_world=np.array(evaluated.matrix_world, dtype=np.float64), lens=cam.lens,
         sensor_width=cam.sensor_width, sensor_height=cam.sensor_height,
         sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
         resolution_x=r.resolution_x, resolution_y=r.resolution_y,
         resolution_percentage=r.resolution_percentage, pixel_aspect_x=r.pixel_aspect_x,
-        pixel_aspect_y=r.pixel_aspect_y))
+        pixel_aspect_y=r.pixel_aspect_y, type=cam.type, ortho_scale=cam.ortho_scale,
+        clip_start=cam.clip_start, clip_end=cam.clip_end, panorama_type=pano.panorama_type,
+        fisheye_fov=pano.fisheye_fov, fisheye_lens=pano.fisheye_lens,
+        latitude_min=pano.latitude_min, latitude_max=pano.latitude_max,
+        longitude_min=pano.longitude_min, longitude_max=pano.longitude_max,
+        use_dof=cam.dof.use_dof, aperture_fstop=cam.dof.aperture_fstop,
+        focus_distance=cam.dof.focus_distance))
 
 
 def render_scene(camera_obj, *, near: float = 0.01, use_cache: bool = True):

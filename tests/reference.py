@@ -96,12 +96,20 @@ def eval_sh(sh: np.ndarray, dirs: np.ndarray, degree: int) -> np.ndarray:
 
 
 def project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy, width,
-            height, *, near=0.01, antialiased=False, sh_degree=None) -> dict[str, np.ndarray]:
+            height, *, near=0.01, antialiased=False, sh_degree=None, model="PINHOLE",
+            model_params=(), far=np.inf, aperture=0.0, focus=1.0) -> dict[str, np.ndarray]:
     """Per-Gaussian screen-space data, as `addon.core.render.renderer.project` documents it.
 
     Returns xy (N, 2), conic (N, 3) = A, B, C of the inverse dilated 2D covariance, depth (N,)
     view-space z, opacity (N,), rgb (N, 3), valid (N,) bool; rows where valid is False are zero.
+    Other camera models (`model`, `model_params`, `far`: see `camera_model_project`).
+    Depth of field (`aperture` > 0, `focus`): see `depth_of_field`.
     """
+    if model != "PINHOLE":
+        return camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, fx,
+                                    fy, cx, cy, width, height, near=near, far=far,
+                                    antialiased=antialiased, sh_degree=sh_degree, model=model,
+                                    model_params=model_params, aperture=aperture, focus=focus)
     means, log_scales, opacity_logits = _f64(means), _f64(log_scales), _f64(opacity_logits)
     sh, viewmat = _f64(sh), _f64(viewmat)
     fx, fy, cx, cy, near = (float(v) for v in (fx, fy, cx, cy, near))
@@ -130,17 +138,12 @@ def project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, c
         jac[:, 1, 2] = -fy * ty / (z * z)
         cov_cam = rv @ cov3 @ rv.T
         cov2 = jac @ cov_cam @ np.swapaxes(jac, 1, 2)
-        a, b, c = cov2[:, 0, 0], cov2[:, 0, 1], cov2[:, 1, 1]
-        det_raw = a * c - b * b
-        a, c = a + DILATION, c + DILATION
-        det = a * c - b * b
-        conic = np.stack([c / det, -b / det, a / det], axis=1)
+        conic, mass = depth_of_field(cov2, z, fx, fy, aperture, focus, antialiased, False)
 
         xy = np.stack([fx * x / z + cx, fy * y / z + cy], axis=1)
 
-        opacity = 1.0 / (1.0 + np.exp(-opacity_logits))
-        if antialiased:
-            opacity = opacity * np.sqrt(np.maximum(0.0, det_raw / det))
+        opacity = 1.0 / (1.0 + np.exp(-opacity_logits)) * mass
+        det = 1.0 / (conic[:, 0] * conic[:, 2] - conic[:, 1] ** 2)
 
         centre = -rv.T @ tv
         dirs = means - centre
@@ -159,7 +162,7 @@ def project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, c
 
 def render(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy, width, height,
            *, background=None, mesh_rgba=None, mesh_depth=None, near=0.01, antialiased=False,
-           sh_degree=None) -> dict[str, np.ndarray]:
+           sh_degree=None, **camera_model) -> dict[str, np.ndarray]:
     """Composite front to back per pixel; returns rgb (H, W, 3), alpha, depth, ambiguous (H, W).
 
     Per pixel (centre at i + 0.5, j + 0.5), the valid Gaussians in ascending depth (ties keep
@@ -191,7 +194,9 @@ def render(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy
     """
     width, height = int(width), int(height)
     proj = project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy, width,
-                   height, near=near, antialiased=antialiased, sh_degree=sh_degree)
+                   height, near=near, antialiased=antialiased, sh_degree=sh_degree, **camera_model)
+    if "copies" in proj:  # seam copies come after every Gaussian, as rows N.. of the native
+        proj = {k: np.concatenate([proj[k], proj["copies"][k]]) for k in proj["copies"]}
     has_mesh = mesh_rgba is not None
     if has_mesh:
         mesh_rgba, mesh_depth = _f64(mesh_rgba), _f64(mesh_depth)
@@ -275,11 +280,183 @@ def gaussian_args(gaussians) -> tuple:
             gaussians.sh)
 
 
+def camera_model_args(camera) -> dict:
+    """A Camera's model, as the keyword arguments of `project()` and `render()`."""
+    return dict(model=camera.model, model_params=tuple(camera.params), far=camera.far,
+                aperture=camera.aperture, focus=camera.focus)
+
+
+def depth_of_field(cov2, z, fx, fy, aperture, focus, antialiased, ortho):
+    """The conic (N, 3) of 2D covariances `cov2` (N, 2, 2) blurred by a thin lens' circle of
+    confusion and dilated, and the opacity factor that keeps each Gaussian's drawn mass.
+
+    A thin lens of radius `aperture` focused at depth `focus` moves a point at depth z by
+    f a (1/focus - 1/z) pixels for a lens point a (ORTHO: f a (1 - z/focus)), a uniform over the
+    aperture disc, whose covariance is (radius/2)^2 I: so Sigma2 gains
+    (aperture |1/focus - 1/z| / 2)^2 diag(fx^2, fy^2). A Gaussian convolved with a Gaussian stays
+    one, with its integral: the opacity is multiplied by sqrt(det(before) / det(after)), `before`
+    the dilated covariance without the blur (or, antialiased, the raw covariance: the
+    Mip-Splatting compensation), `after` the blurred, dilated one. Without blur and antialiasing
+    the factor is exactly 1."""
+    a, b, c = cov2[:, 0, 0], cov2[:, 0, 1], cov2[:, 1, 1]
+    r = aperture * ((1.0 - z / focus) if ortho else (1.0 / focus - 1.0 / z))
+    blur = 0.25 * r * r if aperture > 0 else np.zeros_like(z)
+    det_raw = a * c - b * b
+    before = det_raw if antialiased else (a + DILATION) * (c + DILATION) - b * b
+    a, c = a + fx * fx * blur + DILATION, c + fy * fy * blur + DILATION
+    det = a * c - b * b
+    conic = np.stack([c / det, -b / det, a / det], axis=1)
+    mass = np.sqrt(np.maximum(0.0, before / det)) if (antialiased or aperture > 0) else \
+        np.ones_like(det)
+    return conic, mass
+
+
 def project_scene(gaussians, camera, **options) -> dict[str, np.ndarray]:
     """`project()` on Gaussians and Camera objects."""
-    return project(*gaussian_args(gaussians), *camera_args(camera), **options)
+    return project(*gaussian_args(gaussians), *camera_args(camera), **camera_model_args(camera),
+                   **options)
 
 
 def render_scene(gaussians, camera, **options) -> dict[str, np.ndarray]:
     """`render()` on Gaussians and Camera objects."""
-    return render(*gaussian_args(gaussians), *camera_args(camera), **options)
+    return render(*gaussian_args(gaussians), *camera_args(camera), **camera_model_args(camera),
+                  **options)
+
+
+# ------------------------------------------------------------------ orthographic and panoramas
+
+def _cycles_uv(p: np.ndarray, model: str, params) -> tuple[np.ndarray, np.ndarray]:
+    """Cycles' normalised image point (u, v), v up, of camera-space points p (N, 3) (OpenCV frame),
+    written from Cycles' own formulas (kernel/camera/projection.h) in Cycles' camera frames, and
+    whether the mapping shows each point. Blender turns a panoramic camera so that Cycles'
+    camera-space +x is the camera's view axis, +y its left and +z its up (the mirror ball: +x
+    right, +y back, +z up)."""
+    x, y, z = p.T
+    r = np.linalg.norm(p, axis=1)
+    if model == "MIRRORBALL":
+        d = np.stack([x, -z, -y], 1) / r[:, None]
+        d[:, 1] -= 1.0                                            # direction_to_mirrorball
+        div = 2.0 * np.sqrt(np.maximum(-0.5 * d[:, 1], 0.0))
+        d = d / np.where(div > 0, div, 1.0)[:, None]
+        behind = np.arccos(np.clip(z / r, -1, 1)) >= np.pi - 1e-3  # maps onto the whole rim
+        return np.stack([0.5 * (d[:, 0] + 1), 0.5 * (d[:, 2] + 1)], 1), ~behind
+    d = np.stack([z, -x, -y], 1) / r[:, None]                      # forward, left, up
+    if model == "EQUIRECTANGULAR":
+        lon_min, lon_max, lat_min, lat_max = params                 # Blender's sync of the range
+        rx, ry, rz, rw = lon_min - lon_max, -lon_min, lat_min - lat_max, np.pi / 2 - lat_min
+        u = (np.arctan2(d[:, 1], d[:, 0]) - ry) / rx
+        v = (np.arccos(np.clip(d[:, 2], -1, 1)) - rw) / rz
+        return np.stack([u, v], 1), np.ones(len(p), bool)
+    theta = np.arccos(np.clip(d[:, 0], -1, 1))
+    rho = np.hypot(d[:, 1], d[:, 2])
+    cos_phi = np.where(rho > 0, -d[:, 1] / np.where(rho > 0, rho, 1), 1.0)  # inverse of
+    sin_phi = np.where(rho > 0, d[:, 2] / np.where(rho > 0, rho, 1), 0.0)   # *_to_direction
+    if model == "FISHEYE_EQUIDISTANT":
+        (fov,) = params
+        radius = 2 * theta / fov                                   # fisheye_to_direction
+        return np.stack([0.5 * radius * cos_phi + 0.5, 0.5 * radius * sin_phi + 0.5], 1), \
+            theta <= fov / 2
+    if model == "FISHEYE_EQUISOLID":
+        lens, fov, sensor_w, sensor_h = params
+        radius = 2 * lens * np.sin(theta / 2)                      # fisheye_equisolid_to_direction
+        return np.stack([radius * cos_phi / sensor_w + 0.5, radius * sin_phi / sensor_h + 0.5],
+                        1), theta <= fov / 2
+    raise ValueError(f"unknown camera model {model!r}")
+
+
+def _uv_jacobian(p: np.ndarray, model: str, params, wraps: bool) -> np.ndarray:
+    """d(u, v)/dp (N, 2, 3) by central differences in float64 (steps 1e-6 |p|): independent
+    of the native code's closed forms."""
+    step = 1e-6 * np.linalg.norm(p, axis=1)
+    jac = np.zeros((len(p), 2, 3))
+    for k in range(3):
+        offset = np.zeros_like(p)
+        offset[:, k] = step
+        diff = _cycles_uv(p + offset, model, params)[0] - _cycles_uv(p - offset, model, params)[0]
+        if wraps:  # across the seam u jumps by a whole period
+            diff[:, 0] -= np.round(diff[:, 0])
+        jac[:, :, k] = diff / (2 * step[:, None])
+    return jac
+
+
+def wraps(model: str, params) -> bool:
+    """Whether an equirectangular image repeats across its left and right edges (360 degrees)."""
+    return model == "EQUIRECTANGULAR" and params[1] - params[0] >= 2 * np.pi - 1e-6
+
+
+def camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy,
+                         width, height, *, near, far, antialiased, sh_degree, model,
+                         model_params, aperture=0.0, focus=1.0) -> dict[str, np.ndarray]:
+    """`project()` through an orthographic or a panoramic camera (docs/conventions.md,
+    "Cameras beyond the pinhole").
+
+    ORTHO: xy = (fx x + cx, fy y + cy), J = [[fx, 0, 0], [0, fy, 0]] exactly; depth z, culled
+    outside [near, far]; the SH direction is the camera's forward axis for every Gaussian.
+    Panoramas: (u, v) = Cycles' mapping of the direction, xy = (fx u + cx, cy - fy v), J the
+    Jacobian of that at the mean; depth |p|, culled outside [near, far] and where the mapping
+    shows nothing. With a 360-degree equirectangular image, u is taken into [0, 1) and each
+    Gaussian gets a copy one period P = 2 pi fx / (longitude range) over (towards the image),
+    returned under "copies" (rows where the copy reaches no pixel are invalid); a Gaussian whose
+    alpha >= 1/255 half-width sqrt(k2 Sigma_xx) (k2 = 2 ln(255 sigmoid) (1 + 1e-4) + 1e-4) exceeds
+    P/2 is a band instead: conic (0, 0, 1 / Sigma_yy), no copy, antialiasing factor
+    sqrt(Sigma_yy before dilation / Sigma_yy).
+    """
+    means, log_scales, opacity_logits = _f64(means), _f64(log_scales), _f64(opacity_logits)
+    sh, viewmat = _f64(sh), _f64(viewmat)
+    fx, fy, cx, cy = (float(v) for v in (fx, fy, cx, cy))
+    degree = sh_degree_of(sh) if sh_degree is None else min(int(sh_degree), sh_degree_of(sh))
+    n = len(means)
+    rv, tv = viewmat[:3, :3], viewmat[:3, 3]
+    p_cam = means @ rv.T + tv
+    rot = quat_to_rotmat(quats)
+    cov3 = rot @ (np.exp(2 * log_scales)[:, :, None] * np.swapaxes(rot, 1, 2))
+    cov_cam = rv @ cov3 @ rv.T
+    opacity = 1.0 / (1.0 + np.exp(-opacity_logits))
+    period = 2 * np.pi * fx / (model_params[1] - model_params[0]) if wraps(model, model_params) else 0.0
+
+    with np.errstate(all="ignore"):
+        if model == "ORTHO":
+            depth = p_cam[:, 2]
+            xy = np.stack([fx * p_cam[:, 0] + cx, fy * p_cam[:, 1] + cy], 1)
+            jac = np.zeros((n, 2, 3))
+            jac[:, 0, 0], jac[:, 1, 1] = fx, fy
+            shows = np.ones(n, bool)
+            dirs = np.broadcast_to(rv[2] / np.linalg.norm(rv[2]), (n, 3))
+        else:
+            depth = np.linalg.norm(p_cam, axis=1)
+            uv, shows = _cycles_uv(p_cam, model, model_params)
+            if period:
+                uv[:, 0] -= np.floor(uv[:, 0])
+            xy = np.stack([fx * uv[:, 0] + cx, cy - fy * uv[:, 1]], 1)
+            jac = _uv_jacobian(p_cam, model, model_params, bool(period)) * np.array([fx, -fy])[:, None]
+            centre = -rv.T @ tv
+            dirs = (means - centre) / np.linalg.norm(means - centre, axis=1, keepdims=True)
+        cov2 = jac @ cov_cam @ np.swapaxes(jac, 1, 2)
+        conic, mass = depth_of_field(cov2, depth, fx, fy, aperture, focus, antialiased,
+                                     model == "ORTHO")
+        a, c = cov2[:, 0, 0] + DILATION, cov2[:, 1, 1] + DILATION
+        det = 1.0 / (conic[:, 0] * conic[:, 2] - conic[:, 1] ** 2)
+        k2 = 2 * np.log(255 * opacity) * (1 + 1e-4) + 1e-4
+        band = (period > 0) & ~(k2 * a <= 0.25 * period ** 2)
+        conic[band] = np.stack([0 * c, 0 * c, 1 / c], 1)[band]
+        det = np.where(band, c, det)
+        band_mass = np.sqrt(np.maximum(0.0, (c - DILATION) / c)) if antialiased else 1.0
+        opacity = opacity * np.where(band, band_mass, mass)
+        rgb = np.maximum(eval_sh(sh, dirs, degree) + 0.5, 0.0)
+        valid = ((depth >= near) & (depth <= far) & shows & (det > 0) & np.isfinite(det)
+                 & np.isfinite(xy).all(1) & np.isfinite(conic).all(1))
+        valid &= np.isfinite(c) & (band | np.isfinite(a))
+
+    def rows(xy, valid):
+        xy, conic_v, rgb_v = xy.copy(), conic.copy(), rgb.copy()
+        zero = ~valid
+        xy[zero], conic_v[zero], rgb_v[zero] = 0.0, 0.0, 0.0
+        return {"xy": xy, "conic": conic_v, "depth": np.where(valid, depth, 0.0),
+                "opacity": np.where(valid, opacity, 0.0), "rgb": rgb_v, "valid": valid}
+
+    out = rows(xy, valid)
+    if period:
+        shifted = xy.copy()
+        shifted[:, 0] += np.where(uv[:, 0] < 0.5, period, -period)
+        out["copies"] = rows(shifted, valid & ~band)
+    return out

@@ -36,11 +36,11 @@ def standard_8bit(linear_rgba):
     return np.round(np.clip(out, 0, 1) * 255).astype(np.int32)
 
 
-def native_composite(gaussians, camera, mesh_rgba, mesh_depth):
+def native_composite(gaussians, camera, mesh_rgba, mesh_depth, **options):
     """Linear premultiplied composite: the mesh layer to display sRGB, the native compositor,
-    back to linear."""
+    back to linear (`options`: the renderer's, e.g. near)."""
     result = render(gaussians, camera, mesh_rgba=premultiplied(mesh_rgba, encode).astype(np.float32),
-                    mesh_depth=mesh_depth)
+                    mesh_depth=mesh_depth, **options)
     out = np.concatenate([result.rgb, result.alpha[..., None]], axis=-1)
     return premultiplied(out, decode)
 

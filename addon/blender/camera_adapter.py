@@ -10,7 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.cameras import BlenderCameraParams, Camera, camera_from_blender
+from ..core.cameras import (
+    BlenderCameraParams,
+    Camera,
+    camera_from_blender,
+    camera_near,
+    unsupported_camera,
+)
 
 # Custom properties that COLMAP import records on a camera object: the photo's own output size,
 # percentage and pixel aspect (the scene's render settings hold only one camera's).
@@ -26,10 +32,22 @@ def to_matrix(m: np.ndarray):
     return mathutils.Matrix([list(row) for row in np.asarray(m, np.float64)])
 
 
+_PANORAMA_KEYS = ("panorama_type", "fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max",
+                  "longitude_min", "longitude_max")
+
+
+def _panorama_settings(cam) -> dict:
+    """The camera data's panorama settings (Blender's own from 4.0 on; Cycles' before)."""
+    source = cam if hasattr(cam, "panorama_type") else getattr(cam, "cycles", None)
+    if source is None:
+        return {}
+    return {key: getattr(source, key) for key in _PANORAMA_KEYS if hasattr(source, key)}
+
+
 def params_of(camera_obj, render, *, use_recorded: bool = False) -> BlenderCameraParams:
-    """What Blender renders for a perspective camera object with the scene's `render`
-    settings; with `use_recorded`, the camera's own COLMAP resolution, percentage and pixel
-    aspect where it has them (see `record_output_settings`)."""
+    """What Blender renders for a camera object (perspective, orthographic or panoramic) with
+    the scene's `render` settings; with `use_recorded`, the camera's own COLMAP resolution,
+    percentage and pixel aspect where it has them (see `record_output_settings`)."""
     res = (render.resolution_x, render.resolution_y)
     percentage = render.resolution_percentage
     aspect = (render.pixel_aspect_x, render.pixel_aspect_y)
@@ -44,12 +62,68 @@ def params_of(camera_obj, render, *, use_recorded: bool = False) -> BlenderCamer
         sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
         resolution_x=int(res[0]), resolution_y=int(res[1]),
         resolution_percentage=int(percentage),
-        pixel_aspect_x=float(aspect[0]), pixel_aspect_y=float(aspect[1]))
+        pixel_aspect_x=float(aspect[0]), pixel_aspect_y=float(aspect[1]),
+        type=cam.type if cam.type in ("PERSP", "ORTHO", "PANO") else "PERSP",
+        ortho_scale=cam.ortho_scale, clip_start=cam.clip_start, clip_end=cam.clip_end,
+        use_dof=bool(cam.dof.use_dof), aperture_fstop=cam.dof.aperture_fstop,
+        focus_distance=focus_distance(camera_obj), **_panorama_settings(cam))
+
+
+def focus_distance(camera_obj) -> float:
+    """The camera's focus distance: its focus object's distance along the view axis where it
+    has one (as Cycles' `blender_camera_focal_distance`, bones aside), else Focus Distance."""
+    dof = camera_obj.data.dof
+    target = dof.focus_object
+    if target is None:
+        return float(dof.focus_distance)
+    m = np.array(camera_obj.matrix_world, np.float64)
+    axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
+    offset = m[:3, 3] - np.array(target.matrix_world, np.float64)[:3, 3]
+    return float(abs(axis @ offset))
 
 
 def camera_of(camera_obj, render, *, use_recorded: bool = False) -> Camera:
-    """The pinhole `Camera` Blender renders for a perspective camera object."""
+    """The `Camera` Blender renders for a camera object (any type `render_problem` allows)."""
     return camera_from_blender(params_of(camera_obj, render, use_recorded=use_recorded))
+
+
+# Engines that render panoramic cameras as panoramas (EEVEE and Workbench draw them as
+# perspective views, which splats drawn as a panorama would not match).
+PANORAMA_ENGINES = ("CYCLES",)
+
+
+def render_problem(camera_obj, engine: str | None = None) -> str | None:
+    """Why splats cannot be rendered through `camera_obj` (an object the scene renders with)
+    by the render engine `engine` (None: any that can), or None when they can."""
+    if camera_obj is None:
+        return None
+    if camera_obj.type != "CAMERA":
+        return (f"the scene renders through {camera_obj.name!r}, a {camera_obj.type.lower()} "
+                "object: splats render through camera objects only")
+    cam = camera_obj.data
+    if cam.type not in ("PERSP", "ORTHO", "PANO"):
+        return (f"camera {camera_obj.name!r} is a {cam.type.lower()} camera: splats render "
+                "through perspective, orthographic and panoramic cameras")
+    if cam.type == "PANO":
+        settings = _panorama_settings(cam)
+        kind = settings.get("panorama_type", "")
+        probe = BlenderCameraParams(np.eye(4), 50.0, 36.0, 24.0, "AUTO", 0.0, 0.0, 4, 4,
+                                    type="PANO", panorama_type=kind,
+                                    use_dof=bool(cam.dof.use_dof))
+        reason = unsupported_camera(probe)
+        if reason:
+            return f"camera {camera_obj.name!r}: {reason}"
+        if engine is not None and engine not in PANORAMA_ENGINES:
+            return (f"camera {camera_obj.name!r} is panoramic, which the {engine} engine renders "
+                    "as a perspective view: render it with Cycles (or the splats alone)")
+    return None
+
+
+def near_of(camera_obj, near: float) -> float:
+    """The near plane a render through `camera_obj` uses, given the splat render setting."""
+    cam = camera_obj.data
+    return camera_near(BlenderCameraParams(np.eye(4), 50.0, 36.0, 24.0, "AUTO", 0.0, 0.0, 4, 4,
+                                           type=cam.type, clip_start=cam.clip_start), near)
 
 
 def frame_size(render) -> tuple[int, int]:

@@ -38,6 +38,7 @@ terminal), and from the UI a little on every timer tick (status bar progress, Es
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Callable, Iterator
 
 import bpy
@@ -89,8 +90,8 @@ def camera_of_object(camera_obj, scene, max_size: int) -> Camera:
     s = min(1.0, max_size / max(full.width, full.height))
     w, h = max(1, round(full.width * s)), max(1, round(full.height * s))
     sx, sy = w / full.width, h / full.height
-    return Camera(full.world_to_camera, full.fx * sx, full.fy * sy, full.cx * sx, full.cy * sy,
-                  w, h)
+    return replace(full, fx=full.fx * sx, fy=full.fy * sy, cx=full.cx * sx, cy=full.cy * sy,
+                   width=w, height=h)
 
 
 def choose_cameras(obj, mode: str, scene, view_size: int) -> list[Camera] | None:

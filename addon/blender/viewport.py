@@ -14,9 +14,12 @@ never blocks the UI for a render (gathering the splats of an edited object does 
 thread, as reading Blender data must: about 0.2 s per million splats).
 
 Switches: `Scene.splat_render.viewport` (all splats of the scene) and
-`Object.splat.show_in_viewport` (one object). Orthographic views are not drawn (the renderer
-is a pinhole camera model). The viewport shows the reference look (display sRGB, as "Standard"
-shows it), whatever the scene's view transform.
+`Object.splat.show_in_viewport` (one object). Perspective and orthographic views are drawn
+(front, right, top...: an orthographic view renders exactly, docs/conventions.md "Cameras beyond
+the pinhole", clipped to the view's own clip range, which reaches behind its origin); looking
+through a panoramic camera, the view is a perspective one and is drawn as such. The viewport
+shows the reference look (display sRGB, as "Standard" shows it), whatever the scene's view
+transform.
 
 The pieces are usable without a 3D view (tests draw into a `gpu.types.GPUOffScreen`):
 `camera_from_view`, `render_view` (no GPU) and `draw_image` (GPU).
@@ -45,32 +48,53 @@ REST_SECONDS = 0.15
 
 # --------------------------------------------------------------------- cameras and images
 
+def _is_orthographic(p: np.ndarray) -> bool:
+    return abs(p[3, 3] - 1.0) <= 1e-9 and np.abs(p[3, :3]).max() <= 1e-9
+
+
 def camera_from_view(view_matrix, window_matrix, width: int, height: int,
                      scale: float = 1.0) -> Camera | None:
-    """The pinhole camera of a 3D view (OpenGL view and projection matrices, region size in
-    pixels), for an image `scale` times the region's size; None for orthographic views.
+    """The camera of a 3D view (OpenGL view and projection matrices, region size in pixels),
+    for an image `scale` times the region's size: a pinhole, or ORTHO for an orthographic view
+    (then with the view's far clip; `view_near` gives its near one); None for anything else.
 
-    With P the projection, a view-space point (x, y, z), z < 0, lands at
+    With P the projection, a perspective view's point (x, y, z), z < 0, lands at
     u = (P00 x/(-z) - P02 + 1) W/2 and v = (1 - P11 y/(-z) + P12) H/2, so in OpenCV terms
-    fx = P00 W/2, cx = (1 - P02) W/2, fy = P11 H/2, cy = (1 + P12) H/2.
+    fx = P00 W/2, cx = (1 - P02) W/2, fy = P11 H/2, cy = (1 + P12) H/2. An orthographic one's
+    at u = (P00 x + P03 + 1) W/2 and v = (1 - P11 y - P13) H/2: fx = P00 W/2,
+    cx = (1 + P03) W/2, fy = P11 H/2, cy = (1 - P13) H/2 (OpenCV's y is -y).
     """
     p = np.asarray(window_matrix, np.float64)
-    if abs(p[3, 3]) > 1e-9 or abs(p[3, 2] + 1.0) > 1e-9:
+    ortho = _is_orthographic(p)
+    if not ortho and (abs(p[3, 3]) > 1e-9 or abs(p[3, 2] + 1.0) > 1e-9):
         return None
     w = max(1, int(round(width * scale)))
     h = max(1, int(round(height * scale)))
     world_to_camera = CAMERA_AXIS_FLIP @ np.asarray(view_matrix, np.float64)
+    if ortho:
+        return Camera(world_to_camera, p[0, 0] * w / 2, p[1, 1] * h / 2, (1 + p[0, 3]) * w / 2,
+                      (1 - p[1, 3]) * h / 2, w, h, model="ORTHO", far=(p[2, 3] - 1.0) / p[2, 2])
     return Camera(world_to_camera, p[0, 0] * w / 2, p[1, 1] * h / 2, (1 - p[0, 2]) * w / 2,
                   (1 + p[1, 2]) * h / 2, w, h)
 
 
+def view_near(window_matrix, near: float) -> float:
+    """The near plane a view renders with: the splat setting `near` for a perspective view,
+    the view's own near clip for an orthographic one (Blender puts it behind the view's
+    origin, at -clip_end/2: everything in the view's clip range is drawn). NDC z = -1 at
+    camera depth z = (P23 + 1) / P22."""
+    p = np.asarray(window_matrix, np.float64)
+    return (p[2, 3] + 1.0) / p[2, 2] if _is_orthographic(p) else near
+
+
 def window_depth(depth: np.ndarray, window_matrix) -> np.ndarray:
-    """Planar depth (positive, along the view) -> the depth buffer value OpenGL stores for it
-    under `window_matrix` (default depth range [0, 1]); 1 where nothing is (inf)."""
+    """Planar depth (along the view) -> the depth buffer value OpenGL stores for it under
+    `window_matrix` (default depth range [0, 1]; perspective or orthographic); 1 where nothing
+    is (inf)."""
     p = np.asarray(window_matrix, np.float64)
     z = np.asarray(depth, np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ndc = (p[2, 2] * -z + p[2, 3]) / z
+        ndc = (p[2, 2] * -z + p[2, 3]) / (p[3, 2] * -z + p[3, 3])
     out = np.where(np.isfinite(ndc), 0.5 * ndc + 0.5, 1.0)
     return np.clip(out, 0.0, 1.0).astype(np.float32)
 
@@ -91,8 +115,8 @@ def render_view(gaussians: Gaussians, camera: Camera, window_matrix, *, key: tup
                 near: float = 0.01, sh_degree: int | None = None, threads: int = 0) -> ViewportImage:
     """Render the splats for a view (no GPU, no bpy: runs in a worker thread)."""
     start = time.perf_counter()
-    result = render(gaussians, camera, antialiased=antialiased, near=near, sh_degree=sh_degree,
-                    threads=threads)
+    result = render(gaussians, camera, antialiased=antialiased,
+                    near=view_near(window_matrix, near), sh_degree=sh_degree, threads=threads)
     rgba = np.empty((camera.height, camera.width, 4), np.float32)
     rgba[..., :3] = result.rgb
     rgba[..., 3] = result.alpha

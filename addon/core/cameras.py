@@ -1,4 +1,5 @@
-"""Pinhole cameras in the COLMAP/OpenCV convention (x right, y down, z forward).
+"""Cameras in the COLMAP/OpenCV convention (x right, y down, z forward): pinhole, orthographic
+and panoramic (docs/conventions.md, "Cameras beyond the pinhole").
 
 A pixel's centre is at (i + 0.5, j + 0.5). This module is the one place that converts to and
 from Blender's camera parameters (`BlenderCameraParams`, `camera_from_blender`,
@@ -20,9 +21,31 @@ CAMERA_AXIS_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
 _SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 _MIN_RESOLUTION, _MAX_RESOLUTION = 4, 65536  # Blender's limits on resolution_x, resolution_y
 
+# Projection models, with the native code of each (native/include/splatcore.h, sc_model) and
+# how many parameters `Camera.params` holds for it. Pinhole and orthographic need none (fx, fy,
+# cx, cy say it all); a panorama maps a camera-space direction to Cycles' normalised (u, v)
+# (v up), and then to pixels as col = fx u + cx, row = cy - fy v.
+MODELS = {"PINHOLE": (0, 0), "ORTHO": (1, 0), "EQUIRECTANGULAR": (2, 4),
+          "FISHEYE_EQUIDISTANT": (3, 1), "FISHEYE_EQUISOLID": (4, 4), "MIRRORBALL": (5, 0)}
+PANORAMAS = tuple(name for name, (code, _) in MODELS.items() if code >= 2)
+CAMERA_TYPES = ("PERSP", "ORTHO", "PANO")  # Blender's camera types that splats render through
+PANORAMA_TYPES = PANORAMAS  # Blender's panorama types that splats render through (named alike)
+MAX_MODEL_PARAMS = 10  # the native intrinsics vector: fx fy cx cy model far p0..p9
+
 
 @dataclass
 class Camera:
+    """A camera: pose, intrinsics, image size and projection model.
+
+    PINHOLE: (fx x/z + cx, fy y/z + cy).  ORTHO: (fx x + cx, fy y + cy), fx and fy in pixels per
+    world unit; every Gaussian is seen along the view axis.  Panoramas (`PANORAMAS`): the
+    camera-space direction mapped to Cycles' (u, v) by the model (with `params`), then
+    (fx u + cx, cy - fy v); depth is the distance from the camera centre, not z.
+    `far`: Gaussians deeper than this are culled (a camera's clip_end; inf for none).
+    `aperture`, `focus`: depth of field (PINHOLE and ORTHO; aperture 0: none), a thin lens of
+    that radius in world units focused at view depth `focus` (docs/conventions.md).
+    """
+
     world_to_camera: np.ndarray  # (4, 4) float64, rigid
     fx: float
     fy: float
@@ -30,6 +53,11 @@ class Camera:
     cy: float
     width: int
     height: int
+    model: str = "PINHOLE"
+    params: tuple[float, ...] = ()
+    far: float = float("inf")
+    aperture: float = 0.0
+    focus: float = 1.0
 
     def __post_init__(self) -> None:
         m = np.array(self.world_to_camera, dtype=np.float64)
@@ -43,6 +71,31 @@ class Camera:
             raise ValueError("camera has non-finite pose or intrinsics")
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if self.model not in MODELS:
+            raise ValueError(f"camera model must be one of {tuple(MODELS)}, got {self.model!r}")
+        self.params = tuple(float(v) for v in self.params)
+        if len(self.params) != MODELS[self.model][1] or not np.isfinite(self.params).all():
+            raise ValueError(f"a {self.model} camera takes {MODELS[self.model][1]} finite "
+                             f"parameters, got {self.params}")
+        self.far = float(self.far)
+        if np.isnan(self.far):
+            raise ValueError("far must not be NaN")
+        self.aperture, self.focus = float(self.aperture), float(self.focus)
+        if not (np.isfinite(self.aperture) and self.aperture >= 0 and np.isfinite(self.focus)
+                and self.focus > 0):
+            raise ValueError(f"depth of field needs aperture >= 0 and focus > 0, got "
+                             f"{self.aperture}, {self.focus}")
+        if self.aperture > 0 and self.model not in ("PINHOLE", "ORTHO"):
+            raise ValueError("depth of field is drawn through pinhole and orthographic cameras only")
+
+    @property
+    def is_pinhole(self) -> bool:
+        return self.model == "PINHOLE"
+
+    @property
+    def forward(self) -> np.ndarray:
+        """The world direction the camera looks along (its +z axis)."""
+        return self.world_to_camera[2, :3] / np.linalg.norm(self.world_to_camera[2, :3])
 
     @property
     def camera_to_world(self) -> np.ndarray:
@@ -77,10 +130,9 @@ class Camera:
 class BlenderCameraParams:
     """What Blender's camera object, camera data and render settings say about a view.
 
-    Perspective cameras only (Blender camera data with `type == 'PERSP'`): orthographic and
-    panoramic cameras have no pinhole model and are not represented here. Mono views only:
-    stereo 3D's extra interocular shift is not modelled, nor are border crop and viewport
-    zoom/offset.
+    Perspective, orthographic and panoramic cameras (`type` 'PERSP' | 'ORTHO' | 'PANO', with
+    `panorama_type` one of `PANORAMA_TYPES`). Mono views only: stereo 3D's extra interocular
+    shift is not modelled, nor are border crop and viewport zoom/offset.
 
     matrix_world: (4, 4) camera-to-world of the camera object, Blender camera frame (looks down
         its local -Z, +Y up in the image). It may carry scale (also negative or from a parent);
@@ -91,6 +143,13 @@ class BlenderCameraParams:
     resolution_x, resolution_y, resolution_percentage: the scene's output size; the rendered
         image is `resolution * percentage // 100` pixels (integer truncation, as Blender does).
     pixel_aspect_x, pixel_aspect_y: Blender keeps both in [1, 200].
+    type: 'PERSP' | 'ORTHO' | 'PANO'; ortho_scale: the fitted side's extent in world units;
+    clip_start, clip_end: the camera's clipping (orthographic and panoramic renders cull
+    Gaussians beyond clip_end; clip_start is the render's near plane, see `camera_near`).
+    panorama_type, fisheye_fov, fisheye_lens, latitude_min/max, longitude_min/max: Blender's
+    panorama settings (radians, mm).
+    use_dof, aperture_fstop, focus_distance: the camera's depth of field (the focus distance
+    along the view axis, a focus object's already resolved: `camera_adapter`).
     """
 
     matrix_world: np.ndarray
@@ -105,6 +164,20 @@ class BlenderCameraParams:
     resolution_percentage: int = 100
     pixel_aspect_x: float = 1.0
     pixel_aspect_y: float = 1.0
+    type: str = "PERSP"
+    ortho_scale: float = 6.0
+    clip_start: float = 0.1
+    clip_end: float = 1000.0
+    panorama_type: str = "FISHEYE_EQUISOLID"
+    fisheye_fov: float = np.pi
+    fisheye_lens: float = 10.5
+    latitude_min: float = -np.pi / 2
+    latitude_max: float = np.pi / 2
+    longitude_min: float = -np.pi
+    longitude_max: float = np.pi
+    use_dof: bool = False
+    aperture_fstop: float = 2.8
+    focus_distance: float = 10.0
 
     def __post_init__(self) -> None:
         m = np.array(self.matrix_world, dtype=np.float64)
@@ -112,7 +185,9 @@ class BlenderCameraParams:
             raise ValueError(f"matrix_world must be 4x4, got shape {m.shape}")
         self.matrix_world = m
         for name in ("lens", "sensor_width", "sensor_height", "shift_x", "shift_y",
-                     "pixel_aspect_x", "pixel_aspect_y"):
+                     "pixel_aspect_x", "pixel_aspect_y", "ortho_scale", "clip_start", "clip_end",
+                     "fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max",
+                     "longitude_min", "longitude_max", "aperture_fstop", "focus_distance"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value}")
@@ -127,7 +202,10 @@ class BlenderCameraParams:
         self.sensor_fit = str(self.sensor_fit)
         if self.sensor_fit not in _SENSOR_FITS:
             raise ValueError(f"sensor_fit must be one of {_SENSOR_FITS}, got {self.sensor_fit!r}")
-        for name in ("lens", "sensor_width", "sensor_height", "pixel_aspect_x", "pixel_aspect_y"):
+        if self.type not in CAMERA_TYPES:
+            raise ValueError(f"camera type must be one of {CAMERA_TYPES}, got {self.type!r}")
+        for name in ("lens", "sensor_width", "sensor_height", "pixel_aspect_x", "pixel_aspect_y",
+                     "ortho_scale", "fisheye_fov", "fisheye_lens"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         for name in ("resolution_x", "resolution_y", "resolution_percentage"):
@@ -142,8 +220,29 @@ class BlenderCameraParams:
         return width, height
 
 
+def unsupported_camera(params: BlenderCameraParams) -> str | None:
+    """Why splats cannot be rendered through this camera, or None when they can."""
+    if params.type == "PANO" and params.use_dof:
+        return ("depth of field through a panoramic camera is not supported (splats render "
+                "with it through perspective and orthographic cameras): turn it off")
+    if params.type == "PANO" and params.panorama_type not in PANORAMA_TYPES:
+        return (f"the {params.panorama_type.replace('_', ' ').lower()} panorama is not supported "
+                f"(splats render through {', '.join(PANORAMA_TYPES).replace('_', ' ').lower()} "
+                "panoramas, perspective and orthographic cameras)")
+    return None
+
+
+def camera_near(params: BlenderCameraParams, near: float) -> float:
+    """The near plane a render of `params` uses, given the render's own `near` (the splat render
+    setting): pinhole cameras keep it (the camera's clip_start does not cull splats, as before);
+    orthographic and panoramic ones clip at their clip_start as Cycles does, and at `near` too
+    where that is larger."""
+    return near if params.type == "PERSP" else max(near, params.clip_start)
+
+
 def camera_from_blender(params: BlenderCameraParams) -> Camera:
-    """The pinhole `Camera` that renders exactly what Blender renders for `params`.
+    """The `Camera` that renders exactly what Blender renders for `params`: perspective,
+    orthographic or panoramic (`_special_camera_from_blender` for the last two).
 
     This follows Blender's own code (blenkernel/intern/camera.cc): `BKE_camera_sensor_size`,
     `BKE_camera_sensor_fit` and `BKE_camera_params_compute_viewplane` (zoom 1, no offset, as
@@ -185,6 +284,8 @@ def camera_from_blender(params: BlenderCameraParams) -> Camera:
         raise ValueError(
             f"render size {params.resolution_x}x{params.resolution_y} at "
             f"{params.resolution_percentage}% is {width}x{height} pixels: too small")
+    if params.type != "PERSP":
+        return _special_camera_from_blender(params, width, height)
     aspx, aspy = params.pixel_aspect_x, params.pixel_aspect_y
     ycor = aspy / aspx
     sensor = params.sensor_height if params.sensor_fit == "VERTICAL" else params.sensor_width
@@ -197,14 +298,89 @@ def camera_from_blender(params: BlenderCameraParams) -> Camera:
     cx = 0.5 * width - params.shift_x * viewfac
     cy = 0.5 * height + params.shift_y * viewfac / ycor
 
+    aperture, focus = depth_of_field(params)
+    return Camera(_world_to_camera(params), fx, fy, cx, cy, width, height, aperture=aperture,
+                  focus=focus)
+
+
+def depth_of_field(params: BlenderCameraParams) -> tuple[float, float]:
+    """(aperture radius in world units, focus distance) of Cycles' thin lens for `params`
+    (`blender_camera_from_object`): lens (mm, as metres) / (2 f-stop) for a perspective camera,
+    1 / (2 f-stop) for an orthographic one, f-stop at least 1e-5; (0, 1) without depth of field.
+    The aperture's blades and anamorphic ratio are not modelled (a round aperture)."""
+    if not params.use_dof or params.type == "PANO":
+        return 0.0, 1.0
+    fstop = max(params.aperture_fstop, 1e-5)
+    aperture = (1.0 if params.type == "ORTHO" else params.lens * 1e-3) / (2.0 * fstop)
+    return aperture, max(params.focus_distance, 1e-6)
+
+
+def _world_to_camera(params: BlenderCameraParams) -> np.ndarray:
     m = params.matrix_world.copy()
     lengths = np.linalg.norm(m[:3, :3], axis=0)
     if not (lengths > 0).all():
         raise ValueError("matrix_world has a zero-length axis (zero scale)")
     m[:3, :3] /= lengths
-    camera_to_world_cv = m @ CAMERA_AXIS_FLIP
-    world_to_camera = np.linalg.inv(camera_to_world_cv)
-    return Camera(world_to_camera, fx, fy, cx, cy, width, height)
+    return np.linalg.inv(m @ CAMERA_AXIS_FLIP)
+
+
+def _special_camera_from_blender(params: BlenderCameraParams, width: int, height: int) -> Camera:
+    """Orthographic and panoramic cameras (docs/conventions.md, "Cameras beyond the pinhole").
+
+    ORTHO, from Blender's `BKE_camera_params_compute_viewplane` with `pixsize = ortho_scale /
+    viewfac`: the perspective formulas with lens / sensor replaced by 1 / ortho_scale,
+
+        fx = viewfac / ortho_scale,  fy = fx / ycor,  cx, cy as for a perspective camera,
+
+    so pixel = (fx x + cx, fy y + cy) in the camera frame; depth z.
+
+    PANO, from Cycles' `blender_camera_viewplane` (the viewplane is the unit square moved by
+    the shift) and its sensor for equisolid fisheyes (the fitted sensor side, the other side
+    from the render's aspect; AUTO fits horizontally when W aspx > H aspy):
+
+        u = col / W + shift_x,  v = row_from_bottom / H + shift_y
+        ->  fx = W, cx = -shift_x W, fy = H, cy = H (1 + shift_y)
+
+    and the model's parameters: EQUIRECTANGULAR (longitude min, max, latitude min, max),
+    FISHEYE_EQUIDISTANT (fov), FISHEYE_EQUISOLID (lens, fov, sensor width, sensor height),
+    MIRRORBALL (none). Both cull beyond clip_end.
+    """
+    world_to_camera = _world_to_camera(params)
+    aspx, aspy = params.pixel_aspect_x, params.pixel_aspect_y
+    if params.type == "ORTHO":
+        ycor = aspy / aspx
+        fit = params.sensor_fit
+        if fit == "AUTO":
+            fit = "HORIZONTAL" if aspx * width >= aspy * height else "VERTICAL"
+        viewfac = float(width) if fit == "HORIZONTAL" else ycor * height
+        fx = viewfac / params.ortho_scale
+        aperture, focus = depth_of_field(params)
+        return Camera(world_to_camera, fx, fx / ycor, 0.5 * width - params.shift_x * viewfac,
+                      0.5 * height + params.shift_y * viewfac / ycor, width, height,
+                      model="ORTHO", far=params.clip_end, aperture=aperture, focus=focus)
+    reason = unsupported_camera(params)
+    if reason:
+        raise ValueError(reason)
+    kind = params.panorama_type
+    if kind == "EQUIRECTANGULAR":
+        model_params = (params.longitude_min, params.longitude_max, params.latitude_min,
+                        params.latitude_max)
+        if not (model_params[1] > model_params[0] and model_params[3] > model_params[2]):
+            raise ValueError("the equirectangular camera's latitude or longitude range is empty")
+    elif kind == "FISHEYE_EQUIDISTANT":
+        model_params = (params.fisheye_fov,)
+    elif kind == "FISHEYE_EQUISOLID":
+        x_ratio, y_ratio = width * aspx, height * aspy
+        horizontal = params.sensor_fit == "HORIZONTAL" or (
+            params.sensor_fit == "AUTO" and x_ratio > y_ratio)
+        size = params.sensor_height if params.sensor_fit == "VERTICAL" else params.sensor_width
+        sensor = (size, size * y_ratio / x_ratio) if horizontal else (size * x_ratio / y_ratio, size)
+        model_params = (params.fisheye_lens, params.fisheye_fov, *sensor)
+    else:
+        model_params = ()
+    return Camera(world_to_camera, float(width), float(height), -params.shift_x * width,
+                  height * (1.0 + params.shift_y), width, height, model=kind,
+                  params=model_params, far=params.clip_end)
 
 
 def camera_to_blender(camera: Camera, sensor_width: float = 36.0) -> BlenderCameraParams:
@@ -232,6 +408,8 @@ def camera_to_blender(camera: Camera, sensor_width: float = 36.0) -> BlenderCame
     1e-7 relative; `camera_from_blender(camera_to_blender(c))` reproduces it to rounding.
     """
     width, height = camera.width, camera.height
+    if not camera.is_pinhole:
+        raise ValueError(f"only pinhole cameras become Blender settings, not {camera.model}")
     if width < 1 or height < 1:
         raise ValueError(f"camera size {width}x{height} is empty")
     ycor = camera.fx / camera.fy
@@ -264,3 +442,22 @@ def camera_to_blender(camera: Camera, sensor_width: float = 36.0) -> BlenderCame
         pixel_aspect_x=aspx,
         pixel_aspect_y=aspy,
     )
+
+
+def image_coverage(camera: Camera) -> np.ndarray | None:
+    """Which pixels a panorama shows anything at (H, W) bool, as Cycles' `*_to_direction`
+    decide (outside a fisheye's or the mirror ball's image circle it traces no ray); None when
+    every pixel does (pinhole, orthographic, equirectangular). Splats are not drawn where the
+    camera shows nothing: there the render keeps Blender's own pixel."""
+    if camera.model not in ("FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL"):
+        return None
+    cols = (np.arange(camera.width) + 0.5 - camera.cx) / camera.fx
+    rows = (camera.cy - np.arange(camera.height) - 0.5) / camera.fy
+    u, v = np.meshgrid(cols, rows)
+    if camera.model == "FISHEYE_EQUIDISTANT":
+        return (2 * u - 1) ** 2 + (2 * v - 1) ** 2 <= 1.0
+    if camera.model == "MIRRORBALL":
+        return (2 * u - 1) ** 2 + (2 * v - 1) ** 2 <= 1.0
+    lens, fov, sensor_w, sensor_h = camera.params
+    radius = np.hypot((u - 0.5) * sensor_w, (v - 0.5) * sensor_h)
+    return radius <= min(2 * lens * np.sin(fov / 4), 2 * lens)

@@ -15,7 +15,7 @@ import numpy as np
 
 from typing import Any
 
-from .cameras import Camera
+from .cameras import MAX_MODEL_PARAMS, MODELS, Camera
 from .gaussians import Gaussians
 
 # Images beyond these are refused before anything is allocated.
@@ -35,7 +35,10 @@ def splatcore():
 
 
 def camera_args(camera: Camera) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """(world-to-camera 4x4 float64, [fx, fy, cx, cy] float64, width, height), size checked."""
+    """(world-to-camera 4x4 float64, intrinsics float64, width, height), size checked. The
+    intrinsics are [fx, fy, cx, cy], then the model's code, far (0: none), the depth of field's
+    aperture (0: none) and focus, and the model's parameters (padded to MAX_MODEL_PARAMS), as
+    splatcore's sc_camera holds them."""
     width, height = int(camera.width), int(camera.height)
     if width <= 0 or height <= 0:
         raise ValueError(f"image size must be positive, got {width}x{height}")
@@ -43,7 +46,11 @@ def camera_args(camera: Camera) -> tuple[np.ndarray, np.ndarray, int, int]:
         raise ValueError(f"image size {width}x{height} is too large "
                          f"(at most {MAX_SIDE} a side and {MAX_PIXELS} pixels)")
     viewmat = np.ascontiguousarray(camera.world_to_camera, dtype=np.float64)
-    intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy], dtype=np.float64)
+    params = list(camera.params) + [0.0] * (MAX_MODEL_PARAMS - len(camera.params))
+    far = camera.far if np.isfinite(camera.far) else 0.0
+    aperture, focus = (camera.aperture, camera.focus) if camera.aperture > 0 else (0.0, 1.0)
+    intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy, MODELS[camera.model][0],
+                           far, aperture, focus, *params], dtype=np.float64)
     return viewmat, intrinsics, width, height
 
 

@@ -11,7 +11,10 @@
  *
  * Pipeline (one stage per file in src/):
  *   project.c    per Gaussian: EWA projection, SH colour, opacity, screen footprint (float,
- *                vectorised, with frustum culling before the covariance work)
+ *                vectorised, with frustum culling before the covariance work); pinhole and
+ *                orthographic cameras, with an optional thin-lens depth of field
+ *   panorama.c   the same through panoramic cameras (equirectangular, fisheyes, mirror ball):
+ *                the local Jacobian of the mapping at each mean, the seam's copies, in double
  *   sh.c         spherical harmonics degree 0..3 (the reference constants)
  *   sort.c       stable radix sort of Gaussians by view depth
  *   binning.c    Gaussian -> 16x16 tile lists, depth-ordered, exact ellipse/tile overlap
@@ -70,11 +73,35 @@ typedef struct {
     int sh_coeffs; /* 1, 4, 9 or 16 */
 } sc_gaussians;
 
-/* A pinhole camera, OpenCV convention: x right, y down, z forward; pixel centres at i + 0.5. */
+/* Projection models (docs/conventions.md, "Cameras beyond the pinhole"). */
+typedef enum {
+    SC_PINHOLE = 0,             /* (fx x/z + cx, fy y/z + cy), depth z */
+    SC_ORTHO = 1,               /* (fx x + cx, fy y + cy), fx, fy in pixels per unit; depth z;
+                                   every Gaussian seen along +z (its SH direction) */
+    /* Panoramas: the direction p/|p| to Cycles' normalised (u, v), v up, then pixels
+     * (fx u + cx, cy - fy v); depth |p|. Each Gaussian with the local Jacobian at its mean. */
+    SC_EQUIRECTANGULAR = 2,     /* params: longitude min, max, latitude min, max (radians) */
+    SC_FISHEYE_EQUIDISTANT = 3, /* params: field of view (radians) */
+    SC_FISHEYE_EQUISOLID = 4,   /* params: lens (mm), field of view, sensor width, height (mm) */
+    SC_MIRRORBALL = 5,
+    SC_MODEL_COUNT
+} sc_model;
+enum { SC_MODEL_PARAMS = 10 };
+
+/* A camera, OpenCV convention: x right, y down, z forward; pixel centres at i + 0.5. A zeroed
+ * model, far and params is the pinhole of the first fields. */
 typedef struct {
     double world_to_camera[16]; /* row-major 4x4, rigid */
     double fx, fy, cx, cy;
     int width, height;
+    int model;                  /* sc_model */
+    double far;                 /* Gaussians deeper than this are culled; <= 0: no limit */
+    double params[SC_MODEL_PARAMS];
+    /* Depth of field (PINHOLE and ORTHO; 0: none): a thin lens of this aperture radius (world
+     * units) focused at depth `focus`. Each Gaussian's screen covariance gains the covariance
+     * of its circle of confusion, (r/2)^2 diag(fx^2, fy^2) with r = aperture |1/focus - 1/z|
+     * (ORTHO: aperture |1 - z/focus|), and its opacity falls so that its drawn mass stays. */
+    double aperture, focus;
 } sc_camera;
 
 typedef struct {
@@ -108,6 +135,8 @@ typedef struct {
     sc_splat *splats; /* (N) */
     uint8_t *valid;   /* (N) */
     float *keys;      /* optional (N): the depth where the splat reaches a pixel, else +inf */
+    int wrap_rows;    /* render only: the arrays have 2N rows, and row N + i holds Gaussian i's
+                         copy one period over (across the equirectangular seam) */
 } sc_projection;
 
 /* The image outputs; mesh and background inputs are optional (NULL). */

@@ -40,6 +40,27 @@ void sc_buffer_free(void *p);
 sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                           int cull, sc_projection *out, sc_stats *stats);
 
+/* The footprint of splat `s` whose other fields are set (project.c): k2 and the pixel rows and
+ * columns its alpha >= 1/255 ellipse reaches. */
+void sc_footprint(sc_splat *s, const sc_camera *cam);
+
+/* Projection through a panoramic camera (panorama.c), in double, one Gaussian at a time: the
+ * local Jacobian of the mapping at each mean (EWA on the sphere); with out->wrap_rows, the
+ * copies across the equirectangular seam. sc_project_fast hands panoramas to it. */
+sc_status sc_project_panorama(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
+                              int cull, sc_projection *out, sc_stats *stats);
+
+/* Whether the camera's panorama repeats across its left and right edges (a full 360 degrees of
+ * equirectangular longitude), so that Gaussians on the seam are drawn on both sides. */
+static inline int sc_wraps(const sc_camera *cam) {
+    return cam->model == SC_EQUIRECTANGULAR && cam->params[1] - cam->params[0] >= 6.283185307179586 - 1e-6;
+}
+
+/* The deepest depth drawn (the camera's far plane, else the largest float). */
+static inline double sc_far(const sc_camera *cam) {
+    return cam->far > 0.0 && cam->far < FLT_MAX ? cam->far : FLT_MAX;
+}
+
 /* Stable ascending sort of `count` float keys (sort.c), on `threads` threads, carrying a payload:
  * on return order[k] is the payload of the k-th smallest key, payload[i] that of keys[i] (NULL:
  * i; it may be `order` itself). Keys of +inf (Gaussians not drawn) go last; -0 sorts before +0;
@@ -287,8 +308,28 @@ typedef struct {
     double jw[2][3];           /* J W (W the camera rotation) */
     double a_rows[2][3];       /* A = J W R S */
     double a0, b0, c0;         /* Sigma2 before the dilation: [[a0, b0], [b0, c0]] = A A^T */
-    double a, b, c, det;       /* the dilated Sigma2 and its determinant */
+    double dof_x, dof_y;       /* the circle of confusion's covariance (diagonal; 0: none) */
+    double a, b, c, det;       /* Sigma2 with it, dilated, and its determinant */
 } sc_ewa;
+
+/* The circle of confusion's variance per unit focal length squared at view depth z
+ * (sc_camera's aperture and focus): (r/2)^2. */
+static inline double sc_dof_blur(const sc_camera *cam, double z) {
+    if (!(cam->aperture > 0.0)) return 0.0;
+    const double r = cam->aperture * (cam->model == SC_ORTHO ? 1.0 - z / cam->focus
+                                                             : 1.0 / cam->focus - 1.0 / z);
+    return 0.25 * r * r;
+}
+
+/* The opacity factor that keeps a Gaussian's drawn mass through the depth-of-field blur and,
+ * if `antialiased`, the dilation: sqrt(det(before) / det), `before` the raw Sigma2 (antialiased)
+ * or the dilated one without the blur. 1 exactly without either. */
+static inline double sc_mass_factor(const sc_ewa *e, int antialiased) {
+    const double before = antialiased ? e->a0 * e->c0 - e->b0 * e->b0
+                                      : (e->a0 + SC_DILATION) * (e->c0 + SC_DILATION) - e->b0 * e->b0;
+    const double ratio = before / e->det;
+    return sqrt(ratio > 0.0 ? ratio : 0.0);
+}
 
 /* Rotation matrix (row-major) of a quaternion w,x,y,z; normalises (into unit[4]); zero means
  * identity. Returns |q|^2. */
@@ -320,17 +361,21 @@ static SC_ALWAYS_INLINE int sc_ewa_project(const sc_gaussians *g, int64_t i, con
     const double z = e->p[2];
     /* Screen values are float32: a depth beyond its range (a camera translation near 1e38)
      * would be stored as inf, so such a Gaussian is culled, never valid. */
-    if (!(z >= near) || !(z <= FLT_MAX)) return 0;
+    if (!(z >= near) || !(z <= sc_far(cam)) || !(z >= -FLT_MAX)) return 0;
 
-    /* EWA Jacobian with x/z and y/z clamped to the guard band (inside J only). */
     const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
-    const double tan_x = 0.5 * cam->width / fx, tan_y = 0.5 * cam->height / fy;
-    const double lo_x = -(cx / fx) - SC_GUARD * tan_x, hi_x = (cam->width - cx) / fx + SC_GUARD * tan_x;
-    const double lo_y = -(cy / fy) - SC_GUARD * tan_y, hi_y = (cam->height - cy) / fy + SC_GUARD * tan_y;
-    const double rx = e->p[0] / z, ry = e->p[1] / z;
-    e->clamped_x = rx < lo_x || rx > hi_x, e->clamped_y = ry < lo_y || ry > hi_y;
-    e->tx = sc_clamp(rx, lo_x, hi_x), e->ty = sc_clamp(ry, lo_y, hi_y);
-    e->j00 = fx / z, e->j02 = -fx * e->tx / z, e->j11 = fy / z, e->j12 = -fy * e->ty / z;
+    if (cam->model == SC_ORTHO) { /* affine: J is exact and constant */
+        e->clamped_x = e->clamped_y = 0, e->tx = e->ty = 0.0;
+        e->j00 = fx, e->j02 = 0.0, e->j11 = fy, e->j12 = 0.0;
+    } else { /* EWA Jacobian with x/z and y/z clamped to the guard band (inside J only). */
+        const double tan_x = 0.5 * cam->width / fx, tan_y = 0.5 * cam->height / fy;
+        const double lo_x = -(cx / fx) - SC_GUARD * tan_x, hi_x = (cam->width - cx) / fx + SC_GUARD * tan_x;
+        const double lo_y = -(cy / fy) - SC_GUARD * tan_y, hi_y = (cam->height - cy) / fy + SC_GUARD * tan_y;
+        const double rx = e->p[0] / z, ry = e->p[1] / z;
+        e->clamped_x = rx < lo_x || rx > hi_x, e->clamped_y = ry < lo_y || ry > hi_y;
+        e->tx = sc_clamp(rx, lo_x, hi_x), e->ty = sc_clamp(ry, lo_y, hi_y);
+        e->j00 = fx / z, e->j02 = -fx * e->tx / z, e->j11 = fy / z, e->j12 = -fy * e->ty / z;
+    }
 
     /* Sigma2 = J W R S S^T R^T W^T J^T = A A^T with the 2x3 factor A = J W R S:
      * fewer operations than forming the 3x3 covariances, and symmetric by construction. */
@@ -348,17 +393,19 @@ static SC_ALWAYS_INLINE int sc_ewa_project(const sc_gaussians *g, int64_t i, con
     e->a0 = a0v[0] * a0v[0] + a0v[1] * a0v[1] + a0v[2] * a0v[2];
     e->b0 = a0v[0] * a1v[0] + a0v[1] * a1v[1] + a0v[2] * a1v[2];
     e->c0 = a1v[0] * a1v[0] + a1v[1] * a1v[1] + a1v[2] * a1v[2];
-    e->a = e->a0 + SC_DILATION, e->b = e->b0, e->c = e->c0 + SC_DILATION;
+    const double blur = sc_dof_blur(cam, z);
+    e->dof_x = fx * fx * blur, e->dof_y = fy * fy * blur;
+    e->a = e->a0 + e->dof_x + SC_DILATION, e->b = e->b0, e->c = e->c0 + e->dof_y + SC_DILATION;
     e->det = e->a * e->c - e->b * e->b;
     return e->det > 0.0 && isfinite(e->det);
 }
 
 /* The projected mean in pixels. */
 static inline double sc_pixel_x(const sc_camera *cam, const sc_ewa *e) {
-    return cam->fx * e->p[0] / e->p[2] + cam->cx;
+    return cam->fx * (cam->model == SC_ORTHO ? e->p[0] : e->p[0] / e->p[2]) + cam->cx;
 }
 static inline double sc_pixel_y(const sc_camera *cam, const sc_ewa *e) {
-    return cam->fy * e->p[1] / e->p[2] + cam->cy;
+    return cam->fy * (cam->model == SC_ORTHO ? e->p[1] : e->p[1] / e->p[2]) + cam->cy;
 }
 
 /* ---------------------------------------------------------------- compositor helpers */

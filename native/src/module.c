@@ -254,7 +254,7 @@ static const arg_spec GAUSSIAN_ARGS[] = {
 
 static const arg_spec CAMERA_ARGS[] = {
     {"world_to_camera", 'd', 2, {4, 4}, 0},
-    {"intrinsics", 'd', 1, {4}, 0},
+    {"intrinsics", 'd', 1, {ANY}, 0}, /* (4,) or (8 + SC_MODEL_PARAMS,): parse_common */
 };
 
 /* The size a call bound to a named dimension. */
@@ -287,6 +287,29 @@ static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_d
     const Py_buffer *v[COUNT(CAMERA_ARGS)];
     if (check_args(b, d, CAMERA_ARGS, COUNT(CAMERA_ARGS), objs + 5, v) != 0) return -1;
     const double *viewmat = data(v[0]), *intr = data(v[1]);
+    /* intrinsics: fx fy cx cy (a pinhole), or those, the model, far, aperture, focus and
+     * SC_MODEL_PARAMS (sc_camera). */
+    const Py_ssize_t n_intr = v[1]->shape[0], n_long = 8 + SC_MODEL_PARAMS;
+    if (n_intr != 4 && n_intr != n_long) {
+        PyErr_Format(PyExc_ValueError, "intrinsics must have shape (4,) or (%zd,), got (%zd,)",
+                     n_long, n_intr);
+        return -1;
+    }
+    const int pinhole_only = n_intr == 4;
+    const double model = pinhole_only ? SC_PINHOLE : intr[4], far = pinhole_only ? 0.0 : intr[5];
+    const double aperture = pinhole_only ? 0.0 : intr[6], focus = pinhole_only ? 1.0 : intr[7];
+    if (!(model >= 0 && model < SC_MODEL_COUNT && model == (int)model) || isnan(far) ||
+        !all_finite_d(intr + (pinhole_only ? 0 : 8), pinhole_only ? 0 : SC_MODEL_PARAMS)) {
+        PyErr_SetString(PyExc_ValueError, "intrinsics: unknown camera model or non-finite "
+                                          "model parameters");
+        return -1;
+    }
+    if (!(aperture >= 0 && isfinite(aperture)) || !(focus > 0 && isfinite(focus)) ||
+        (aperture > 0 && model >= SC_EQUIRECTANGULAR)) {
+        value_error("depth of field needs a finite aperture >= 0 and focus > 0, and a pinhole or "
+                    "orthographic camera; got aperture %g, focus %g", aperture, focus);
+        return -1;
+    }
     if (!all_finite_d(viewmat, 16) || !all_finite_d(intr, 4)) {
         PyErr_SetString(PyExc_ValueError, "camera has non-finite pose or intrinsics");
         return -1;
@@ -315,7 +338,8 @@ static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_d
                      width, height, (int)MAX_SIDE, MAX_PIXELS);
         return -1;
     }
-    if (!(near >= 0) || !isfinite(near)) {
+    /* Orthographic views may clip behind their origin (Blender's viewport does). */
+    if (!isfinite(near) || (!(near >= 0) && model != SC_ORTHO)) {
         value_error("near must be finite and >= 0, got %g", near);
         return -1;
     }
@@ -326,6 +350,8 @@ static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_d
     memcpy(cam->world_to_camera, viewmat, sizeof cam->world_to_camera);
     cam->fx = intr[0], cam->fy = intr[1], cam->cx = intr[2], cam->cy = intr[3];
     cam->width = width, cam->height = height;
+    cam->model = (int)model, cam->far = far, cam->aperture = aperture, cam->focus = focus;
+    for (int k = 0; k < SC_MODEL_PARAMS; ++k) cam->params[k] = pinhole_only ? 0.0 : intr[8 + k];
     SIZE(d, DIM_H) = height, SIZE(d, DIM_W) = width;
     opt->sh_degree = sh_degree;
     opt->near = near;
@@ -401,7 +427,7 @@ static PyObject *py_project(PyObject *self, PyObject *args) {
     float *xy = data(v[0]), *conic = data(v[1]), *depth = data(v[2]), *opacity = data(v[3]),
           *rgb = data(v[4]);
     uint8_t *valid = data(v[5]);
-    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL};
+    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL, 0};
     sc_stats stats = {0};
     sc_status status = SC_ERR_MEMORY;
     if (proj.splats) {
@@ -605,6 +631,11 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
                      &opt) != 0)
         goto fail;
     opt.exhaustive = exhaustive;
+    if (cam.model != SC_PINHOLE || cam.aperture > 0) {
+        PyErr_SetString(PyExc_ValueError, "training renders through pinhole cameras only (no "
+                                          "depth of field)");
+        goto fail;
+    }
     if (parse_image(&b, &d, image_objs, &image) != 0 ||
         check_args(&b, &d, TRAIN_OUTS, COUNT(TRAIN_OUTS), outs, v) != 0)
         goto fail;

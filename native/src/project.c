@@ -17,6 +17,7 @@ typedef struct {
     const sc_options *opt;
     sc_projection *out;
     double campos[3];
+    double forward[3];  /* the camera's +z in world space: the view direction of an ORTHO camera */
     atomic_llong first_bad; /* smallest index holding a non-finite value, or count */
 } job;
 
@@ -38,7 +39,7 @@ static SC_ALWAYS_INLINE float footprint_k2(float log_255_opacity) {
 /* The footprint of splat `s` (all else set): the compositor draws where opacity exp(power) >=
  * 1/255, i.e. inside the ellipse d^T conic d <= 2 ln(255 opacity) (footprint_k2). Its bounding
  * box follows from the covariance that the float conic stands for, inverted in double. */
-static void footprint(sc_splat *s, const sc_camera *cam) {
+void sc_footprint(sc_splat *s, const sc_camera *cam) {
     s->row0 = s->col0 = 0, s->row1 = s->col1 = -1;
     s->k2 = 0.0f, s->unused = 0.0f;
     if (!(s->opacity >= SC_ALPHA_MIN)) return;
@@ -46,7 +47,10 @@ static void footprint(sc_splat *s, const sc_camera *cam) {
     const double ca = s->ca, cb = s->cb, cc = s->cc, det = ca * cc - cb * cb;
     /* A conic that float made singular (or zero: a covariance beyond float) is unbounded. */
     const double half_x = det > 0.0 ? sqrt((double)s->k2 * cc / det) : INFINITY;
-    const double half_y = det > 0.0 ? sqrt((double)s->k2 * ca / det) : INFINITY;
+    /* A band (panorama.c: constant along x, conic 0 0 cc) reaches all columns, some rows. */
+    const double half_y = det > 0.0                       ? sqrt((double)s->k2 * ca / det)
+                          : ca == 0.0 && cb == 0.0 && cc > 0.0 ? sqrt((double)s->k2 / cc)
+                                                                : INFINITY;
     int32_t x0, x1, y0, y1;
     pixel_range(s->x, half_x, cam->width, &x0, &x1);
     pixel_range(s->y, half_y, cam->height, &y0, &y1);
@@ -64,13 +68,11 @@ static int project_one(const job *j, int64_t i, sc_splat *s) {
     const double a = e.a, b = e.b, c = e.c, det = e.det;
 
     double opacity = sc_sigmoid(g->opacity_logits[i]);
-    if (j->opt->antialiased) {
-        const double ratio = (e.a0 * e.c0 - e.b0 * e.b0) / det;
-        opacity *= sqrt(ratio > 0.0 ? ratio : 0.0);
-    }
+    if (j->opt->antialiased || cam->aperture > 0.0) opacity *= sc_mass_factor(&e, j->opt->antialiased);
 
     double dir[3];
     sc_view_dir(g->means + 3 * i, j->campos, dir);
+    if (cam->model == SC_ORTHO) memcpy(dir, j->forward, sizeof dir);
     const float dir_f[3] = {(float)dir[0], (float)dir[1], (float)dir[2]};
     float rgb[3];
     sc_sh_colour_f(j->opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir_f, rgb);
@@ -87,7 +89,7 @@ static int project_one(const job *j, int64_t i, sc_splat *s) {
     s->b = fmaxf(rgb[2] + 0.5f, 0.0f);
     s->depth = (float)e.p[2];
 
-    footprint(s, cam);
+    sc_footprint(s, cam);
     return 1;
 }
 
@@ -143,8 +145,10 @@ static inline float log_normal(float x) {
 typedef struct {
     job base;                     /* what project_one takes: inputs, output, first_bad */
     float view[9];                /* the camera rotation, in float */
-    float lo_x, hi_x, lo_y, hi_y; /* the guard band of x/z and y/z */
+    float lo_x, hi_x, lo_y, hi_y; /* the guard band of x/z and y/z (0 for ORTHO) */
     int cull;
+    int ortho;                    /* SC_ORTHO: x, y instead of x/z, y/z; J constant */
+    float aperture, inv_focus;    /* depth of field (sc_camera), aperture 0: none */
 } fast_job;
 
 /* One batch: lane l holds Gaussian idx[l]. */
@@ -171,18 +175,23 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
     for (int k = 0; k < 12; ++k) v[k] = cam->world_to_camera[k];
     for (int k = 0; k < 3; ++k) campos[k] = fj->base.campos[k];
     const double fxd = cam->fx, fyd = cam->fy, cxd = cam->cx, cyd = cam->cy;
+    const int ortho = fj->ortho;
+    /* An orthographic camera sees every Gaussian along its axis: dir = forward (as campos
+     * + forward - campos, so the one expression serves both). */
+    const double fwd[3] = {fj->base.forward[0], fj->base.forward[1], fj->base.forward[2]};
     float pf[3][LANES];
     for (int l = 0; l < LANES; ++l) {
         const double m0 = in[0][l], m1 = in[1][l], m2 = in[2][l];
         double p[3];
         for (int k = 0; k < 3; ++k) p[k] = v[4 * k] * m0 + v[4 * k + 1] * m1 + v[4 * k + 2] * m2 + v[4 * k + 3];
         for (int k = 0; k < 3; ++k) pf[k][l] = (float)p[k];
-        o->dir[0][l] = (float)(m0 - campos[0]);
-        o->dir[1][l] = (float)(m1 - campos[1]);
-        o->dir[2][l] = (float)(m2 - campos[2]);
+        o->dir[0][l] = (float)(ortho ? fwd[0] : m0 - campos[0]);
+        o->dir[1][l] = (float)(ortho ? fwd[1] : m1 - campos[1]);
+        o->dir[2][l] = (float)(ortho ? fwd[2] : m2 - campos[2]);
         /* The projected mean too: fx x/z + cx cancels near the image's left edge. */
-        o->x[l] = (float)(fxd * p[0] / p[2] + cxd);
-        o->y[l] = (float)(fyd * p[1] / p[2] + cyd);
+        const double inv_z = ortho ? 1.0 : 1.0 / p[2];
+        o->x[l] = (float)(fxd * (p[0] * inv_z) + cxd);
+        o->y[l] = (float)(fyd * (p[1] * inv_z) + cyd);
         o->depth[l] = pf[2][l];
     }
     const float fx = (float)cam->fx, fy = (float)cam->fy;
@@ -191,10 +200,12 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
     const float dilation = (float)SC_DILATION;
     const float lo_x = fj->lo_x, hi_x = fj->hi_x, lo_y = fj->lo_y, hi_y = fj->hi_y;
     const float aa = fj->base.opt->antialiased ? 1.0f : 0.0f;
+    const float aperture = fj->aperture, inv_focus = fj->inv_focus;
+    const int keep_mass = fj->base.opt->antialiased || aperture > 0.0f; /* sc_mass_factor */
     const int width = cam->width, height = cam->height;
     for (int l = 0; l < LANES; ++l) {
-        const float inv_z = 1.0f / pf[2][l];
-        const float rx = pf[0][l] * inv_z, ry = pf[1][l] * inv_z;
+        const float inv_z = ortho ? 1.0f : 1.0f / pf[2][l]; /* ORTHO: the band is 0, so J's */
+        const float rx = pf[0][l] * inv_z, ry = pf[1][l] * inv_z; /* z column is too */
         const float tx = rx < lo_x ? lo_x : (rx > hi_x ? hi_x : rx);
         const float ty = ry < lo_y ? lo_y : (ry > hi_y ? hi_y : ry);
         const float j00 = fx * inv_z, j02 = -fx * tx * inv_z;
@@ -228,12 +239,19 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
         const float e0 = u[1] * t[2] - u[2] * t[1], e1 = u[2] * t[0] - u[0] * t[2];
         const float e2 = u[0] * t[1] - u[1] * t[0];
         const float det0 = e0 * e0 + e1 * e1 + e2 * e2;
-        const float det = det0 + dilation * (a0 + c0) + dilation * dilation;
+        /* The circle of confusion (sc_dof_blur): 0 without depth of field, then a1 = a0 etc.
+         * exactly. */
+        const float rz = aperture * (ortho ? 1.0f - pf[2][l] * inv_focus : inv_focus - inv_z);
+        const float blur = 0.25f * rz * rz, bx = fx * fx * blur, by = fy * fy * blur;
+        const float a1 = a0 + bx, c1 = c0 + by, det1 = det0 + bx * c0 + by * a0 + bx * by;
+        const float det = det1 + dilation * (a1 + c1) + dilation * dilation;
         const float inv_det = 1.0f / det;
-        const float ca = (c0 + dilation) * inv_det, cb = -b0 * inv_det, cc = (a0 + dilation) * inv_det;
+        const float ca = (c1 + dilation) * inv_det, cb = -b0 * inv_det, cc = (a1 + dilation) * inv_det;
         o->ca[l] = ca, o->cb[l] = cb, o->cc[l] = cc;
         const float sigmoid = 1.0f / (1.0f + exp_any(-in[10][l]));
-        const float opacity = sigmoid * (aa * sqrtf(det0 * inv_det) + (1.0f - aa));
+        const float before = aa * det0 + (1.0f - aa) * (det0 + dilation * (a0 + c0) + dilation * dilation);
+        const float mass = sqrtf(before * inv_det);
+        const float opacity = sigmoid * (keep_mass ? mass : 1.0f);
         o->opacity[l] = opacity;
         /* x * 0 == 0 exactly when x is finite. */
         const float finite = o->x[l] * 0.0f + o->y[l] * 0.0f + det * 0.0f + ca * 0.0f +
@@ -305,7 +323,12 @@ static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int6
     const float *restrict logits = g->opacity_logits + begin;
     double v[12];
     for (int k = 0; k < 12; ++k) v[k] = cam->world_to_camera[k];
-    const double near = fj->base.opt->near, fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
+    const double near = fj->base.opt->near, far = sc_far(cam), fx = cam->fx, fy = cam->fy;
+    const double cx = cam->cx, cy = cam->cy;
+    const int ortho = fj->ortho;
+    const double aperture = cam->aperture > 0.0 ? cam->aperture : 0.0;
+    const double inv_focus = aperture > 0.0 ? 1.0 / cam->focus : 0.0;
+    const double f2 = fx > fy ? fx * fx : fy * fy;
     const double lo_x = fj->lo_x, hi_x = fj->hi_x, lo_y = fj->lo_y, hi_y = fj->hi_y;
     const double width = cam->width, height = cam->height;
     const int cull = fj->cull;
@@ -315,15 +338,18 @@ static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int6
         const double x_cam = v[0] * m0 + v[1] * m1 + v[2] * m2 + v[3];
         const double y_cam = v[4] * m0 + v[5] * m1 + v[6] * m2 + v[7];
         const double z = v[8] * m0 + v[9] * m1 + v[10] * m2 + v[11];
-        const int in_front = (z >= near) & (z <= FLT_MAX);
-        const double rx = x_cam / z, ry = y_cam / z;
+        const int in_front = (z >= near) & (z <= far) & (z >= -FLT_MAX);
+        const double inv_z = ortho ? 1.0 : 1.0 / z;
+        const double rx = x_cam * inv_z, ry = y_cam * inv_z;
         const double tx = sc_clamp(rx, lo_x, hi_x), ty = sc_clamp(ry, lo_y, hi_y);
-        const double j2 = (fx * fx * (1.0 + tx * tx) + fy * fy * (1.0 + ty * ty)) / (z * z);
+        const double j2 = (fx * fx * (1.0 + tx * tx) + fy * fy * (1.0 + ty * ty)) * (inv_z * inv_z);
         /* Not fmaxf, a library call that stops vectorisation (the inputs are finite here). */
         const float s0 = scales[3 * i], s1 = scales[3 * i + 1], s2 = scales[3 * i + 2];
         const float s12 = s1 > s2 ? s1 : s2, largest = s0 > s12 ? s0 : s12;
+        const double rz = aperture * (ortho ? 1.0 - z * inv_focus : inv_focus - inv_z);
+        const double blur = 0.25 * rz * rz * f2; /* the circle of confusion, pixels^2 */
         const double radius =
-            sqrt(11.1 * (j2 * (double)exp_any(2.0f * largest) + SC_DILATION)) * 1.001 + 1.0;
+            sqrt(11.1 * (j2 * (double)exp_any(2.0f * largest) + SC_DILATION + blur)) * 1.001 + 1.0;
         const double x = fx * rx + cx, y = fy * ry + cy;
         /* NaN or inf in the bound keeps the Gaussian (the full path decides). */
         const int outside = (x + radius < 0.0) | (x - radius > width) | (y + radius < 0.0) |
@@ -429,9 +455,12 @@ static void project_fast_range(void *ctx, int64_t begin, int64_t end, int thread
 
 sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                           int cull, sc_projection *out, sc_stats *stats) {
-    fast_job fj = {.base = {.g = g, .cam = cam, .opt = opt, .out = out}, .cull = cull};
+    if (cam->model >= SC_EQUIRECTANGULAR) return sc_project_panorama(g, cam, opt, cull, out, stats);
+    fast_job fj = {.base = {.g = g, .cam = cam, .opt = opt, .out = out}, .cull = cull,
+                   .ortho = cam->model == SC_ORTHO};
     atomic_init(&fj.base.first_bad, g->count);
     sc_camera_centre(cam->world_to_camera, fj.base.campos);
+    for (int k = 0; k < 3; ++k) fj.base.forward[k] = cam->world_to_camera[8 + k];
     for (int r = 0; r < 3; ++r)
         for (int k = 0; k < 3; ++k) fj.view[3 * r + k] = (float)cam->world_to_camera[4 * r + k];
     const double tan_x = 0.5 * cam->width / cam->fx, tan_y = 0.5 * cam->height / cam->fy;
@@ -439,6 +468,9 @@ sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_
     fj.hi_x = (float)((cam->width - cam->cx) / cam->fx + SC_GUARD * tan_x);
     fj.lo_y = (float)(-(cam->cy / cam->fy) - SC_GUARD * tan_y);
     fj.hi_y = (float)((cam->height - cam->cy) / cam->fy + SC_GUARD * tan_y);
+    if (fj.ortho) fj.lo_x = fj.hi_x = fj.lo_y = fj.hi_y = 0.0f; /* no clamp: J is constant */
+    fj.aperture = cam->aperture > 0.0 ? (float)cam->aperture : 0.0f;
+    fj.inv_focus = cam->aperture > 0.0 ? (float)(1.0 / cam->focus) : 0.0f;
     sc_parallel_for(opt->threads, g->count, CHUNK, project_fast_range, &fj);
     long long bad = atomic_load(&fj.base.first_bad);
     if (bad < g->count) {

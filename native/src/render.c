@@ -44,7 +44,10 @@ void sc_frame_free(sc_frame *f) {
 sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                            int with_pairs, sc_frame *frame, sc_stats *stats) {
     const double start = sc_now_ms();
-    const int64_t n = g->count;
+    const int wrap = sc_wraps(cam); /* twice the rows: each Gaussian's seam copy */
+    *frame = (sc_frame){0};
+    if (wrap && g->count > (1LL << 30)) return SC_ERR_TOO_LARGE;
+    const int64_t n = wrap ? 2 * g->count : g->count;
     const size_t rows = (size_t)(n ? n : 1);
     sc_status status = SC_ERR_MEMORY;
     float *keys = NULL;
@@ -52,7 +55,7 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     frame->tiles_x = (cam->width + SC_TILE - 1) / SC_TILE;
     frame->ntiles = (int64_t)frame->tiles_x * ((cam->height + SC_TILE - 1) / SC_TILE);
     sc_projection proj = {sc_buffer_alloc(sizeof(sc_splat) * rows), sc_buffer_alloc(rows),
-                          sc_buffer_alloc(sizeof(float) * rows)};
+                          sc_buffer_alloc(sizeof(float) * rows), wrap};
     keys = proj.keys;
     if (!proj.splats || !proj.valid || !keys) goto done;
     if ((status = sc_project_fast(g, cam, opt, 1, &proj, stats)) != SC_OK) goto done;

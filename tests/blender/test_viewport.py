@@ -88,15 +88,41 @@ def test_camera_from_view_is_blenders_camera(rng):
     for name in ("fx", "fy", "cx", "cy"):
         assert getattr(ours, name) == pytest.approx(getattr(blender, name), rel=1e-5)
     assert np.allclose(ours.world_to_camera, blender.world_to_camera, atol=1e-5)
-    ortho = window.copy()
-    ortho[3] = (0, 0, 0, 1)
-    assert viewport.camera_from_view(view, ortho, W, H) is None
+    odd = window.copy()
+    odd[3] = (0, 0, 0.5, 0.5)  # neither perspective nor orthographic
+    assert viewport.camera_from_view(view, odd, W, H) is None
     half = viewport.camera_from_view(view, window, W, H, scale=0.5)
     assert (half.width, half.height) == (W // 2, H // 2)
     assert half.fx == pytest.approx(ours.fx / 2)
 
 
-def test_drawn_splats_are_occluded_by_a_mesh_in_front(rng):
+def test_orthographic_view_is_blenders_orthographic_camera(rng):
+    camera = bs.add_camera(location=(0.3, -5.0, 0.4), rotation=(1.4, 0.1, 0.2), lens=28,
+                           width=W, height=H)
+    camera.data.type = "ORTHO"
+    camera.data.ortho_scale = 3.7
+    camera.data.shift_x, camera.data.shift_y = 0.05, -0.1
+    view, window = view_matrices(camera)
+    ours = viewport.camera_from_view(view, window, W, H)
+    blender = bs.camera_of(camera, bpy.context.evaluated_depsgraph_get())
+    assert ours.model == blender.model == "ORTHO"
+    for name in ("fx", "fy", "cx", "cy"):
+        assert getattr(ours, name) == pytest.approx(getattr(blender, name), rel=1e-5)
+    assert np.allclose(ours.world_to_camera, blender.world_to_camera, atol=1e-5)
+    assert ours.far == pytest.approx(camera.data.clip_end, rel=1e-5)
+    # (from float32 matrix entries: (P23 + 1) / P22 cancels to about 1e-7 clip_end)
+    assert viewport.view_near(window, 0.01) == pytest.approx(camera.data.clip_start, abs=1e-3)
+    # An orthographic viewport clips from -clip_end/2 (behind its origin) to clip_end/2.
+    viewport_window = window.copy()
+    viewport_window[2, 2], viewport_window[2, 3] = -2 / 100.0, 0.0  # clip -50..50
+    assert viewport.view_near(viewport_window, 0.01) == pytest.approx(-50.0)
+    depth = np.array([[-20.0, 0.0, 25.0, np.inf]])
+    stored = viewport.window_depth(depth, viewport_window)
+    np.testing.assert_allclose(stored, [[0.3, 0.5, 0.75, 1.0]], atol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
+def test_drawn_splats_are_occluded_by_a_mesh_in_front(rng, kind):
     bs.reset_scene()
     g = random_gaussians(rng, 500, 1, radius=1.0, stray=0.0)
     g.opacity_logits[:] = np.abs(g.opacity_logits) + 2.0  # mostly opaque: a clear test
@@ -107,11 +133,17 @@ def test_drawn_splats_are_occluded_by_a_mesh_in_front(rng):
     plane = bpy.context.active_object
     camera = bs.add_camera(location=(0, -6, 0), rotation=(math.pi / 2, 0, 0), lens=35,
                            width=W, height=H)
+    camera.data.type = kind
+    camera.data.ortho_scale = 3.0
     view, window = view_matrices(camera)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     gaussians, options = viewport.viewport_splats(depsgraph, bpy.context.scene)
     image = viewport.render_view(gaussians, viewport.camera_from_view(view, window, W, H),
                                  window, **options)
+    if kind == "ORTHO":  # the native orthographic render of the same view, pixel for pixel
+        from addon.core.render.renderer import render
+        alone = render(gaussians, bs.camera_of(camera, depsgraph), near=camera.data.clip_start)
+        assert np.abs(image.rgba[::-1, :, 3] - alone.alpha).max() < 1e-6
 
     cube_only = offscreen_draw([cube], view, window)
     meshes = offscreen_draw([cube, plane], view, window)

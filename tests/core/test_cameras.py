@@ -19,7 +19,9 @@ from addon.core.cameras import (
     BlenderCameraParams,
     Camera,
     camera_from_blender,
+    camera_near,
     camera_to_blender,
+    unsupported_camera,
 )
 
 REL = 1e-9  # round trips are plain float64 algebra
@@ -364,3 +366,97 @@ def test_invalid_params_raise():
         camera_from_blender(BlenderCameraParams(**{**good, "matrix_world": np.diag([1, 0, 1, 1])}))
     with pytest.raises(ValueError, match="pixel aspect"):
         camera_to_blender(Camera(np.eye(4), 1000.0, 1.0, 32, 24, 64, 48))
+
+
+# ------------------------------------------------------------- orthographic and panoramic
+
+def blender_ortho_pipeline_project(params: BlenderCameraParams, points: np.ndarray) -> np.ndarray:
+    """Pixels of world points through an orthographic Blender camera, step by step:
+    BKE_camera_params_compute_viewplane with pixsize = ortho_scale, then orthographic_m4."""
+    winx = params.resolution_x * params.resolution_percentage // 100
+    winy = params.resolution_y * params.resolution_percentage // 100
+    aspx, aspy = params.pixel_aspect_x, params.pixel_aspect_y
+    ycor = aspy / aspx
+    fit = params.sensor_fit
+    if fit == "AUTO":
+        fit = "HORIZONTAL" if aspx * winx >= aspy * winy else "VERTICAL"
+    viewfac = winx if fit == "HORIZONTAL" else ycor * winy
+    pixsize = params.ortho_scale / viewfac
+    dx, dy = params.shift_x * viewfac, params.shift_y * viewfac
+    xmin, xmax = (-0.5 * winx + dx) * pixsize, (0.5 * winx + dx) * pixsize
+    ymin, ymax = (-0.5 * ycor * winy + dy) * pixsize, (0.5 * ycor * winy + dy) * pixsize
+    model = params.matrix_world.copy()
+    model[:3, :3] /= np.linalg.norm(model[:3, :3], axis=0)
+    view = np.c_[points, np.ones(len(points))] @ np.linalg.inv(model).T  # Blender camera frame
+    ndc_x = (2 * view[:, 0] - (xmax + xmin)) / (xmax - xmin)
+    ndc_y = (2 * view[:, 1] - (ymax + ymin)) / (ymax - ymin)
+    return np.stack([(ndc_x + 1) * 0.5 * winx, (1 - ndc_y) * 0.5 * winy], axis=1)
+
+
+@pytest.mark.parametrize("fit", ["AUTO", "HORIZONTAL", "VERTICAL"])
+def test_orthographic_camera_matches_blender_pipeline(rng, fit):
+    for _ in range(20):
+        params = dataclasses.replace(random_blender_params(rng, fit), type="ORTHO",
+                                     ortho_scale=float(rng.uniform(0.1, 50.0)), clip_end=77.0)
+        camera = camera_from_blender(params)
+        assert camera.model == "ORTHO" and camera.far == 77.0
+        points = rng.uniform(-30, 30, size=(50, 3))
+        cam = points @ camera.world_to_camera[:3, :3].T + camera.world_to_camera[:3, 3]
+        ours = np.stack([camera.fx * cam[:, 0] + camera.cx, camera.fy * cam[:, 1] + camera.cy], 1)
+        want = blender_ortho_pipeline_project(params, points)
+        np.testing.assert_allclose(ours, want, rtol=1e-9, atol=1e-7 * max(camera.width, camera.height))
+
+
+def test_orthographic_scale_spans_the_fitted_side():
+    params = BlenderCameraParams(np.eye(4), 50, 36, 24, "AUTO", 0, 0, 200, 100, type="ORTHO",
+                                 ortho_scale=4.0)
+    camera = camera_from_blender(params)
+    assert camera.fx == pytest.approx(50.0) and camera.fy == pytest.approx(50.0)
+    assert (camera.cx, camera.cy) == (100.0, 50.0)
+
+
+def test_panoramic_cameras_from_blender():
+    base = dict(matrix_world=np.eye(4), lens=50, sensor_width=36, sensor_height=24,
+                sensor_fit="AUTO", shift_x=0.1, shift_y=-0.2, resolution_x=400,
+                resolution_y=200, type="PANO", clip_end=50.0)
+    equirect = camera_from_blender(BlenderCameraParams(
+        **base, panorama_type="EQUIRECTANGULAR", latitude_min=-1.0, latitude_max=1.2,
+        longitude_min=-2.0, longitude_max=3.0))
+    assert equirect.model == "EQUIRECTANGULAR" and equirect.params == (-2.0, 3.0, -1.0, 1.2)
+    # u = col / W + shift_x, v = row_from_bottom / H + shift_y
+    assert (equirect.fx, equirect.cx) == (400.0, -40.0)
+    assert (equirect.fy, equirect.cy) == (200.0, pytest.approx(160.0))
+    assert equirect.far == 50.0
+    solid = camera_from_blender(BlenderCameraParams(
+        **base, panorama_type="FISHEYE_EQUISOLID", fisheye_lens=8.0, fisheye_fov=3.0))
+    assert solid.params == (8.0, 3.0, 36.0, 18.0)  # horizontal fit: height from the aspect
+    vertical = camera_from_blender(BlenderCameraParams(
+        **{**base, "sensor_fit": "VERTICAL"}, panorama_type="FISHEYE_EQUISOLID"))
+    assert vertical.params[2:] == (48.0, 24.0)
+    assert camera_from_blender(BlenderCameraParams(
+        **base, panorama_type="MIRRORBALL")).params == ()
+    assert camera_from_blender(BlenderCameraParams(
+        **base, panorama_type="FISHEYE_EQUIDISTANT", fisheye_fov=4.0)).params == (4.0,)
+
+
+@pytest.mark.parametrize("kind", ["FISHEYE_LENS_POLYNOMIAL", "EQUIANGULAR_CUBEMAP_FACE",
+                                  "CENTRAL_CYLINDRICAL"])
+def test_unsupported_panoramas_say_so(kind):
+    params = BlenderCameraParams(np.eye(4), 50, 36, 24, "AUTO", 0, 0, 64, 32, type="PANO",
+                                 panorama_type=kind)
+    reason = unsupported_camera(params)
+    assert reason and kind.replace("_", " ").lower() in reason
+    with pytest.raises(ValueError, match="not supported"):
+        camera_from_blender(params)
+
+
+def test_camera_near_for_each_type():
+    params = BlenderCameraParams(np.eye(4), 50, 36, 24, "AUTO", 0, 0, 64, 32, clip_start=0.5)
+    assert camera_near(params, 0.01) == 0.01
+    assert camera_near(dataclasses.replace(params, type="ORTHO"), 0.01) == 0.5
+    assert camera_near(dataclasses.replace(params, type="PANO"), 2.0) == 2.0
+
+
+def test_only_pinholes_become_blender_settings():
+    with pytest.raises(ValueError, match="pinhole"):
+        camera_to_blender(Camera(np.eye(4), 10, 10, 5, 5, 10, 10, model="ORTHO"))

@@ -2,7 +2,7 @@
 and holds what a real Blender wrote against the native composite computed here.
 
     python tests/real_blender/check.py make SPLATS.npz
-    python tests/real_blender/check.py render WRITTEN.png MESHES.exr SPLATS.npz
+    python tests/real_blender/check.py render WRITTEN.png MESHES.exr SPLATS.npz [CAMERA_KIND]
     python tests/real_blender/check.py viewport SPLATS_SHOT.png PLAIN_SHOT.png VIEW.json SPLATS.npz
     python tests/real_blender/check.py undo-splats SPLATS.ply
     python tests/real_blender/check.py undo OUT_DIR
@@ -10,7 +10,8 @@ and holds what a real Blender wrote against the native composite computed here.
 `render`: WRITTEN (an 8-bit PNG from F12 or `-a`) must equal, within 1/255, the splats composed
 by the native compositor with the meshes Blender rendered alone (MESHES, a multilayer EXR of the
 same frame with Composite Splats off), encoded as the "Standard" view transform writes it.
-The camera is the one `scene.py` builds.
+The camera is the one `scene.py` builds, or made CAMERA_KIND (scene_kit.CAMERA_KINDS:
+orthographic or panoramic; near = its clip_start, outside a fisheye's circle the meshes' pixel).
 
 `viewport`: screenshots of the UI (`viewport_shot.py`: with the add-on's drawing and without)
 against the native render at the viewport's own camera (VIEW: what the UI recorded). Prints
@@ -65,14 +66,18 @@ def load(path: str) -> Gaussians:
                      data["sh"])
 
 
-def scene_camera() -> Camera:
-    """scene.py's camera: at (0, -6, 0), rotated 90 degrees about X, 35 mm, 64x48."""
+def scene_camera(kind: str | None = None) -> Camera:
+    """scene.py's camera: at (0, -6, 0), rotated 90 degrees about X, 35 mm, 64x48; or that
+    camera made `kind` (scene_kit.CAMERA_KINDS)."""
+    from real_blender.scene_kit import CAMERA_KINDS
+
     c, s = math.cos(math.pi / 2), math.sin(math.pi / 2)
     matrix = np.array([[1, 0, 0, 0], [0, c, -s, -6.0], [0, s, c, 0], [0, 0, 0, 1]], np.float64)
     return camera_from_blender(BlenderCameraParams(
         matrix_world=matrix, lens=35.0, sensor_width=36.0, sensor_height=24.0,
         sensor_fit="AUTO", shift_x=0.0, shift_y=0.0, resolution_x=WIDTH, resolution_y=HEIGHT,
-        resolution_percentage=100, pixel_aspect_x=1.0, pixel_aspect_y=1.0))
+        resolution_percentage=100, pixel_aspect_x=1.0, pixel_aspect_y=1.0,
+        **(CAMERA_KINDS[kind] if kind else {})))
 
 
 def mesh_layers(path: str) -> tuple[np.ndarray, np.ndarray]:
@@ -84,9 +89,17 @@ def mesh_layers(path: str) -> tuple[np.ndarray, np.ndarray]:
     return rgba, depth[..., 0]
 
 
-def check_render(written: str, meshes: str, splats: str) -> int:
+def check_render(written: str, meshes: str, splats: str, kind: str | None = None) -> int:
+    from addon.core.cameras import image_coverage
+
     mesh_rgba, mesh_depth = mesh_layers(meshes)
-    expected = standard_8bit(native_composite(load(splats), scene_camera(), mesh_rgba, mesh_depth))
+    camera = scene_camera(kind)
+    composite = native_composite(load(splats), camera, mesh_rgba, mesh_depth,
+                                 near=0.1 if kind else 0.01)  # clip_start, for those kinds
+    shown = image_coverage(camera)
+    if shown is not None:
+        composite[~shown] = mesh_rgba[~shown]
+    expected = standard_8bit(composite)
     got = read_png(written)
     if got.shape != expected.shape:
         print(f"FAIL {written}: {got.shape} pixels, expected {expected.shape}")

@@ -1,10 +1,13 @@
 """Runs inside a real Blender: F12 of the open file, as `bpy.ops.render.render` does it.
 
     blender -b FILE.blend --python render_still.py -- OUT_PREFIX [--no-splats] [--multilayer]
+                                                        [--camera KIND]
 
 Writes OUT_PREFIX.png (or .exr with --multilayer); exits 1 if the render did not finish (an
 exception or a result other than {'FINISHED'}): this is what a script or add-on calling F12
 sees. --no-splats renders the meshes alone (Composite Splats off), as the reference.
+--camera KIND makes the scene's camera one of scene_kit.CAMERA_KINDS first (ORTHO,
+EQUIRECTANGULAR, FISHEYE_EQUISOLID).
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ import scene_kit  # noqa: E402
 
 def main(prefix: str, *flags: str) -> int:
     scene = bpy.context.scene
+    if "--camera" in flags:
+        scene_kit.set_camera_kind(scene.camera.data, flags[flags.index("--camera") + 1])
     if "--no-splats" in flags:
         scene.splat_render.enabled = False
     if "--multilayer" in flags:

@@ -90,3 +90,23 @@ def camera_in_front(bpy, scene, centre, radius):
     camera.data.lens = 35
     scene.camera = camera
     return camera
+
+
+# Camera kinds the real-Blender script renders through besides the perspective one, and their
+# settings (check.py builds the same camera on the host).
+CAMERA_KINDS = {
+    "ORTHO": dict(type="ORTHO", ortho_scale=3.2),
+    "EQUIRECTANGULAR": dict(type="PANO", panorama_type="EQUIRECTANGULAR"),
+    "FISHEYE_EQUISOLID": dict(type="PANO", panorama_type="FISHEYE_EQUISOLID", fisheye_lens=6.0,
+                              fisheye_fov=2.7925268),  # 160 degrees
+}
+
+
+def set_camera_kind(cam, kind: str) -> None:
+    """Make camera data `cam` one of CAMERA_KINDS (panorama settings on the camera from
+    Blender 4.0, on its Cycles settings before)."""
+    settings = dict(CAMERA_KINDS[kind])
+    cam.type = settings.pop("type")
+    target = cam if hasattr(cam, "panorama_type") else cam.cycles
+    for key, value in settings.items():
+        setattr(cam if key == "ortho_scale" else target, key, value)

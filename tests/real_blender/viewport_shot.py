@@ -3,7 +3,8 @@
     blender FILE.blend --python viewport_shot.py -- OUT_DIR [SHADING ...]
 
 The 3D view is made to fill the window (no header, no side bars), looks along the scene
-camera from a little further back, floor grid and axes off, nothing selected. For each shading
+camera from a little further back (or, with SPLAT_VIEW=FRONT|RIGHT|TOP, is that orthographic
+view of the origin), floor grid and axes off, nothing selected. For each shading
 (SOLID, MATERIAL), once the add-on's viewport image has arrived at full resolution, it saves
 OUT_DIR/<shading>_splats.png (splats shown), OUT_DIR/<shading>_plain.png (the add-on's drawing
 switched off) and OUT_DIR/view.json (region size, view and projection matrices), then quits.
@@ -63,6 +64,18 @@ def aim() -> None:
     space.lens = 50.0
     space.clip_start, space.clip_end = 0.1, 100.0
     rv3d = space.region_3d
+    axis = os.environ.get("SPLAT_VIEW")  # FRONT, RIGHT, TOP: that orthographic view instead
+    if axis:
+        from mathutils import Euler
+        rv3d.view_perspective = "ORTHO"
+        angles = {"FRONT": (1.5707963, 0, 0), "RIGHT": (1.5707963, 0, 1.5707963),
+                  "TOP": (0, 0, 0)}[axis]
+        rv3d.view_rotation = Euler(angles).to_quaternion()
+        rv3d.view_distance = 3.0
+        rv3d.view_location = Vector((0.0, 0.0, 0.0))
+        for other in window.screen.areas:
+            other.tag_redraw()
+        return
     rv3d.view_perspective = "PERSP"
     camera = bpy.context.scene.camera
     # Look from the camera position, moved back by 1 unit: the splats fill the middle.
@@ -134,6 +147,7 @@ def add_shading(shading: str) -> None:
         record["view_matrix"] = [list(r) for r in rv3d.view_matrix]
         record["window_matrix"] = [list(r) for r in rv3d.window_matrix]
         record["version"] = list(bpy.app.version)
+        record["occludes"] = os.environ.get("SPLAT_VIEW", "FRONT") == "FRONT"
         return None
 
     def splats_off():

@@ -52,7 +52,7 @@ from ...core.render.composite import (
 )
 from . import compositor_bridge as bridge
 from . import state as render_state
-from ..camera_adapter import frame_size
+from ..camera_adapter import frame_size, render_problem
 from .compositor_bridge import ENGINE_ID
 from ..registration import module_registration
 from .failures import (
@@ -291,6 +291,9 @@ def _on_render_init(scene, _depsgraph=None) -> None:
         if _can_set_up_at_render() and bridge.ensure_bridge(scene):
             print(f"Gaussian splats: compositor bridge set up for scene {scene.name!r}")
         blockers = render_blockers(scene)
+        problem = render_problem(scene.camera, scene.render.engine)
+        if problem:  # a camera the splats cannot go through: stop before the meshes render
+            blockers.append(problem)
         if blockers:
             fail_render(scene, "; ".join(blockers), "init")
             return

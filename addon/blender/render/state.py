@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from ...core.cameras import Camera
 from ...core.gaussians import Gaussians
 from .. import gather
-from ..camera_adapter import camera_of
+from ..camera_adapter import camera_of, near_of, render_problem
+from .compositor_bridge import ENGINE_ID
 
 
 @dataclass
@@ -24,7 +25,7 @@ class FrameSplats:
     view_layer: str
     frame: int
     gaussians: Gaussians
-    camera: Camera | None        # the full frame; None: no perspective camera (nothing to draw)
+    camera: Camera | None        # the full frame; None: no camera (Blender renders nothing)
     antialiased: bool
     color_space: str
     sh_degree: int
@@ -84,16 +85,18 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
     result = gather.gather(depsgraph)
     warnings = list(result.warnings)
     camera = None
+    near = settings.near
     camera_obj = depsgraph.scene.camera
     if camera_obj is None:
         warnings.append("the scene has no camera")
     else:
         camera_obj = camera_obj.evaluated_get(depsgraph)
-        if camera_obj.type != "CAMERA" or camera_obj.data.type != "PERSP":
-            warnings.append("splats render through perspective cameras only: "
-                            f"{camera_obj.name!r} is not one, so no splats are drawn")
-        else:
-            camera = camera_of(camera_obj, depsgraph.scene_eval.render)
+        engine = depsgraph.scene.render.engine
+        problem = render_problem(camera_obj, None if engine == ENGINE_ID else engine)
+        if problem:  # never a finished frame without its splats: the render fails
+            raise ValueError(problem)
+        camera = camera_of(camera_obj, depsgraph.scene_eval.render)
+        near = near_of(camera_obj, settings.near)
     antialiased = {"OBJECT": result.antialiased, "ON": True, "OFF": False}[settings.antialiased]
     spaces = {b.color_space for b in result.batches}
     if len(spaces) > 1:
@@ -102,6 +105,6 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
     gaussians = result.gaussians
     return FrameSplats(scene.name, depsgraph.view_layer.name, scene.frame_current, gaussians,
                        camera, antialiased, color_space,
-                       min(settings.sh_degree, gaussians.degree), settings.near,
+                       min(settings.sh_degree, gaussians.degree), near,
                        render_threads(scene, settings),
                        1000 * (time.perf_counter() - start), warnings, result.cache_hits)

@@ -155,6 +155,10 @@ def source_of(collection, scene=None) -> ColmapSource:
     render = (scene or bpy.context.scene).render
     cameras = {name: camera_of(obj, render, use_recorded=True)
                for name, obj in _camera_objects(collection).items()}
+    for name, camera in cameras.items():
+        if not camera.is_pinhole:  # training renders through pinhole cameras only
+            raise ValueError(f"camera {name!r} of {collection.name!r} is {camera.model.lower()}: "
+                             "training needs its COLMAP cameras perspective")
     undistorted = _absolute(collection.get("colmap_undistorted_dir", ""))
     folder = _absolute(collection.get("colmap_image_dir", "")) or \
         str(collection.get("colmap_image_folder", "images"))

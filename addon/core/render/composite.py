@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import colour
-from ..cameras import Camera
+from ..cameras import Camera, image_coverage
 from ..gaussians import Gaussians
 from .. import native
 from .renderer import render
@@ -92,9 +92,11 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
         raise ValueError(f"mesh_rgba must have shape {(height, width, 4)}, "
                          f"got {mesh_rgba.shape}")
     if color_space == "SRGB":
-        return _compose_display(gaussians, camera, mesh_rgba, mesh_depth, antialiased=antialiased,
-                                near=near, sh_degree=sh_degree, threads=threads, out=out,
-                                with_depth=with_depth, prepared=prepared)
+        result = _compose_display(gaussians, camera, mesh_rgba, mesh_depth,
+                                  antialiased=antialiased, near=near, sh_degree=sh_degree,
+                                  threads=threads, out=out, with_depth=with_depth,
+                                  prepared=prepared)
+        return _outside_the_image_circle(result, camera, mesh_rgba, mesh_depth)
     layer = np.ascontiguousarray(mesh_rgba)
     if not np.isfinite(layer).all():
         layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
@@ -110,7 +112,25 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     depth[~np.isfinite(depth)] = FAR
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (convert_in + time.perf_counter() - start)
-    return CompositeResult(out, depth, stats)
+    return _outside_the_image_circle(CompositeResult(out, depth, stats), camera, mesh_rgba,
+                                     mesh_depth)
+
+
+def _outside_the_image_circle(result, camera: Camera, mesh_rgba, mesh_depth):
+    """Where a fisheye or mirror ball shows nothing (`image_coverage`), Blender's own pixel,
+    with no splats (a composite), or nothing (a splat layer: mesh_rgba None)."""
+    shown = image_coverage(camera)
+    if shown is None:
+        return result
+    outside = ~shown
+    if mesh_rgba is None:
+        result.rgba[outside] = 0.0
+    else:
+        result.rgba[outside] = mesh_rgba[outside]
+    if result.depth is not None:
+        result.depth[outside] = FAR if mesh_depth is None else \
+            _finite_depth(np.asarray(mesh_depth, np.float32)[outside])
+    return result
 
 
 @dataclass
@@ -185,7 +205,7 @@ def splat_layer(gaussians: Gaussians, camera: Camera, *, color_space: str = "SRG
     depth = np.where(np.isfinite(result.depth), result.depth, np.float32(FAR)).astype(np.float32)
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (time.perf_counter() - start)
-    return SplatLayer(out, depth, stats)
+    return _outside_the_image_circle(SplatLayer(out, depth, stats), camera, None, None)
 
 
 @dataclass(frozen=True)

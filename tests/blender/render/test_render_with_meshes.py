@@ -326,13 +326,149 @@ def test_render_visibility_and_switches(rng, tmp_path):
     assert_close_8bit(read_png(render_still(scene, tmp_path / "c")), meshes_only, "switched off")
 
 
-def test_orthographic_camera_renders_the_meshes_and_warns(rng, tmp_path, capfd):
-    scene, splats, cube, plane, camera = build_scene(rng, "BLENDER_WORKBENCH")
+def reference_composite(gaussians, camera, mesh_rgba, mesh_depth, near):
+    """The float64 reference (tests/reference.py) composed as `native_composite` is."""
+    from tests import reference as ref
+    out = ref.render_scene(gaussians, camera, near=near,
+                           mesh_rgba=premultiplied(mesh_rgba, encode),
+                           mesh_depth=np.where(np.isfinite(mesh_depth), mesh_depth, 1e10))
+    return premultiplied(np.concatenate([out["rgb"], out["alpha"][..., None]], -1), decode)
+
+
+def assert_close_to_reference(written, expected, what):
+    """Within 1/255 at the median and 3/255 at the 99th percentile (8-bit rounding of both)."""
+    diff = np.abs(written - standard_8bit(expected))
+    assert np.median(diff) <= 1 and np.percentile(diff, 99) <= 3, \
+        f"{what}: median {np.median(diff)}, 99th percentile {np.percentile(diff, 99)}/255"
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_orthographic_camera_is_the_exact_composite(rng, tmp_path, engine):
+    scene, splats, cube, plane, camera = build_scene(rng, engine)
     camera.data.type = "ORTHO"
+    camera.data.ortho_scale = 3.2
+    camera.data.shift_x = 0.04
     written = read_png(render_still(scene, tmp_path / "ortho"))
-    mesh_rgba, _, _ = mesh_layers(save_render_result(scene, tmp_path / "ortho.exr"))
-    assert_close_8bit(written, standard_8bit(mesh_rgba), "orthographic")
-    assert "perspective cameras only" in capfd.readouterr().out
+    exr_path = render_still(scene, tmp_path / "layers", multilayer=True)
+    mesh_rgba, mesh_depth, _ = mesh_layers(exr_path)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    gaussians = bs.gather.gather(depsgraph).gaussians
+    cam = bs.camera_of(camera, depsgraph)
+    assert cam.model == "ORTHO"
+    near = max(scene.splat_render.near, camera.data.clip_start)
+    expected = reference_composite(gaussians, cam, mesh_rgba, mesh_depth, near)
+    assert_close_to_reference(written, expected, f"{engine} orthographic")
+    # Meshes in front and behind: the cube hides the splats, the splats hide the plane.
+    alone = render(gaussians, cam, near=near)
+    on_cube = np.abs(mesh_depth - (6.0 - 2.5 - 0.45)) < 0.05
+    assert on_cube.sum() >= 6 and (alone.alpha[on_cube] > 0.5).any()
+    mesh_8 = standard_8bit(mesh_rgba)
+    assert np.abs(written[on_cube] - mesh_8[on_cube]).max() <= 1
+    covered = (alone.alpha > 0.9) & (mesh_depth > 7.0)
+    assert covered.sum() >= 6
+    assert np.abs(written[covered][:, :3] - mesh_8[covered][:, :3]).max() > 20
+
+
+@pytest.mark.parametrize("kind", ["EQUIRECTANGULAR", "FISHEYE_EQUISOLID", "FISHEYE_EQUIDISTANT",
+                                  "MIRRORBALL"])
+def test_panoramic_camera_is_the_composite(rng, tmp_path, kind):
+    scene, splats, cube, plane, camera = build_scene(rng, "CYCLES")
+    scene.render.resolution_x, scene.render.resolution_y = 64, 32
+    camera.data.type = "PANO"
+    pano = camera.data if hasattr(camera.data, "panorama_type") else camera.data.cycles
+    pano.panorama_type = kind
+    pano.fisheye_fov = math.radians(160)
+    pano.fisheye_lens = 6.0
+    camera.data.shift_x, camera.data.shift_y = 0.06, -0.04  # moves the viewplane (Cycles)
+    written = read_png(render_still(scene, tmp_path / "pano"))
+    exr_path = render_still(scene, tmp_path / "layers", multilayer=True)
+    mesh_rgba, mesh_depth, _ = mesh_layers(exr_path)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    gaussians = bs.gather.gather(depsgraph).gaussians
+    cam = bs.camera_of(camera, depsgraph)
+    assert cam.model == kind
+    near = max(scene.splat_render.near, camera.data.clip_start)
+    expected = native_composite(gaussians, cam, mesh_rgba, mesh_depth)
+    alone = render(gaussians, cam, near=near)
+    assert alone.alpha.max() > 0.5  # the splats are in the frame
+    # Cycles' depth for panoramas is the distance, which the splats are composed by: the cube
+    # (its nearest face 3.05 away, straight ahead) hides them where it is.
+    on_cube = (mesh_depth < 3.6) & (mesh_rgba[..., 3] > 0.99)
+    assert on_cube.sum() >= 4 and (alone.alpha[on_cube] > 0.5).any()
+    # Where Cycles drew the cube is where the camera model puts it, not mirrored: a point near
+    # the cube's upper right corner, whose mirror images (left-right, up-down) are off it.
+    from addon.core.gaussians import Gaussians
+    from addon.core.render.renderer import project
+    # (mirrored about the image of the view axis, which the shift moves)
+    probe = Gaussians(np.float32([[0.65, -2.96, 0.45], [0.0, -2.96, 0.0]]),
+                      np.full((2, 3), -5, np.float32), np.float32([[1, 0, 0, 0]] * 2),
+                      np.float32([5, 5]), np.zeros((2, 1, 3), np.float32))
+    (x, y), (x0, y0) = project(probe, cam).xy
+    col, row = int(x), int(y)
+    assert mesh_depth[row, col] < 3.6
+    assert mesh_depth[row, int(2 * x0 - x)] > 3.6
+    assert mesh_depth[int(2 * y0 - y), col] > 3.6
+    mesh_8 = standard_8bit(mesh_rgba)
+    assert np.abs(written[on_cube] - mesh_8[on_cube]).max() <= 1
+    if kind != "EQUIRECTANGULAR":  # outside the image circle: no splats, whatever is there
+        from addon.core.cameras import image_coverage
+        outside = ~image_coverage(cam)
+        assert outside.sum() > 10
+        assert np.abs(written[outside] - mesh_8[outside]).max() <= 1
+        expected[outside] = mesh_rgba[outside]
+    assert_close_8bit(written, standard_8bit(expected), kind)
+
+
+def test_depth_of_field_blurs_the_splats(rng, tmp_path):
+    import dataclasses
+    scene, splats, cube, plane, camera = build_scene(rng, "BLENDER_WORKBENCH")
+    camera.data.dof.use_dof = True
+    camera.data.dof.aperture_fstop = 0.1  # circles of confusion of 1-2 pixels at 32x24
+    camera.data.dof.focus_distance = 2.0
+    written = read_png(render_still(scene, tmp_path / "dof"))
+    exr_path = render_still(scene, tmp_path / "layers", multilayer=True)
+    expected, mesh_rgba, channels, gaussians, cam = expected_frame(scene, camera, exr_path)
+    assert cam.aperture == pytest.approx(0.035 / 0.2) and cam.focus == pytest.approx(2.0)
+    assert_close_8bit(written, standard_8bit(expected), "depth of field")
+    _, mesh_depth, _ = mesh_layers(exr_path)
+    sharp = native_composite(gaussians, dataclasses.replace(cam, aperture=0.0), mesh_rgba,
+                             mesh_depth)
+    assert np.abs(written - standard_8bit(sharp)).max() > 10  # the blur shows
+
+
+def test_depth_of_field_through_a_panorama_fails(rng, tmp_path):
+    scene, splats, cube, plane, camera = build_scene(rng, "CYCLES")
+    camera.data.type = "PANO"
+    camera.data.dof.use_dof = True
+    _render_fails_with(scene, tmp_path, "depth of field")
+
+
+def test_panoramic_camera_without_cycles_fails(rng, tmp_path):
+    scene, splats, cube, plane, camera = build_scene(rng, "BLENDER_WORKBENCH")
+    camera.data.type = "PANO"
+    _render_fails_with(scene, tmp_path, "render it with Cycles")
+
+
+def test_unsupported_cameras_fail_the_render(rng, tmp_path):
+    scene, splats, cube, plane, camera = build_scene(rng, "CYCLES")
+    camera.data.type = "PANO"
+    pano = camera.data if hasattr(camera.data, "panorama_type") else camera.data.cycles
+    pano.panorama_type = "FISHEYE_LENS_POLYNOMIAL"
+    _render_fails_with(scene, tmp_path, "not supported")
+
+
+def _render_fails_with(scene, tmp_path, match):
+    from addon.blender.render import failures
+    scene.render.filepath = str(tmp_path / "failed")
+    settings = scene.render.image_settings
+    settings.media_type, settings.file_format = "IMAGE", "PNG"
+    try:
+        result = bpy.ops.render.render(write_still=True)
+    except RuntimeError:
+        result = {"CANCELLED"}
+    assert result == {"CANCELLED"} or not list(tmp_path.glob("failed*"))
+    assert not list(tmp_path.glob("failed*"))
+    assert any(match in e for e in failures.last_errors()), failures.last_errors()
 
 
 def test_render_cache_path_gives_the_same_image(rng, tmp_path):
