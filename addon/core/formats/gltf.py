@@ -37,7 +37,6 @@ from __future__ import annotations
 import base64
 import binascii
 import json
-import math
 import os
 import struct
 import urllib.parse
@@ -77,7 +76,8 @@ GENERATOR = "Gaussian Splatting for Blender"
 
 def attribute_names(degree: int) -> list[str]:
     """The SH attribute semantics of degrees 0..`degree`, in Gaussians.sh order."""
-    return [f"{PREFIX}SH_DEGREE_{l}_COEF_{n}" for l in range(degree + 1) for n in range(2 * l + 1)]
+    return [f"{PREFIX}SH_DEGREE_{band}_COEF_{n}" for band in range(degree + 1)
+            for n in range(2 * band + 1)]
 
 
 # ------------------------------------------------------------------------------------------
@@ -158,7 +158,8 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
         raise SplatFileError(path, f"cannot save non-finite values in {bad}")
     document, binary = _document(gaussians)
     if path.suffix.lower() == ".gltf":
-        document["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(binary).decode("ascii")
+        encoded = base64.b64encode(binary).decode("ascii")
+        document["buffers"][0]["uri"] = "data:application/octet-stream;base64," + encoded
         payload = json.dumps(document).encode("utf-8")
     else:
         text = json.dumps(document).encode("utf-8")
@@ -334,7 +335,8 @@ def _primitive_gaussians(path: Path, document: dict, buffers: list[bytes], primi
     attributes = primitive.get("attributes")
     if not isinstance(attributes, dict):
         raise SplatFileError(path, "bad primitive: no attributes")
-    for required in ("POSITION", f"{PREFIX}ROTATION", f"{PREFIX}SCALE", f"{PREFIX}OPACITY", f"{PREFIX}SH_DEGREE_0_COEF_0"):
+    for required in ("POSITION", f"{PREFIX}ROTATION", f"{PREFIX}SCALE", f"{PREFIX}OPACITY",
+                     f"{PREFIX}SH_DEGREE_0_COEF_0"):
         if required not in attributes:
             raise SplatFileError(path, f"missing required attribute {required!r}")
 

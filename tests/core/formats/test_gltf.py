@@ -96,7 +96,7 @@ def check_structure(document: dict, binary_length: int, degree: int, n: int) -> 
     else:
         jsonschema.validate(extension, EXTENSION_SCHEMA)
     assert extension["kernel"] == "ellipse" and extension["colorSpace"] == "srgb_rec709_display"
-    sh = [f"{P}SH_DEGREE_{l}_COEF_{m}" for l in range(degree + 1) for m in range(2 * l + 1)]
+    sh = [f"{P}SH_DEGREE_{band}_COEF_{m}" for band in range(degree + 1) for m in range(2 * band + 1)]
     assert set(primitive["attributes"]) == set(ATTRIBUTE_RULES) | set(sh)
     for name, index in primitive["attributes"].items():
         accessor = document["accessors"][index]
@@ -266,7 +266,8 @@ def test_node_transforms_and_several_primitives(tmp_path: Path) -> None:
     (lambda a, e: a.pop(P + "OPACITY"), "missing required attribute"),
     (lambda a, e: a.update({P + "SH_DEGREE_1_COEF_0": (np.zeros((4, 3), "<f4"), FLOAT, "VEC3", False, 0)}),
      "SH degrees must be complete"),
-    (lambda a, e: a.update({P + "SCALE": (np.full((4, 3), -1.0, "<f4"), FLOAT, "VEC3", False, 0)}), "scales must be >= 0"),
+    (lambda a, e: a.update({P + "SCALE": (np.full((4, 3), -1.0, "<f4"), FLOAT, "VEC3", False, 0)}),
+     "scales must be >= 0"),
     (lambda a, e: a.update({P + "OPACITY": (np.full(4, 1.5, "<f4"), FLOAT, "SCALAR", False, 0)}), "opacities in"),
     (lambda a, e: a.update({P + "OPACITY": (np.full(3, 0.5, "<f4"), FLOAT, "SCALAR", False, 0)}), "has 3 elements"),
     (lambda a, e: a.update({P + "SCALE": (np.zeros((4, 3), "<i2"), SHORT, "VEC3", False, 0)}), "not allowed"),
