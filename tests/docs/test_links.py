@@ -69,3 +69,26 @@ def test_readme_is_short_and_names_no_issue_or_commit():
         for word in re.findall(r"\b[0-9a-f]{7,40}\b", line):
             assert not (re.search(r"\d", word) and re.search(r"[a-f]", word)), \
                 f"README.md:{number} names a commit ({word})"
+
+
+CODE_PATH = re.compile(r"`((?:addon|scripts|examples|tests|native)/[\w./*-]+)`")
+USER_PAGES = [ROOT / "README.md", *sorted((ROOT / "docs" / "guide").glob("*.md"))]
+
+
+def missing_code_paths(page: Path) -> list[str]:
+    """Repository paths a page names in code spans (`addon/core/sh.py`, `native/src/*.c`) that do
+    not exist: a file moved or renamed since the page was written."""
+    text = page.read_text(encoding="utf-8")
+    return [name for name in sorted(set(CODE_PATH.findall(text)))
+            if not any(ROOT.glob(name.rstrip("/")))]
+
+
+@pytest.mark.parametrize("page", USER_PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_code_paths_exist(page: Path):
+    assert missing_code_paths(page) == []
+
+
+def test_the_path_check_finds_moved_files(tmp_path: Path):
+    page = tmp_path / "a.md"
+    page.write_text("`addon/core/sh.py` `addon/core/no_such_module.py` `native/src/*.c`\n")
+    assert missing_code_paths(page) == ["addon/core/no_such_module.py"]
