@@ -220,7 +220,10 @@ def camera_types(make_camera, width: int, height: int) -> list[tuple[str, object
             ("fisheye equidistant 180", "FISHEYE_EQUIDISTANT", (math.pi,), side, side),
             ("fisheye equisolid 10.5mm", "FISHEYE_EQUISOLID", (10.5, math.pi, 36.0, 36.0), side,
              side),
-            ("mirror ball", "MIRRORBALL", (), side, side)]:
+            ("mirror ball", "MIRRORBALL", (), side, side),
+            ("fisheye lens polynomial", "FISHEYE_LENS_POLYNOMIAL",
+             (-1.1735e-05, -0.019989, -3.3525e-06, 3.0993e-06, -2.6065e-08, math.pi, 36.0, 36.0),
+             side, side)]:
         out.append((name, Camera(pose, w, h, 0.0, h, w, h, model=model, params=params)))
     return out
 

@@ -16,6 +16,8 @@ everything is converted to float64 first.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # Real spherical-harmonics constants, as in the reference 3DGS code (forward.cu).
@@ -356,6 +358,20 @@ def _cycles_uv(p: np.ndarray, model: str, params) -> tuple[np.ndarray, np.ndarra
         radius = 2 * theta / fov                                   # fisheye_to_direction
         return np.stack([0.5 * radius * cos_phi + 0.5, 0.5 * radius * sin_phi + 0.5], 1), \
             theta <= fov / 2
+    if model == "FISHEYE_LENS_POLYNOMIAL":  # fisheye_lens_polynomial_to_direction, inverted
+        *k, fov, sensor_w, sensor_h = params   # by bisection: theta = -p(r) rises with r
+
+        def angle(r):
+            return -(k[0] + k[1] * r + k[2] * r ** 2 + k[3] * r ** 3 + k[4] * r ** 4)
+        lo, hi = np.zeros(len(p)), np.full(len(p), 2 * math.hypot(sensor_w, sensor_h))
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            below = angle(mid) < theta
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        radius = 0.5 * (lo + hi)
+        shows = (theta <= fov / 2) & (angle(radius) > theta - 1e-9)
+        return np.stack([radius * cos_phi / sensor_w + 0.5, radius * sin_phi / sensor_h + 0.5],
+                        1), shows
     if model == "FISHEYE_EQUISOLID":
         lens, fov, sensor_w, sensor_h = params
         radius = 2 * lens * np.sin(theta / 2)                      # fisheye_equisolid_to_direction

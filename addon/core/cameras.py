@@ -26,7 +26,8 @@ _MIN_RESOLUTION, _MAX_RESOLUTION = 4, 65536  # Blender's limits on resolution_x,
 # cx, cy say it all); a panorama maps a camera-space direction to Cycles' normalised (u, v)
 # (v up), and then to pixels as col = fx u + cx, row = cy - fy v.
 MODELS = {"PINHOLE": (0, 0), "ORTHO": (1, 0), "EQUIRECTANGULAR": (2, 4),
-          "FISHEYE_EQUIDISTANT": (3, 1), "FISHEYE_EQUISOLID": (4, 4), "MIRRORBALL": (5, 0)}
+          "FISHEYE_EQUIDISTANT": (3, 1), "FISHEYE_EQUISOLID": (4, 4), "MIRRORBALL": (5, 0),
+          "FISHEYE_LENS_POLYNOMIAL": (6, 8)}
 PANORAMAS = tuple(name for name, (code, _) in MODELS.items() if code >= 2)
 CAMERA_TYPES = ("PERSP", "ORTHO", "PANO")  # Blender's camera types that splats render through
 PANORAMA_TYPES = PANORAMAS  # Blender's panorama types that splats render through (named alike)
@@ -175,6 +176,11 @@ class BlenderCameraParams:
     latitude_max: float = np.pi / 2
     longitude_min: float = -np.pi
     longitude_max: float = np.pi
+    fisheye_polynomial_k0: float = -1.1735143743862864e-05   # Blender's defaults
+    fisheye_polynomial_k1: float = -0.019988736137747765
+    fisheye_polynomial_k2: float = -3.3525323033245513e-06
+    fisheye_polynomial_k3: float = 3.0992753181635635e-06
+    fisheye_polynomial_k4: float = -2.60646473293491e-08
     use_dof: bool = False
     aperture_fstop: float = 2.8
     focus_distance: float = 10.0
@@ -187,7 +193,9 @@ class BlenderCameraParams:
         for name in ("lens", "sensor_width", "sensor_height", "shift_x", "shift_y",
                      "pixel_aspect_x", "pixel_aspect_y", "ortho_scale", "clip_start", "clip_end",
                      "fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max",
-                     "longitude_min", "longitude_max", "aperture_fstop", "focus_distance"):
+                     "longitude_min", "longitude_max", "aperture_fstop", "focus_distance",
+                     "fisheye_polynomial_k0", "fisheye_polynomial_k1", "fisheye_polynomial_k2",
+                     "fisheye_polynomial_k3", "fisheye_polynomial_k4"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value}")
@@ -343,7 +351,8 @@ def _special_camera_from_blender(params: BlenderCameraParams, width: int, height
 
     and the model's parameters: EQUIRECTANGULAR (longitude min, max, latitude min, max),
     FISHEYE_EQUIDISTANT (fov), FISHEYE_EQUISOLID (lens, fov, sensor width, sensor height),
-    MIRRORBALL (none). Both cull beyond clip_end.
+    MIRRORBALL (none), FISHEYE_LENS_POLYNOMIAL (k0..k4, fov, sensor width, sensor height).
+    Both cull beyond clip_end.
     """
     world_to_camera = _world_to_camera(params)
     aspx, aspy = params.pixel_aspect_x, params.pixel_aspect_y
@@ -369,13 +378,16 @@ def _special_camera_from_blender(params: BlenderCameraParams, width: int, height
             raise ValueError("the equirectangular camera's latitude or longitude range is empty")
     elif kind == "FISHEYE_EQUIDISTANT":
         model_params = (params.fisheye_fov,)
-    elif kind == "FISHEYE_EQUISOLID":
+    elif kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL"):
         x_ratio, y_ratio = width * aspx, height * aspy
         horizontal = params.sensor_fit == "HORIZONTAL" or (
             params.sensor_fit == "AUTO" and x_ratio > y_ratio)
         size = params.sensor_height if params.sensor_fit == "VERTICAL" else params.sensor_width
         sensor = (size, size * y_ratio / x_ratio) if horizontal else (size * x_ratio / y_ratio, size)
         model_params = (params.fisheye_lens, params.fisheye_fov, *sensor)
+        if kind == "FISHEYE_LENS_POLYNOMIAL":
+            model_params = (*(getattr(params, f"fisheye_polynomial_k{i}") for i in range(5)),
+                            params.fisheye_fov, *sensor)
     else:
         model_params = ()
     return Camera(world_to_camera, float(width), float(height), -params.shift_x * width,
@@ -449,7 +461,8 @@ def image_coverage(camera: Camera) -> np.ndarray | None:
     decide (outside a fisheye's or the mirror ball's image circle it traces no ray); None when
     every pixel does (pinhole, orthographic, equirectangular). Splats are not drawn where the
     camera shows nothing: there the render keeps Blender's own pixel."""
-    if camera.model not in ("FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL"):
+    if camera.model not in ("FISHEYE_EQUIDISTANT", "FISHEYE_EQUISOLID", "MIRRORBALL",
+                            "FISHEYE_LENS_POLYNOMIAL"):
         return None
     cols = (np.arange(camera.width) + 0.5 - camera.cx) / camera.fx
     rows = (camera.cy - np.arange(camera.height) - 0.5) / camera.fy
@@ -458,6 +471,11 @@ def image_coverage(camera: Camera) -> np.ndarray | None:
         return (2 * u - 1) ** 2 + (2 * v - 1) ** 2 <= 1.0
     if camera.model == "MIRRORBALL":
         return (2 * u - 1) ** 2 + (2 * v - 1) ** 2 <= 1.0
+    if camera.model == "FISHEYE_LENS_POLYNOMIAL":  # |theta| <= fov / 2, theta = -p(r)
+        *k, fov, sensor_w, sensor_h = camera.params
+        r = np.hypot((u - 0.5) * sensor_w, (v - 0.5) * sensor_h)
+        theta = -(k[0] + r * (k[1] + r * (k[2] + r * (k[3] + r * k[4]))))
+        return np.abs(theta) <= 0.5 * fov
     lens, fov, sensor_w, sensor_h = camera.params
     radius = np.hypot((u - 0.5) * sensor_w, (v - 0.5) * sensor_h)
     return radius <= min(2 * lens * np.sin(fov / 4), 2 * lens)

@@ -84,6 +84,8 @@ typedef enum {
     SC_FISHEYE_EQUIDISTANT = 3, /* params: field of view (radians) */
     SC_FISHEYE_EQUISOLID = 4,   /* params: lens (mm), field of view, sensor width, height (mm) */
     SC_MIRRORBALL = 5,
+    SC_FISHEYE_POLYNOMIAL = 6,  /* params: k0..k4 (theta = -(k0 + k1 r + ... + k4 r^4), r in mm
+                                   on the sensor), field of view, sensor width, height */
     SC_MODEL_COUNT
 } sc_model;
 enum { SC_MODEL_PARAMS = 10 };

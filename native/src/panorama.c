@@ -50,6 +50,20 @@ static int radial(const sc_camera *cam, double theta, double *g, double *dg, dou
         *g = 2.0 * k[0] * sin(0.5 * theta), *dg = k[0] * cos(0.5 * theta);
         *su = 1.0 / k[2], *sv = 1.0 / k[3];
         return theta <= 0.5 * k[1];
+    case SC_FISHEYE_POLYNOMIAL: { /* theta = -p(r), p = k0 + k1 r + ... + k4 r^4: r by Newton */
+        double r = -(theta + k[0]) / k[1], dp = k[1];
+        for (int it = 0; it < 40; ++it) {
+            const double p = k[0] + r * (k[1] + r * (k[2] + r * (k[3] + r * k[4]))) + theta;
+            dp = k[1] + r * (2.0 * k[2] + r * (3.0 * k[3] + r * 4.0 * k[4]));
+            const double step = p / dp;
+            r -= step;
+            if (!(fabs(step) > 1e-13 * (1.0 + fabs(r)))) break;
+        }
+        r = r > 0.0 ? r : 0.0; /* within -k0 of the axis: the image centre */
+        dp = k[1] + r * (2.0 * k[2] + r * (3.0 * k[3] + r * 4.0 * k[4]));
+        *g = r, *dg = -1.0 / dp, *su = 1.0 / k[6], *sv = 1.0 / k[7];
+        return theta <= 0.5 * k[5] && isfinite(r) && isfinite(*dg) && *dg > 0.0;
+    }
     default: /* SC_MIRRORBALL: the ball's normal bisects the view and the reflected ray. Straight
               * behind (within 1e-3 rad) maps onto the whole rim: not drawn. */
         *g = sin(0.5 * theta), *dg = 0.5 * cos(0.5 * theta), *su = *sv = 0.5;

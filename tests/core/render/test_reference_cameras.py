@@ -63,7 +63,9 @@ def test_ortho_is_a_pinhole_moved_far_away(rng):
 FULL = (-math.pi, math.pi, -math.pi / 2, math.pi / 2)
 MODELS = [("EQUIRECTANGULAR", FULL), ("EQUIRECTANGULAR", (-1.0, 2.0, -0.5, 1.0)),
           ("FISHEYE_EQUIDISTANT", (math.radians(200),)),
-          ("FISHEYE_EQUISOLID", (10.5, math.pi, 36.0, 24.0)), ("MIRRORBALL", ())]
+          ("FISHEYE_EQUISOLID", (10.5, math.pi, 36.0, 24.0)), ("MIRRORBALL", ()),
+          ("FISHEYE_LENS_POLYNOMIAL", (-1.1735e-05, -0.019989, -3.3525e-06, 3.0993e-06,
+                                       -2.6065e-08, math.radians(120), 36.0, 24.0))]
 
 
 @pytest.mark.parametrize("model, params", MODELS)
@@ -86,6 +88,10 @@ def test_panoramas_put_ahead_right_and_up_where_blender_does(model, params):
         assert right[0] > 0.5 and abs(right[1] - 0.5) < 1e-12
         assert up[1] > 0.5 and abs(up[0] - 0.5) < 1e-12
         theta = math.atan(0.3)
+        if model == "FISHEYE_LENS_POLYNOMIAL":  # theta = -(k0 + k1 r + ... + k4 r^4), r in mm
+            r = (right[0] - 0.5) * params[6]
+            np.testing.assert_allclose(-np.polyval(params[4::-1], r), theta, rtol=1e-9)
+            return
         radius = {"FISHEYE_EQUIDISTANT": lambda: 0.5 * 2 * theta / params[0],
                   "FISHEYE_EQUISOLID": lambda: 2 * params[0] * math.sin(theta / 2) / params[2],
                   "MIRRORBALL": lambda: 0.5 * math.sin(theta / 2)}[model]()
