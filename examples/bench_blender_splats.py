@@ -118,7 +118,11 @@ def bench(bpy, kind: str, path: Path, work: Path, n: int) -> dict[str, tuple[flo
     bpy.context.view_layer.objects.active = obj
     rows["crop half (splat.crop)"] = timed(lambda: bpy.ops.splat.crop(
         shape="BOX", center=(-50, 0, 0), size=(100, 100, 100)))[:2]
-    rows["edit mode enter"] = timed(lambda: bpy.ops.object.mode_set(mode="EDIT"))[:2]
+    count = lambda: len(obj.data.points) if kind == "blender" else len(obj.data.vertices)  # noqa: E731
+    before = count()
+    wall, cpu, result = timed(lambda: bpy.ops.object.mode_set(mode="EDIT"))
+    rows["edit mode enter"] = (wall, cpu)
+    print(f"  {kind}: mode_set EDIT {result}, mode {bpy.context.mode}, {before} points")
     if kind == "blender":
         select = lambda: bpy.ops.pointcloud.select_all(action="SELECT")  # noqa: E731
         delete = lambda: bpy.ops.pointcloud.delete()  # noqa: E731
@@ -126,11 +130,16 @@ def bench(bpy, kind: str, path: Path, work: Path, n: int) -> dict[str, tuple[flo
         select = lambda: bpy.ops.mesh.select_all(action="SELECT")  # noqa: E731
         delete = lambda: bpy.ops.mesh.delete(type="VERT")  # noqa: E731
     try:
-        rows["edit: select all"] = timed(select)[:2]
-        rows["edit: delete selected"] = timed(delete)[:2]
+        wall, cpu, result = timed(select)
+        rows["edit: select all"] = (wall, cpu)
+        print(f"  {kind}: select all {result}")
+        wall, cpu, result = timed(delete)
+        rows["edit: delete selected"] = (wall, cpu)
+        print(f"  {kind}: delete {result}")
     except (AttributeError, RuntimeError) as error:
         print(f"  {kind}: edit-mode operators failed: {error}")
     rows["edit mode leave"] = timed(lambda: bpy.ops.object.mode_set(mode="OBJECT"))[:2]
+    print(f"  {kind}: {count()} points left after Edit Mode delete")
     del np
     return rows
 

@@ -51,6 +51,7 @@ from ..core.transform import transform_gaussians
 from ..core.blender_splats import attributes as blender_convention
 from . import splat_object
 from .blender_splats import data as blender_data
+from .blender_splats import ownership
 
 _generations: dict[int, int] = {}
 _world_cache: dict[tuple, tuple[tuple, Gaussians, tuple]] = {}  # key, world, contents
@@ -252,6 +253,8 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
             continue
         data = evaluated.data
         blender = evaluated.type == "POINTCLOUD" and blender_data.is_blender_splat_data(data)
+        if blender and ownership.reads_original(evaluated.original):
+            data = evaluated.original.data  # a render evaluates it empty (ownership module)
         if blender:
             if not include_blender_rendered and _blender_renders(evaluated, owner):
                 continue

@@ -1,10 +1,19 @@
 """One renderer per splat object: who draws a Blender splat point cloud, Blender or the add-on.
 
 By default the add-on composes Blender's splat point clouds exactly (F12, `-a`, viewport), so
-Blender must not also path-trace or draw them: for each such object the add-on turns its ray
-visibility off (camera, diffuse, glossy, transmission, volume scatter, shadow: Cycles and EEVEE
-then neither show nor trace it, and Cycles leaves it out of its BVH) and shows it as its bounding
-box in the viewport while the add-on draws it (no EEVEE/Workbench billboards under the
+Blender must not also path-trace or draw them. For each such object the add-on:
+
+- adds a render-only geometry-nodes modifier whose output is empty (`RENDER_MODIFIER`, shown
+  in the modifier stack, off in the viewport) when the object has no modifier of its own: in
+  final renders Cycles, EEVEE and Workbench then have nothing to draw or trace and spend no
+  time on it (measured in bpy 5.3.0, 500k points: Cycles 0.02 s CPU per F12 against 0.45 s with
+  ray visibility alone; Workbench draws nothing instead of the billboards), and `gather` reads
+  the object's own data (`reads_original`) with the render's matrix for it;
+- turns its ray visibility off (camera, diffuse, glossy, transmission, volume scatter, shadow:
+  Cycles and EEVEE then neither show nor trace it; this is what keeps an object with modifiers
+  of its own, which the add-on must read evaluated, out of Cycles' and EEVEE's images, and
+  Material Preview's);
+- shows it as its bounding box in the viewport while the add-on draws it (no EEVEE/Workbench billboards under the
 add-on's drawing; with the object's or the scene's "Show in Viewport" off, Blender draws it). The user's own
 values are kept in an ID property on the object and put back when the object is handed back to
 Blender (`Object.splat.render_by_blender`), when it stops being a splat point cloud, or when
@@ -23,6 +32,8 @@ from bpy.app.handlers import persistent
 from ..registration import module_registration
 from . import data
 
+RENDER_MODIFIER = "Splats: rendered by the add-on"  # a render-only, empty-output GN modifier
+_EMPTY_GROUP = ".Splats Rendered by the Add-on"
 RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
                   "visible_volume_scatter", "visible_shadow")
 SAVED = "splat_blender_visibility"   # ID property: the user's values while the add-on owns it
@@ -33,6 +44,44 @@ def rendered_by_addon(obj) -> bool:
     """A Blender splat object that the add-on renders (not handed back to Blender)."""
     return data.is_blender_splat_object(obj) and not getattr(
         getattr(obj, "splat", None), "render_by_blender", False)
+
+
+def _empty_group():
+    group = bpy.data.node_groups.get(_EMPTY_GROUP)
+    if group is None or group.bl_idname != "GeometryNodeTree":
+        group = bpy.data.node_groups.new(_EMPTY_GROUP, "GeometryNodeTree")
+        group.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+        group.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+        group.nodes.new("NodeGroupInput")
+        group.nodes.new("NodeGroupOutput")  # nothing linked: the output is empty
+    return group
+
+
+def _ours(obj):
+    modifier = obj.modifiers.get(RENDER_MODIFIER)
+    return modifier if modifier is not None and modifier.type == "NODES" else None
+
+
+def reads_original(obj) -> bool:
+    """`obj` (original) renders through the add-on's empty-output modifier, its only one: its
+    splats are its own data, whatever a render depsgraph evaluates it to."""
+    modifier = _ours(obj)
+    return modifier is not None and len(obj.modifiers) == 1 and modifier.node_group is not None \
+        and modifier.node_group.name == _EMPTY_GROUP
+
+
+def _sync_modifier(obj, wanted: bool) -> None:
+    modifier = _ours(obj)
+    others = len(obj.modifiers) - (modifier is not None)
+    if wanted and others == 0:
+        if modifier is None:
+            modifier = obj.modifiers.new(RENDER_MODIFIER, "NODES")
+        if modifier.node_group is None or modifier.node_group.name != _EMPTY_GROUP:
+            modifier.node_group = _empty_group()
+        modifier.show_viewport = modifier.show_in_editmode = False
+        modifier.show_render = True
+    elif modifier is not None:
+        obj.modifiers.remove(modifier)
 
 
 def _take_rays(obj) -> None:
@@ -68,9 +117,11 @@ def _restore_display(obj) -> None:
 
 
 def give_back(obj) -> None:
-    """Put the user's ray visibility and display type back (Blender renders it again)."""
+    """Put the user's ray visibility and display type back, and take the add-on's render
+    modifier off (Blender renders it again)."""
     _give_rays_back(obj)
     _restore_display(obj)
+    _sync_modifier(obj, False)
 
 
 def drawn_by_addon(obj, scene=None) -> bool:
@@ -81,11 +132,16 @@ def drawn_by_addon(obj, scene=None) -> bool:
 
 
 def sync_object(obj, scene=None) -> None:
-    """Rays off while the add-on renders it; bounds display while the add-on draws it."""
+    """Rays off and the render modifier on while the add-on renders it; bounds display while
+    the add-on draws it."""
     if rendered_by_addon(obj):
         _take_rays(obj)
-    elif SAVED in obj:
-        _give_rays_back(obj)
+        _sync_modifier(obj, True)
+    else:
+        if SAVED in obj:
+            _give_rays_back(obj)
+        if _ours(obj) is not None:
+            _sync_modifier(obj, False)
     if drawn_by_addon(obj, scene):
         _show_bounds(obj)
     elif DISPLAY_SAVED in obj:
@@ -157,7 +213,7 @@ def unregister() -> None:
     _counts.clear()
     try:
         for obj in bpy.data.objects:
-            if SAVED in obj or DISPLAY_SAVED in obj:
+            if SAVED in obj or DISPLAY_SAVED in obj or (obj.type == "POINTCLOUD" and _ours(obj)):
                 give_back(obj)
     except AttributeError:  # restricted context (unregister during file load): leave them
         pass

@@ -323,6 +323,9 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
         if context.mode != "OBJECT" and context.active_object is not None:
             bpy.ops.object.mode_set(mode="OBJECT")
         if self.sequence:
+            if self.representation == "BLENDER":
+                self.report({"WARNING"}, "Sequences are imported as the add-on's splat object "
+                                         "(Object > Convert makes a Blender splat point cloud)")
             return self.import_sequence(context, paths[0])
         loaded = []
         with preparing(context, "Importing splats", ", ".join(p.name for p in paths)) as progress:

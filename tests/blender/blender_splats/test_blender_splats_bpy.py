@@ -197,6 +197,29 @@ def test_ownership_hides_blender_splats_from_blenders_rays(stand_in, rng, monkey
     assert not obj.visible_camera and obj.display_type == "BOUNDS"
 
 
+def test_render_modifier_empties_the_cloud_for_blender_but_not_for_gather(stand_in, rng, monkeypatch):
+    monkeypatch.setattr(data, "supported", lambda: True)
+    g = random_gaussians(rng, 40, degree=1)
+    obj = _stand_in_cloud(g)
+    ownership.sync_scene(bpy.context.scene)
+    modifier = obj.modifiers[ownership.RENDER_MODIFIER]
+    assert modifier.show_render and not modifier.show_viewport and ownership.reads_original(obj)
+    modifier.show_viewport = True  # what a final render evaluates (empty in 5.3: splats53.py)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    result = gather.gather(depsgraph, use_cache=False)
+    assert len(result.gaussians) == 40  # the object's own data, with its matrix
+    np.testing.assert_array_equal(result.gaussians.means, g.means)
+    # a modifier of the user's own: the add-on must read the evaluated cloud, so it steps aside
+    obj.modifiers.new("Mine", "NODES")
+    ownership.sync_object(obj, bpy.context.scene)
+    assert ownership.RENDER_MODIFIER not in obj.modifiers and not obj.visible_camera
+    obj.modifiers.clear()
+    ownership.sync_object(obj, bpy.context.scene)
+    assert ownership.RENDER_MODIFIER in obj.modifiers
+    obj.splat.render_by_blender = True
+    assert len(obj.modifiers) == 0
+
+
 def test_convert_to_mesh_takes_a_blender_cloud(stand_in):
     from addon.blender import mesh_convert
     from scenes import sphere_gaussians
