@@ -372,6 +372,13 @@ def f12(bpy, scene, path: Path) -> tuple[float, object]:
     return seconds, np.round(pixels.reshape(height, width, 4) * 255)
 
 
+def fastest_f12(bpy, scene, path: Path, repeats: int = 3) -> tuple[float, object]:
+    """The fastest of `repeats` F12s and its image: the time a render takes, not the machine's
+    load at one moment (a time limit is checked on it)."""
+    runs = [f12(bpy, scene, path) for _ in range(repeats)]
+    return min(t for t, _ in runs), runs[-1][1]
+
+
 def check_f12(bpy, data: Path, work: Path) -> None:
     import numpy as np
 
@@ -383,7 +390,7 @@ def check_f12(bpy, data: Path, work: Path) -> None:
             ours.matrix_world = __import__("mathutils").Matrix.Identity(4)  # Blender's PLY placement
             scene = build_scene(bpy, ours, engine)
             f12(bpy, scene, work / f"warm_{engine}.png")  # first render: caches, kernels
-            t_ours, img_ours = f12(bpy, scene, work / f"ours_{engine}.png")
+            t_ours, img_ours = fastest_f12(bpy, scene, work / f"ours_{engine}.png")
             mesh = ours.data
             bpy.data.objects.remove(ours)
             bpy.data.meshes.remove(mesh)
@@ -391,7 +398,7 @@ def check_f12(bpy, data: Path, work: Path) -> None:
             bpy.context.view_layer.update()
             ext("blender.blender_splats.ownership").sync_scene(scene)
             f12(bpy, scene, work / f"warm2_{engine}.png")
-            t_theirs, img_theirs = f12(bpy, scene, work / f"theirs_{engine}.png")
+            t_theirs, img_theirs = fastest_f12(bpy, scene, work / f"theirs_{engine}.png")
             diff = np.abs(img_ours - img_theirs)[..., :3].max(axis=2)
             median, p99 = float(np.median(diff)), float(np.percentile(diff, 99))
             splat_pixels = int((img_ours[..., 3] > 0).sum())
