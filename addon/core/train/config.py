@@ -19,8 +19,11 @@ class TrainConfig:
     # A fixed number of steps; 0: until done (not in the reference): `Trainer.run()` ends once
     # the PSNR on the held-out views (with none, on up to 8 training views), measured every
     # `stop_check_every` steps, gained less than `stop_below_db_per_minute` per minute of
-    # training time over the last `stop_window_seconds` of checks, at two checks in a row
-    # (`stopping.py`; `Trainer.converged` then says so; 0: never), or at `max_steps`.
+    # work over the last `stop_window_seconds` of work of checks, at two checks in a row
+    # (`stopping.py`; `Trainer.converged` then says so; 0: never), or at `max_steps`. Work is
+    # each step's modelled cost in seconds of one reference core (`stopping.step_work`), not a
+    # clock: the same run stops at the same step on an idle and on a busy machine. The run
+    # then ends with the best state its checks saw (`Trainer.best`).
     steps: int = 0
     max_steps: int = 30_000
     stop_below_db_per_minute: float = 0.1
