@@ -105,6 +105,11 @@ class TrainConfig:
     # 24,000 by step 2500 and on). 10 % rather than 5 %: the count settles sooner and a given
     # PSNR comes sooner; 15 % and 20 % overshoot (slower steps), 10 % with 0.5 here too.
     auto_gain_per_growth: float = 1.0
+    # Below this many Gaussians per pixel of a training image (at its resolution level) it
+    # grows whatever the loss does, by `auto_floor_growth` an interval (strategies/auto.py:
+    # the count scales with the image size; 0: no floor).
+    auto_gaussians_per_pixel: float = 0.25
+    auto_floor_growth: float = 0.20
     auto_patience: int = 2
     auto_growth: float = 0.10  # the count added an interval while growing (MCMC's is 5 %)
     # It relocates and grows from this step on, not `densify_from` (MCMC's 500): on cup, 1 thread,
