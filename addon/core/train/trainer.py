@@ -167,7 +167,8 @@ class Trainer:
         # more steps must not go back to coarse images).
         self.coarse_until = (min(config.coarse_until, config.steps // 2) if config.steps
                              else config.coarse_until)
-        self.strategy = strategy or make_strategy(config, self.extent, self.rng)
+        pixels = max((c.width * c.height for c in dataset.train_cameras), default=0)
+        self.strategy = strategy or make_strategy(config, self.extent, self.rng, pixels)
         self._sparse_adam = (self.strategy.sparse_adam if config.sparse_adam is None
                              else config.sparse_adam)
         if gaussians is None:

@@ -20,8 +20,8 @@ from addon.core.colmap import read_colmap
 from addon.core.train.dataset import ColmapDataset
 from addon.core.gaussians import Gaussians
 from addon.core.train.optimizer import GaussianParameters
-from addon.core.train.strategies import STRATEGIES, StepInfo, Strategy
-from addon.core.train.strategies.auto import AutoStrategy
+from addon.core.train.strategies import STRATEGIES, StepInfo, Strategy, make_strategy
+from addon.core.train.strategies.auto import AutoStrategy, LargeImageStrategy
 from addon.core.train.strategies.mcmc import MCMCStrategy, relocation
 from addon.core.train.config import STRATEGY_NAMES
 from addon.core.transform import quat_to_matrix
@@ -315,3 +315,24 @@ def test_auto_grows_by_its_own_fraction_and_mcmc_by_its(rng) -> None:
         strategy = cls(config, 1.0, rng)
         strategy.reset(len(params))
         assert strategy.grow(params) == (100 if name == "auto" else 50)
+
+
+def test_auto_densifies_as_the_reference_on_large_images(dataset) -> None:
+    rng = np.random.default_rng(0)
+    config = TrainConfig(strategy="auto", auto_reference_above_pixels=100_000)
+    assert type(make_strategy(config, 1.0, rng, 100_000)) is AutoStrategy
+    assert type(make_strategy(config, 1.0, rng, 480 * 360)) is LargeImageStrategy
+    config.auto_reference_above_pixels = 0  # never
+    assert type(make_strategy(config, 1.0, rng, 10**7)) is AutoStrategy
+    # Step for step the reference recipe (the "default" strategy) once the trainer sees images
+    # above the threshold (here 120x90 ones above 5,000 pixels).
+    common = dict(steps=60, densify_from=20, densify_every=20, sh_degree=1, threads=1, seed=2)
+    auto = Trainer(dataset, TrainConfig(strategy="auto", auto_reference_above_pixels=5_000,
+                                        **common))
+    reference = Trainer(dataset, TrainConfig(strategy="default", **common))
+    assert isinstance(auto.strategy, LargeImageStrategy)
+    sizes = [(a["gaussians"], r["gaussians"]) for a, r in zip(auto.run(), reference.run())]
+    assert sizes[-1][0] != sizes[0][0] and all(a == r for a, r in sizes)
+    for name in auto.params:
+        assert np.array_equal(auto.params[name], reference.params[name]), name
+    assert auto.strategy.sizing == "growing"
