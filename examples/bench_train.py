@@ -382,7 +382,8 @@ def main() -> None:
     if not args.skip_curve:
         results = {}
         steps = 0 if args.until_done else args.steps
-        length = "until done" if args.until_done else f"{args.steps} steps"
+        length = ("until done" if args.until_done else f"{args.steps} steps") + (
+            " (unless a variant sets steps)" if args.variant else "")
         note = (f"{length}, {args.threads or 'all'} thread(s), every 8th view held out; CPU "
                 f"seconds on a shared 2-core machine ({time.strftime('%Y-%m-%d')})")
         for scene in args.scenes:

@@ -6,9 +6,9 @@ much later than that it woke, the GIL and the cores shared with the training thr
     blender --background --python examples/bench_ui_latency.py -- --seconds 30
 
 Prints, per kernel thread setting, the lateness's median, 95th percentile and maximum, and the
-training steps done meanwhile (the demo scene, 480x360 unless --downscale). `--timer` also
-measures with `bpy.app.timers` (only where Blender's event loop runs them: a Blender with a
-window, e.g. under Xvfb). Numbers only, never a test; a loaded machine makes both worse.
+training steps done meanwhile (the demo scene, 480x360 unless --downscale). `--threads 0` is
+what the Train operator runs: every core but one (`jobs.ui_kernel_threads`). Numbers only,
+never a test; a loaded machine makes them worse.
 """
 
 from __future__ import annotations
