@@ -407,8 +407,12 @@ class Trainer:
 
         with np.load(path) as data:
             meta = ast.literal_eval(bytes(data["meta"]).decode())
+            saved = dict(meta["config"])
+            # A checkpoint from before "auto" switched to the reference's densification on
+            # large images holds the MCMC sizing's state: it resumes as it was made.
+            saved.setdefault("auto_reference_above_pixels", 0)
             config = TrainConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                    for k, v in meta["config"].items()})
+                                    for k, v in saved.items()})
             trainer = cls(dataset, config, gaussians=Gaussians.empty(config.sh_degree))
             trainer.parameters = GaussianParameters.from_state_arrays(data)
             trainer.strategy.load_state_arrays(data)
