@@ -41,11 +41,20 @@ from addon.core.train.dataset import ColmapDataset  # noqa: E402
 from addon.core.render.renderer import render  # noqa: E402
 from addon.core.train.trainer import Trainer, TrainConfig, compact, ply_bytes, psnr  # noqa: E402
 from addon.core.train.config import STRATEGY_NAMES  # noqa: E402
+from addon.core.train import stopping  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 # name: (COLMAP folder, image folder, further downscale)
 SCENES = {"cup": (DATA / "cup", "images_4", 1), "beer": (DATA / "beer", "images_8", 1),
-          "demo": (ROOT / "examples" / "demo_colmap", "images", 4)}
+          "demo": (ROOT / "examples" / "demo_colmap", "images", 4),
+          # The sizes users train at (issue 25): the photos as they are, or halved.
+          "demo480": (ROOT / "examples" / "demo_colmap", "images", 1),
+          "cup800": (DATA / "cup", "images", 1), "beer360": (DATA / "beer", "images", 2),
+          "beer720": (DATA / "beer", "images", 1)}
+# --real-sizes: these scenes, the defaults (until done) against the reference recipe (the
+# "default" strategy, 7k steps), each cut off at the same CPU seconds.
+REAL_SIZES = ("demo480", "cup800", "beer360", "beer720")
+REFERENCE_7K = "reference 7k:strategy=default,steps=7000"
 # What the 3DGS paper reports (Kerbl et al. 2023, "3D Gaussian Splatting for Real-Time Radiance
 # Field Rendering", ACM TOG 42(4), arXiv:2308.04079, Table 1): held-out PSNR (every 8th view),
 # training time on one A6000 GPU and the stored model's size, averaged over each benchmark's
@@ -67,6 +76,28 @@ def load(scene: str) -> ColmapDataset:
     dataset = ColmapDataset(read_colmap(folder, image_folder=images), downscale=downscale)
     dataset.preload()  # decoding photos is not training time
     return dataset
+
+
+# (CPU seconds, pixels, tile pairs, Gaussians) of every step measured, for --calibrate-work
+STEP_COSTS: list[tuple[float, int, int, int]] = []
+
+
+def fit_work_model() -> None:
+    """Least squares of a step's CPU seconds on its pixels, tile pairs and Gaussians (the
+    constants of `stopping.step_work`), over the steps of this run's curves."""
+    if len(STEP_COSTS) < 10:
+        return
+    rows = np.array(STEP_COSTS, np.float64)
+    features, seconds = rows[:, 1:], rows[:, 0]
+    coefficients, *_ = np.linalg.lstsq(features, seconds, rcond=None)
+    model = features @ coefficients
+    print(f"\nwork model over {len(rows)} steps: seconds = {coefficients[0]:.3g} x pixels + "
+          f"{coefficients[1]:.3g} x tile pairs + {coefficients[2]:.3g} x Gaussians; median "
+          f"|error| {100 * np.median(np.abs(model / seconds - 1)):.0f} %, total "
+          f"{model.sum():.1f} s modelled against {seconds.sum():.1f} s measured")
+    current = np.array([stopping.step_work(*f) for f in features.astype(int)])
+    print(f"stopping.step_work's constants: total {current.sum():.1f} s against "
+          f"{seconds.sum():.1f} s measured")
 
 
 def _point(trainer: Trainer, probe: int | None, seconds: float, step: int, wall: float,
@@ -119,6 +150,8 @@ def curve(dataset: ColmapDataset, scene: str, config: TrainConfig, eval_every: i
         if stats is None:
             break
         window.append(spent)
+        if stats["step"] % config.stop_check_every:  # not a step that also ran a stop check
+            STEP_COSTS.append((spent, stats["pixels"], stats["tile_pairs"], stats["gaussians"]))
         if stats["step"] % eval_every == 0 or stats["step"] == trainer.step_limit:
             points.append(_point(trainer, probe, seconds, stats["step"], wall,
                                  sizing=stats["sizing"]))
@@ -227,6 +260,26 @@ def replot(sources: list[Path], path: Path) -> None:
     save(results, path.with_suffix(".json"), note)
 
 
+def summary(results: dict, marks: list[float]) -> None:
+    """A Markdown table: per scene and recipe, the last evaluation at or before each of `marks`
+    CPU seconds (what a user has at that time), and the run's last point and best PSNR."""
+    print("\n| scene | recipe | CPU s | step | Gaussians | held-out PSNR | SSIM | best so far |")
+    print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for (scene, label), points in results.items():
+        shown = []
+        for mark in marks:
+            before = [p for p in points if p["cpu_seconds"] <= mark * 1.02]
+            if before and before[-1] not in shown:
+                shown.append(before[-1])
+        if points and points[-1] not in shown:
+            shown.append(points[-1])
+        for p in shown:
+            best = max(q["psnr"] for q in points if q["cpu_seconds"] <= p["cpu_seconds"])
+            note = " (compacted)" if p.get("compacted") else ""
+            print(f"| {scene} | {label} | {p['cpu_seconds']:.0f} | {p['step']} | "
+                  f"{p['gaussians']:,}{note} | {p['psnr']:.2f} | {p['ssim']:.4f} | {best:.2f} |")
+
+
 def literature_table() -> None:
     print(f"\nFor scale: {LITERATURE_SOURCE} (held-out every 8th view)")
     print(f"{'benchmark':<14} {'iterations':>10} {'PSNR':>6} {'SSIM':>6} {'train':>8} {'MB':>5}")
@@ -306,16 +359,31 @@ def main() -> None:
     parser.add_argument("--replot", nargs="+", type=Path, metavar="JSON",
                         help="no training: chart the curves saved in these JSON files (a later "
                              "file's curve replaces an earlier one's of the same name)")
+    parser.add_argument("--real-sizes", action="store_true",
+                        help="the sizes users train at: " + ", ".join(REAL_SIZES) + ", the "
+                             "defaults until done against the reference recipe (7k steps), "
+                             "each cut at --cpu-limit (default 240) CPU seconds")
+    parser.add_argument("--marks", nargs="*", type=float, default=None, metavar="SECONDS",
+                        help="CPU seconds at which the summary table compares the runs")
     parser.add_argument("--skip-curve", action="store_true")
     parser.add_argument("--skip-step-times", action="store_true")
     args = parser.parse_args()
+    if args.real_sizes:
+        if "--scenes" not in sys.argv:
+            args.scenes = list(REAL_SIZES)
+        args.strategies, args.until_done = ["auto"], True
+        args.variant = [REFERENCE_7K] + args.variant
+        args.cpu_limit = args.cpu_limit or 240.0
+        args.eval_every = 100 if "--eval-every" not in sys.argv else args.eval_every
+        args.skip_step_times = True
     if args.replot:
         replot(args.replot, args.plot or ROOT / "docs" / "train_curves.png")
         return
     if not args.skip_curve:
         results = {}
         steps = 0 if args.until_done else args.steps
-        length = "until done" if args.until_done else f"{args.steps} steps"
+        length = ("until done" if args.until_done else f"{args.steps} steps") + (
+            " (unless a variant sets steps)" if args.variant else "")
         note = (f"{length}, {args.threads or 'all'} thread(s), every 8th view held out; CPU "
                 f"seconds on a shared 2-core machine ({time.strftime('%Y-%m-%d')})")
         for scene in args.scenes:
@@ -329,6 +397,11 @@ def main() -> None:
                                               args.eval_every, args.cpu_limit)
                 if args.plot:
                     save(results, args.plot.with_suffix(".json"), note)  # each run as it ends
+        marks = args.marks or ([args.cpu_limit * f for f in (0.25, 0.5, 1.0)]
+                               if args.cpu_limit else [])
+        summary(results, marks)
+        print(f"\n{note}; command: {' '.join(sys.argv)}")
+        fit_work_model()
         literature_table()
         if args.plot:
             plot(results, args.plot, note)

@@ -1,25 +1,29 @@
 """From photos to a final frame with the command-line verbs (the README walkthrough).
 
-    .venv/bin/python examples/photos_to_frame.py [--steps 3000] [--work /tmp/walkthrough]
-        [--docs docs]
+    .venv/bin/python examples/photos_to_frame.py [--work /tmp/walkthrough] [--docs docs]
+        [--steps N] [--downscale D]
 
 The same verbs as `python -m addon ...` or `blender -c gaussian_splatting ...`, run in this
 process through `addon.cli.main`:
 
 1. `import-colmap examples/demo_colmap --out scene.blend` (30 photos, cameras, points);
-2. `train scene.blend --out trained.blend` (CPU training; the splat object joins the scene);
+2. `train scene.blend --out trained.blend` (CPU training with the defaults: until done, the
+   photos at their size; the splat object joins the scene);
 3. a mesh (a glossy monkey) is added with bpy, as a user would in the UI;
 4. `render final.blend --camera 008.jpg`: the held-out photo 008's camera, at its own size,
    splats only and then with the monkey (Cycles, the splats composed by depth), under the
    Standard view transform (splats look as trained).
 
 With `--docs` the pictures the README shows are written there (PNG): the photo, the splats
-rendered from its camera, and the final frame.
+rendered from its camera, and the final frame, and the training's numbers (steps, Gaussians,
+held-out PSNR/SSIM, wall and CPU seconds) to `walkthrough.json` beside them; they are printed
+either way. `--steps` and `--downscale` are only there to try other settings.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 import time
@@ -33,12 +37,26 @@ from addon import cli  # noqa: E402
 CAMERA = "008.jpg"  # every 8th photo is held out of training: a view the splats never saw
 
 
-def verb(*args: str) -> None:
+def verb(*args: str) -> tuple[float, float]:
+    """Run `python -m addon ARGS` here; returns its (wall, process CPU) seconds."""
     print(f"\n$ python -m addon {' '.join(args)}", flush=True)
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     if cli.main(list(args)) != 0:
         sys.exit(f"{args[0]} failed")
-    print(f"({time.perf_counter() - start:.1f} s)", flush=True)
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    print(f"({wall:.1f} s, {cpu:.1f} s of CPU)", flush=True)
+    return wall, cpu
+
+
+def trained_numbers(trained: Path) -> dict:
+    """What the train verb wrote on the splat object: steps, Gaussians, held-out PSNR/SSIM."""
+    import bpy
+
+    bpy.ops.wm.open_mainfile(filepath=str(trained))
+    obj = next(o for o in bpy.data.objects if "splat_trained_steps" in o)
+    return {"steps": int(obj["splat_trained_steps"]), "gaussians": len(obj.data.vertices),
+            "heldout_psnr": round(float(obj.get("splat_heldout_psnr", float("nan"))), 2),
+            "heldout_ssim": round(float(obj.get("splat_heldout_ssim", float("nan"))), 4)}
 
 
 def standard_view(trained: Path, out: Path) -> None:
@@ -90,8 +108,8 @@ def add_monkey(trained: Path, final: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", default="3000")
-    parser.add_argument("--downscale", default="1")
+    parser.add_argument("--steps", default=None, help="a fixed count (default: until done)")
+    parser.add_argument("--downscale", default=None, help="(default: the photos' size)")
     parser.add_argument("--work", default="/tmp/walkthrough")
     parser.add_argument("--docs", default="", help="write the README's pictures here")
     parser.add_argument("--reuse", action="store_true",
@@ -103,9 +121,17 @@ def main() -> None:
     if not (args.reuse and (work / "trained.blend").is_file()):
         verb("import-colmap", str(ROOT / "examples" / "demo_colmap"), "--out",
              str(work / "scene.blend"))
-        verb("train", str(work / "scene.blend"), "--out", str(work / "trained.blend"),
-             "--steps", args.steps, "--downscale", args.downscale, "--checkpoint",
-             str(work / "checkpoint.npz"))
+        options = (["--steps", args.steps] if args.steps else []) + (
+            ["--downscale", args.downscale] if args.downscale else [])
+        wall, cpu = verb("train", str(work / "scene.blend"), "--out",
+                         str(work / "trained.blend"), *options, "--checkpoint",
+                         str(work / "checkpoint.npz"))
+        numbers = trained_numbers(work / "trained.blend") | {
+            "train_wall_seconds": round(wall, 1), "train_cpu_seconds": round(cpu, 1),
+            "options": " ".join(options) or "the defaults",
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+        (work / "walkthrough.json").write_text(json.dumps(numbers, indent=1))
+        print(f"\nwalkthrough numbers: {numbers}", flush=True)
     standard_view(work / "trained.blend", work / "splats.blend")
     verb("render", str(work / "splats.blend"), "--camera", CAMERA, "--engine", "SPLAT_GAUSSIANS",
          "--out", str(work / "splats_"))
@@ -122,6 +148,8 @@ def main() -> None:
         frame = Path(sorted(work.glob("splats_*.png"))[-1])
         shutil.copyfile(frame, docs / "walkthrough_splats.png")
         shutil.copyfile(sorted(work.glob("final_*.png"))[-1], docs / "walkthrough_final.png")
+        if (work / "walkthrough.json").is_file():
+            shutil.copyfile(work / "walkthrough.json", docs / "walkthrough.json")
         for name in ("walkthrough_photo.png", "walkthrough_splats.png", "walkthrough_final.png"):
             print(f"{docs / name}: {(docs / name).stat().st_size / 1024:.0f} KB")
 

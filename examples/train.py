@@ -6,8 +6,9 @@
     blender --background --python examples/train.py -- --colmap DIR --steps 7000 --out out.ply
 
 With no --steps, training stops when done: when the held-out PSNR gains less than
---stop-gain dB per minute over the last minute (0.1; checked every 500 steps; at most 30000
-steps), then compacts.
+--stop-gain dB per minute of work over the last minute of work (0.1; checked every 500 steps;
+at most 30000 steps; work is a model of each step's cost, so the same run stops at the same
+step on a busy machine), keeps its best checked state, then compacts.
 The default strategy, "auto", sizes the model itself (--max-gaussians is only a ceiling).
 Every 8th image (by name) is held out; held-out PSNR/SSIM is printed every --eval-every steps
 and at the end. --compact prunes negligible Gaussians and SH bands afterwards and reports size
@@ -39,7 +40,8 @@ def arguments(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--downscale", type=float, default=1.0, help="further downscale factor")
     parser.add_argument("--steps", type=int, default=None, help="a fixed count (default: until done)")
     parser.add_argument("--stop-gain", type=float, default=TrainConfig.stop_below_db_per_minute,
-                        help="without --steps: stop below this held-out gain, dB per minute")
+                        help="without --steps: stop below this held-out gain, dB per minute "
+                             "of work")
     parser.add_argument("--strategy", default=TrainConfig.strategy, choices=STRATEGY_NAMES,
                         help="densification: auto (sizes the model itself), mcmc (grows to "
                              "--max-gaussians) or default (the reference's)")

@@ -23,7 +23,12 @@ step's values depend on which view it drew); `eta` is the mean wall time of thos
 the steps left (steps get slower as densification adds Gaussians, so early estimates are low;
 a run until done has none: `until_done`, and `gain_per_minute` says how close it is to
 stopping); `sizing` is the strategy's word for the count ("growing", "settled").
-Held-out PSNR/SSIM (`Trainer.evaluate`) is computed once, at the end, unless cancelled. A run
+Held-out PSNR/SSIM (`Trainer.evaluate`) is computed once, at the end, unless cancelled.
+
+On a worker thread (`start`, as in Blender's UI), a trainer set to every core (`threads` 0)
+runs its kernels on one core fewer (`ui_kernel_threads`): the UI's main thread needs a core of
+its own to stay responsive (issue 25: with every core busy, a 10 ms timer in Blender ran a
+median 300 ms late). `run` on the calling thread (scripts, background) uses them all. A run
 until done that stops because its gain stalled has finished (it is compacted, evaluated and
 reported as done), not cancelled.
 """
@@ -39,6 +44,7 @@ from pathlib import Path
 from typing import Callable, Generator, Sequence
 
 from .gaussians import Gaussians
+from .native import cpu_count
 from .train.trainer import CompactionReport, Evaluation, Trainer, compact
 
 PHASES = ("waiting", "loading", "working", "training", "compacting", "evaluating", "saving", "done",
@@ -293,7 +299,13 @@ class TrainingJob:
             self._set(phase="training", message="", step=start, start_step=start, total=total,
                       until_done=trainer.until_done, gaussians=len(trainer),
                       sizing=trainer.strategy.sizing, elapsed=0.0)
-            self._train(trainer, total)
+            threads = trainer.config.threads
+            if self._thread is not None and threads == 0:  # beside a UI: leave it a core
+                trainer.config.threads = ui_kernel_threads()
+            try:
+                self._train(trainer, total)
+            finally:
+                trainer.config.threads = threads
             if self.after_training is not None:
                 self.after_training(trainer)
             finished = trainer.step >= total or (trainer.until_done and trainer.converged)
@@ -354,6 +366,11 @@ class TrainingJob:
                       gain_per_minute=trainer.gain_per_minute, sh_degree=stats["sh_degree"],
                       elapsed=now - started, seconds_per_step=per_step,
                       eta=per_step * (total - step) if len(self._window) >= 3 else None)
+
+
+def ui_kernel_threads() -> int:
+    """Kernel threads for training beside a UI: every core but one (at least one)."""
+    return max(1, cpu_count() - 1)
 
 
 class StagedJob:

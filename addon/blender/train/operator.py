@@ -372,8 +372,10 @@ class TrainingSettings:
                        description=f"A fixed number of optimisation steps; 0: until done, when "
                                    f"the held-out PSNR (with no held-out views, the training "
                                    f"views') gains less than "
-                                   f"{_DEFAULTS.stop_below_db_per_minute} dB a minute (at most "
-                                   f"{_DEFAULTS.max_steps:,} steps)")
+                                   f"{_DEFAULTS.stop_below_db_per_minute} dB a minute of work "
+                                   f"(a model of each step's cost, not the clock: the same "
+                                   f"step on a busy machine; at most {_DEFAULTS.max_steps:,} "
+                                   f"steps); it keeps the best state checked")
     max_gaussians: IntProperty(name="Max Gaussians", default=_DEFAULTS.max_gaussians, min=1,
                                soft_max=3_000_000,
                                description="A ceiling on the Gaussian count (Automatic sizes "

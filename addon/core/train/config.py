@@ -19,8 +19,11 @@ class TrainConfig:
     # A fixed number of steps; 0: until done (not in the reference): `Trainer.run()` ends once
     # the PSNR on the held-out views (with none, on up to 8 training views), measured every
     # `stop_check_every` steps, gained less than `stop_below_db_per_minute` per minute of
-    # training time over the last `stop_window_seconds` of checks, at two checks in a row
-    # (`stopping.py`; `Trainer.converged` then says so; 0: never), or at `max_steps`.
+    # work over the last `stop_window_seconds` of work of checks, at two checks in a row
+    # (`stopping.py`; `Trainer.converged` then says so; 0: never), or at `max_steps`. Work is
+    # each step's modelled cost in seconds of one reference core (`stopping.step_work`), not a
+    # clock: the same run stops at the same step on an idle and on a busy machine. The run
+    # then ends with the best state its checks saw (`Trainer.best`).
     steps: int = 0
     max_steps: int = 30_000
     stop_below_db_per_minute: float = 0.1
@@ -102,6 +105,15 @@ class TrainConfig:
     # 24,000 by step 2500 and on). 10 % rather than 5 %: the count settles sooner and a given
     # PSNR comes sooner; 15 % and 20 % overshoot (slower steps), 10 % with 0.5 here too.
     auto_gain_per_growth: float = 1.0
+    # Below this many Gaussians per pixel of a training image (at its resolution level) it
+    # grows whatever the loss does, by `auto_floor_growth` an interval (strategies/auto.py:
+    # the count scales with the image size; 0: no floor).
+    auto_gaussians_per_pixel: float = 0.25
+    auto_floor_growth: float = 0.20
+    # Above this many pixels per training image "auto" densifies as the reference does
+    # (strategies/auto.py `LargeImageStrategy`: 5 dB better held-out at equal CPU time on the
+    # demo scene at 480x360; issue 25). 0: never.
+    auto_reference_above_pixels: int = 100_000
     auto_patience: int = 2
     auto_growth: float = 0.10  # the count added an interval while growing (MCMC's is 5 %)
     # It relocates and grows from this step on, not `densify_from` (MCMC's 500): on cup, 1 thread,

@@ -20,9 +20,11 @@ What it does, as the reference implementation (Kerbl et al. 2023) does unless no
 - deterministic for a given seed (the native kernels are identical for any thread count), for
   a fixed step count;
 - with no step count (`TrainConfig.steps` 0) training stops when done: when the held-out PSNR
-  gains less than `stop_below_db_per_minute` per minute of training, it anneals the learning
-  rates over `anneal_steps` more steps and stops (or at `max_steps`). Where that happens
-  depends on the machine's speed, so such a run is not repeatable to the step.
+  gains less than `stop_below_db_per_minute` per minute of *work* (`stopping.step_work`: a
+  model of each step's cost, not a clock), it anneals the learning rates over `anneal_steps`
+  more steps and stops (or at `max_steps`); the state kept is then the best the checks saw
+  (held-out PSNR), the last one unless an earlier check was better. Work is not time, so such a
+  run stops at the same step on an idle and on a busy machine, with any thread count.
 
 `compact()` (after training, not in the reference) prunes Gaussians whose total contribution to
 the training views is negligible and drops SH bands that do not improve them, and reports size
@@ -152,15 +154,21 @@ class Trainer:
         self.extent = scene_extent(dataset.train_cameras)
         self.step = 0
         self.seconds = 0.0  # training time so far (the steps' wall time, evaluations excluded)
+        self.work = 0.0  # the steps' modelled cost so far (`stopping.step_work`), what stops use
         self.converged = False
         self.anneal_from: int | None = None  # the step a run until done began to finish at
-        self.checks: list[tuple[float, float]] = []  # (seconds, PSNR) at each stopping check
+        self.checks: list[tuple[float, float]] = []  # (work, PSNR) at each stopping check
+        # The best stopping check so far: (step, PSNR, its Gaussians), what a run until done
+        # ends with when its last check is worse (`_keep_best`).
+        self.best: tuple[int, float, Gaussians] | None = None
+        self.last_check_step = -1
         self.background = np.asarray(config.background, np.float32)
         # A short run spends at most its first half coarse (fixed now: a resume that asks for
         # more steps must not go back to coarse images).
         self.coarse_until = (min(config.coarse_until, config.steps // 2) if config.steps
                              else config.coarse_until)
-        self.strategy = strategy or make_strategy(config, self.extent, self.rng)
+        pixels = max((c.width * c.height for c in dataset.train_cameras), default=0)
+        self.strategy = strategy or make_strategy(config, self.extent, self.rng, pixels)
         self._sparse_adam = (self.strategy.sparse_adam if config.sparse_adam is None
                              else config.sparse_adam)
         if gaussians is None:
@@ -284,12 +292,16 @@ class Trainer:
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
                 "psnr": tk.psnr_of_mse(loss.mse), "gaussians": len(self), "sh_degree": degree,
                 "densified": densified, "sizing": self.strategy.sizing,
+                "pixels": camera.width * camera.height, "tile_pairs": state.tile_pairs,
+                "work": stopping.step_work(camera.width * camera.height, state.tile_pairs,
+                                           len(gaussians)),
                 "seconds": time.perf_counter() - start}
 
     @property
     def gain_per_minute(self) -> float:
         """The held-out (else training-view) PSNR gain per minute over the last
-        `stop_window_seconds` of stop checks (`stopping.gain_per_minute`); NaN before two."""
+        `stop_window_seconds` of work of stop checks (`stopping.gain_per_minute`); NaN before
+        two."""
         return stopping.gain_per_minute(self.checks, self.config.stop_window_seconds)
 
     # -- running, evaluating --------------------------------------------------------------
@@ -311,21 +323,45 @@ class Trainer:
         while self.step < target and not (self.until_done and self.converged):
             stats = self.train_step()
             self.seconds += stats["seconds"]
-            if self.until_done and self.anneal_from is None \
-                    and self.step % c.stop_check_every == 0 and self._gain_has_stalled():
+            self.work += stats["work"]
+            if self.until_done and self.anneal_from is None and self.step % c.stop_check_every == 0 \
+                    and not self.strategy.recovering(self.step) and self._gain_has_stalled():
                 self.anneal_from = self.step  # the gain stalled: anneal, then stop
             if self.anneal_from is not None and self.step >= self.anneal_from + c.anneal_steps:
                 self.converged = True
+            if self.until_done and (self.converged or self.step >= self.step_limit):
+                self._keep_best()
             yield stats
 
     def _gain_has_stalled(self) -> bool:
         """Record a check; True when the gain over the last window has stalled at two checks in
         a row (`stopping.has_stalled`)."""
-        train = self.dataset.train_indices
-        views = self.dataset.test_indices or train[::max(1, len(train) // 8)][:8]
-        self.checks.append((self.seconds, self.evaluate(views).psnr))
+        self._check(self._stop_views())
         c = self.config
         return stopping.has_stalled(self.checks, c.stop_window_seconds, c.stop_below_db_per_minute)
+
+    def _stop_views(self) -> list[int]:
+        """The views stopping checks measure: the held-out ones, else up to 8 training views."""
+        train = self.dataset.train_indices
+        return self.dataset.test_indices or train[::max(1, len(train) // 8)][:8]
+
+    def _check(self, views: list[int]) -> float:
+        """Measure and record a stopping check; remember its Gaussians if it is the best."""
+        value = self.evaluate(views).psnr
+        self.checks.append((self.work, value))
+        self.last_check_step = self.step
+        if self.best is None or value > self.best[1]:
+            self.best = (self.step, value, self.gaussians.copy())
+        return value
+
+    def _keep_best(self) -> None:
+        """At the end of a run until done: a last check, and the best checked state if the last
+        is worse (held-out PSNR moves by tenths of a dB between checks; the views that decide
+        the stop decide what is kept)."""
+        value = (self.checks[-1][1] if self.checks and self.last_check_step == self.step
+                 else self._check(self._stop_views()))
+        if self.best is not None and self.best[1] > value:
+            self.set_gaussians(self.best[2].copy())
 
     def evaluate(self, indices: list[int] | None = None, *, sh_degree: int | None = None,
                  gaussians: Gaussians | None = None) -> Evaluation:
@@ -354,11 +390,14 @@ class Trainer:
         path = Path(path)
         meta = {"step": self.step, "config": asdict(self.config), "order": self._order,
                 "rng": self.rng.bit_generator.state, "seconds": self.seconds,
+                "work": self.work, "best": self.best[:2] if self.best else None,
+                "last_check_step": self.last_check_step,
                 "converged": self.converged, "checks": self.checks,
                 "anneal_from": self.anneal_from,
                 "coarse_until": self.coarse_until}
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, meta=np.frombuffer(repr(meta).encode(), np.uint8),
+        best = ({f"best_{k}": v for k, v in self.best[2].arrays().items()} if self.best else {})
+        np.savez(tmp, meta=np.frombuffer(repr(meta).encode(), np.uint8), **best,
                  **self.strategy.state_arrays(), **self.parameters.state_arrays())
         tmp.replace(path)
 
@@ -368,16 +407,25 @@ class Trainer:
 
         with np.load(path) as data:
             meta = ast.literal_eval(bytes(data["meta"]).decode())
+            saved = dict(meta["config"])
+            # A checkpoint from before "auto" switched to the reference's densification on
+            # large images holds the MCMC sizing's state: it resumes as it was made.
+            saved.setdefault("auto_reference_above_pixels", 0)
             config = TrainConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                    for k, v in meta["config"].items()})
+                                    for k, v in saved.items()})
             trainer = cls(dataset, config, gaussians=Gaussians.empty(config.sh_degree))
             trainer.parameters = GaussianParameters.from_state_arrays(data)
             trainer.strategy.load_state_arrays(data)
+            if meta.get("best"):
+                arrays = {k[5:]: data[k] for k in data.files if k.startswith("best_")}
+                trainer.best = (*meta["best"], Gaussians(**arrays))
         trainer.step = int(meta["step"])
         trainer.seconds = float(meta.get("seconds", 0.0))
+        trainer.work = float(meta.get("work", trainer.seconds))
         trainer.converged = bool(meta.get("converged", False))
         trainer.anneal_from = meta.get("anneal_from")
         trainer.checks = [tuple(c) for c in meta.get("checks", [])]
+        trainer.last_check_step = int(meta.get("last_check_step", -1))
         trainer.coarse_until = int(meta.get("coarse_until", config.coarse_until))
         trainer._order = list(meta["order"])
         trainer.rng.bit_generator.state = meta["rng"]

@@ -69,3 +69,31 @@ def test_printer_writes_a_line_per_stage_not_per_step() -> None:
     every(Progress(phase="training", step=1, total=5))
     every(Progress(phase="training", step=2, total=5))
     assert len(training) == 4  # with no interval, every call
+
+
+def test_a_training_job_on_a_worker_leaves_the_ui_a_core(monkeypatch) -> None:
+    from pathlib import Path
+
+    from addon.core import jobs
+    from addon.core.colmap import read_colmap
+    from addon.core.jobs import TrainingJob
+    from addon.core.train.dataset import ColmapDataset
+    from addon.core.train.trainer import Trainer, TrainConfig
+
+    demo = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap"
+    dataset = ColmapDataset(read_colmap(demo), downscale=8)
+    monkeypatch.setattr(jobs, "cpu_count", lambda: 4)
+    for start, want in ((True, 3), (False, 0)):  # a worker beside a UI; the calling thread
+        trainer = Trainer(dataset, TrainConfig(steps=3, sh_degree=0, threads=0))
+        seen = []
+        job = TrainingJob(trainer, evaluate=False,
+                          on_progress=lambda p: seen.append(trainer.config.threads))
+        if start:
+            job.start().join()
+        else:
+            job.run()
+        assert job.done and job.error is None and trainer.step == 3
+        assert set(seen[1:-1]) == {want}  # while it trained
+        assert trainer.config.threads == 0  # as configured afterwards (checkpoints say so)
+    monkeypatch.setattr(jobs, "cpu_count", lambda: 1)
+    assert jobs.ui_kernel_threads() == 1

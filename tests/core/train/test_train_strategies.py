@@ -7,6 +7,8 @@ arrays (bit for bit). Training runs use the demo COLMAP scene at 120x90."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import math
 from pathlib import Path
 
@@ -18,8 +20,8 @@ from addon.core.colmap import read_colmap
 from addon.core.train.dataset import ColmapDataset
 from addon.core.gaussians import Gaussians
 from addon.core.train.optimizer import GaussianParameters
-from addon.core.train.strategies import STRATEGIES, StepInfo, Strategy
-from addon.core.train.strategies.auto import AutoStrategy
+from addon.core.train.strategies import STRATEGIES, StepInfo, Strategy, make_strategy
+from addon.core.train.strategies.auto import AutoStrategy, LargeImageStrategy
 from addon.core.train.strategies.mcmc import MCMCStrategy, relocation
 from addon.core.train.config import STRATEGY_NAMES
 from addon.core.transform import quat_to_matrix
@@ -221,9 +223,10 @@ class _LossStream:
     """Drives an AutoStrategy as a trainer would: steps over 5 views in turn, the loss falling
     smoothly by a given fraction per densification interval (10 steps), then a growth decision."""
 
-    def __init__(self, strategy, params) -> None:
+    def __init__(self, strategy, params, width: int = 16, height: int = 12) -> None:
         self.strategy, self.params = strategy, params
         self.step, self.loss = 0, 1.0
+        self.camera = SimpleNamespace(width=width, height=height)  # all the strategy reads
 
     def interval(self, fall: float, level: int = 1, steps: int = 10) -> int:
         per_step = (1.0 - fall) ** (1.0 / 10)
@@ -232,7 +235,7 @@ class _LossStream:
             self.loss *= per_step
             grads = tk.Gradients.zeros_like(self.params.gaussians)
             self.strategy.after_backward(self.params, StepInfo(
-                self.step, None, None, grads, {}, self.loss, level, self.step % 5))
+                self.step, self.camera, None, grads, {}, self.loss, level, self.step % 5))
         return self.strategy.grow(self.params)
 
 
@@ -276,8 +279,33 @@ def test_auto_learns_and_keeps_its_sizing_through_a_checkpoint(dataset, tmp_path
     trainer.save_checkpoint(tmp_path / "state.npz")
     resumed = Trainer.load_checkpoint(tmp_path / "state.npz", dataset)
     for name in ("growing", "misses", "level", "fall_sum", "fall_steps", "previous_count",
-                 "view_loss"):
+                 "view_loss", "pixels"):
         assert getattr(resumed.strategy, name) == getattr(trainer.strategy, name), name
+
+
+def test_auto_grows_to_a_floor_set_by_the_pixels(rng) -> None:
+    # A loss that does not fall at all: on 16x12 images 200 Gaussians are above a quarter of
+    # the pixels and the rule settles them; on 160x120 ones they grow by 20 % an interval,
+    # whatever the loss, to the floor (4,800), and the rule settles them there.
+    counts = {}
+    for width, height in ((16, 12), (160, 120)):
+        config = TrainConfig(strategy="auto", densify_every=10, auto_growth=0.05,
+                             auto_gain_per_growth=1.0, auto_patience=2, max_gaussians=100_000,
+                             auto_gaussians_per_pixel=0.25, auto_floor_growth=0.2)
+        params = GaussianParameters(random_gaussians(rng, 200, 0))
+        strategy = AutoStrategy(config, 1.0, rng)
+        strategy.reset(len(params))
+        run = _LossStream(strategy, params, width, height)
+        grown = [run.interval(0.0) for _ in range(40)]
+        counts[width] = len(params)
+        assert strategy.sizing == "settled"
+        assert strategy.floor() == int(0.25 * width * height)
+    assert counts[16] < 250
+    assert 4_800 <= counts[160] < 4_800 * 1.2 * 1.05 ** 2  # the floor, then two misses at 5 %
+    assert grown[0] == 40  # 20 % of 200 in the first interval, the loss flat
+    # 0: no floor, the loss rule alone, as before.
+    config.auto_gaussians_per_pixel = 0.0
+    assert strategy.floor() == 0
 
 
 def test_auto_grows_by_its_own_fraction_and_mcmc_by_its(rng) -> None:
@@ -287,3 +315,24 @@ def test_auto_grows_by_its_own_fraction_and_mcmc_by_its(rng) -> None:
         strategy = cls(config, 1.0, rng)
         strategy.reset(len(params))
         assert strategy.grow(params) == (100 if name == "auto" else 50)
+
+
+def test_auto_densifies_as_the_reference_on_large_images(dataset) -> None:
+    rng = np.random.default_rng(0)
+    config = TrainConfig(strategy="auto", auto_reference_above_pixels=100_000)
+    assert type(make_strategy(config, 1.0, rng, 100_000)) is AutoStrategy
+    assert type(make_strategy(config, 1.0, rng, 480 * 360)) is LargeImageStrategy
+    config.auto_reference_above_pixels = 0  # never
+    assert type(make_strategy(config, 1.0, rng, 10**7)) is AutoStrategy
+    # Step for step the reference recipe (the "default" strategy) once the trainer sees images
+    # above the threshold (here 120x90 ones above 5,000 pixels).
+    common = dict(steps=60, densify_from=20, densify_every=20, sh_degree=1, threads=1, seed=2)
+    auto = Trainer(dataset, TrainConfig(strategy="auto", auto_reference_above_pixels=5_000,
+                                        **common))
+    reference = Trainer(dataset, TrainConfig(strategy="default", **common))
+    assert isinstance(auto.strategy, LargeImageStrategy)
+    sizes = [(a["gaussians"], r["gaussians"]) for a, r in zip(auto.run(), reference.run())]
+    assert sizes[-1][0] != sizes[0][0] and all(a == r for a, r in sizes)
+    for name in auto.params:
+        assert np.array_equal(auto.params[name], reference.params[name]), name
+    assert auto.strategy.sizing == "growing"

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import TrainConfig
-from .auto import AutoStrategy
+from .auto import AutoStrategy, LargeImageStrategy
 from .base import StepInfo, Strategy
 from .default import DefaultStrategy
 from .mcmc import MCMCStrategy
@@ -18,15 +18,20 @@ STRATEGIES: dict[str, type[Strategy]] = {"auto": AutoStrategy, "default": Defaul
                                           "mcmc": MCMCStrategy}
 
 
-def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator) -> Strategy:
-    """The strategy `config.strategy` names, for a scene of radius `extent`."""
+def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator,
+                  pixels: int = 0) -> Strategy:
+    """The strategy `config.strategy` names, for a scene of radius `extent` whose largest
+    training image has `pixels` pixels ("auto" on images above
+    `auto_reference_above_pixels`: `LargeImageStrategy`, the reference's densification)."""
     try:
         kind = STRATEGIES[config.strategy]
     except KeyError:
         raise ValueError(f"unknown densification strategy {config.strategy!r}; "
                          f"choose one of {', '.join(STRATEGIES)}") from None
+    if kind is AutoStrategy and 0 < config.auto_reference_above_pixels < pixels:
+        kind = LargeImageStrategy
     return kind(config, extent, rng)
 
 
-__all__ = ["STRATEGIES", "AutoStrategy", "DefaultStrategy", "MCMCStrategy", "StepInfo", "Strategy",
-           "make_strategy"]
+__all__ = ["STRATEGIES", "AutoStrategy", "DefaultStrategy", "LargeImageStrategy", "MCMCStrategy",
+           "StepInfo", "Strategy", "make_strategy"]

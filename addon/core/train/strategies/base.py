@@ -12,6 +12,8 @@ A step of `Trainer.train_step`, and where the strategy comes in:
 - `prepare_initial(gaussians)`: the Gaussians made from the sparse points, as this strategy
   wants to start from (not called for Gaussians the caller passes in).
 - `reset(count)`: the parameters were replaced (start, compaction): statistics start over.
+- `recovering(step)`: True while the strategy's own disruption (an opacity reset) still lowers
+  the views' PSNR: stopping checks then measure the disruption, not progress, and are not taken.
 - `state_arrays()` / `load_state_arrays(data)`: what a checkpoint must hold to resume exactly.
 
 Strategies edit `params` (a `GaussianParameters`) only through its row edits, so the Adam
@@ -68,6 +70,9 @@ class Strategy:
 
     def after_step(self, params: GaussianParameters, info: StepInfo) -> int:
         return 0
+
+    def recovering(self, step: int) -> bool:
+        return False
 
     @property
     def sizing(self) -> str:

@@ -46,6 +46,16 @@ class DefaultStrategy(Strategy):
             reset_opacity(params)
         return changed
 
+    def recovering(self, step: int) -> bool:
+        """Within `stop_check_every` steps after an opacity reset (resets at multiples of
+        `opacity_reset_every` up to `densify_until`): the reset takes every view down to a few
+        dB for a few hundred steps (the walkthrough's check at the step-3,000 reset read 4.1 dB
+        and stopped the run)."""
+        c = self.config
+        since = step % c.opacity_reset_every
+        return step >= c.opacity_reset_every and since <= c.stop_check_every \
+            and step - since < c.densify_until
+
     def densify_and_prune(self, params: GaussianParameters, *, prune_large: bool) -> int:
         """Clone and split by gradient within the budget, then prune. Returns the count change."""
         c = self.config
