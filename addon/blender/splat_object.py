@@ -212,17 +212,23 @@ def replace_gaussians(obj, gaussians: Gaussians) -> None:
         sync_display(obj, bpy.context.scene)
 
 
+def new_object(name: str, data, datablocks) -> bpy.types.Object:
+    """`bpy.data.objects.new(name, data)`; if that fails, `data` is removed from `datablocks`
+    (e.g. `bpy.data.meshes`) so nothing is left behind."""
+    try:
+        return bpy.data.objects.new(name, data)
+    except BaseException:
+        datablocks.remove(data)
+        raise
+
+
 def create_splat_object(gaussians: Gaussians, name: str = "Splats", *, collection=None,
                         antialiased: bool = False, sh_degree: int | None = None,
                         color_space: str = "SRGB", source_path: str = "") -> bpy.types.Object:
     """A new splat object holding `gaussians` in its local space, linked to `collection` (the
     scene's master collection when None). Nothing is left behind if it fails."""
     mesh = mesh_from_gaussians(gaussians, name)
-    try:
-        obj = bpy.data.objects.new(name, mesh)
-    except BaseException:
-        bpy.data.meshes.remove(mesh)
-        raise
+    obj = new_object(name, mesh, bpy.data.meshes)
     try:
         settings = obj.splat
         settings.is_splat = True

@@ -202,11 +202,7 @@ def create_object(gaussians: Gaussians, name: str = "Splats", *, collection=None
     """A new object holding a Blender splat point cloud of `gaussians` in its local space,
     linked to `collection` (the scene's master collection when None)."""
     pointcloud = new_pointcloud(gaussians, name)
-    try:
-        obj = bpy.data.objects.new(name, pointcloud)
-    except BaseException:
-        bpy.data.pointclouds.remove(pointcloud)
-        raise
+    obj = splat_object.new_object(name, pointcloud, bpy.data.pointclouds)
     try:
         (collection or bpy.context.scene.collection).objects.link(obj)
     except BaseException:
