@@ -16,7 +16,8 @@ process through `addon.cli.main`:
 
 With `--docs` the pictures the README shows are written there (PNG): the photo, the splats
 rendered from its camera, and the final frame, and the training's numbers (steps, Gaussians,
-held-out PSNR/SSIM, wall and CPU seconds) to `walkthrough.json` beside them; they are printed
+held-out PSNR/SSIM, wall and CPU seconds, and `photo_psnr`: the splats from camera 008
+against its photo) to `walkthrough.json` beside them; they are printed
 either way. `--steps` and `--downscale` are only there to try other settings.
 """
 
@@ -106,6 +107,17 @@ def add_monkey(trained: Path, final: Path) -> None:
     bpy.ops.wm.save_as_mainfile(filepath=str(final))
 
 
+def photo_psnr(photo: Path, frame: Path) -> float:
+    """PSNR (dB) of a rendered frame's RGB against the photo of its camera, both 8-bit."""
+    import numpy as np
+
+    from addon.core.images import files as image_io
+
+    ours = image_io.read_pixels(frame)[..., :3].astype(np.float64)
+    theirs = image_io.read_pixels(photo)[..., :3].astype(np.float64)
+    return float(10 * np.log10(255.0 ** 2 / np.mean((ours - theirs) ** 2)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", default=None, help="a fixed count (default: until done)")
@@ -149,7 +161,10 @@ def main() -> None:
         shutil.copyfile(frame, docs / "walkthrough_splats.png")
         shutil.copyfile(sorted(work.glob("final_*.png"))[-1], docs / "walkthrough_final.png")
         if (work / "walkthrough.json").is_file():
-            shutil.copyfile(work / "walkthrough.json", docs / "walkthrough.json")
+            numbers = json.loads((work / "walkthrough.json").read_text())
+            numbers["photo_psnr"] = round(photo_psnr(docs / "walkthrough_photo.png",
+                                                     docs / "walkthrough_splats.png"), 2)
+            (docs / "walkthrough.json").write_text(json.dumps(numbers, indent=1))
         for name in ("walkthrough_photo.png", "walkthrough_splats.png", "walkthrough_final.png"):
             print(f"{docs / name}: {(docs / name).stat().st_size / 1024:.0f} KB")
 
