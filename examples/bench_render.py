@@ -199,7 +199,8 @@ def main_table(args) -> None:
 def camera_types(make_camera, width: int, height: int) -> list[tuple[str, object]]:
     """The pinhole view `make_camera(width, height)` and, from the same pose, an orthographic
     view of the same width at the target (the pinhole's field at its target distance), and each
-    panorama (equirectangular at 2:1, the fisheyes and the mirror ball square)."""
+    panorama (equirectangular and central cylindrical at 2:1, the fisheyes, the mirror ball and
+    the cubemap face square)."""
     import dataclasses
     import math
 
@@ -223,7 +224,10 @@ def camera_types(make_camera, width: int, height: int) -> list[tuple[str, object
             ("mirror ball", "MIRRORBALL", (), side, side),
             ("fisheye lens polynomial", "FISHEYE_LENS_POLYNOMIAL",
              (-1.1735e-05, -0.019989, -3.3525e-06, 3.0993e-06, -2.6065e-08, math.pi, 36.0, 36.0),
-             side, side)]:
+             side, side),
+            ("equiangular cubemap face", "EQUIANGULAR_CUBEMAP_FACE", (), side, side),
+            ("central cylindrical", "CENTRAL_CYLINDRICAL", (-math.pi, math.pi, -1.0, 1.0),
+             2 * round(side * 1024 / 1080), round(side * 1024 / 1080))]:
         out.append((name, Camera(pose, w, h, 0.0, h, w, h, model=model, params=params)))
     return out
 

@@ -69,7 +69,14 @@ def camera_of(camera_obj, depsgraph) -> Camera:
         latitude_min=pano.latitude_min, latitude_max=pano.latitude_max,
         longitude_min=pano.longitude_min, longitude_max=pano.longitude_max,
         use_dof=cam.dof.use_dof, aperture_fstop=cam.dof.aperture_fstop,
-        focus_distance=cam.dof.focus_distance))
+        focus_distance=cam.dof.focus_distance,
+        **{key: getattr(pano, key) for key in _LATER_PANORAMA_KEYS if hasattr(pano, key)}))
+
+
+# Panorama settings newer Blenders have (the lens polynomial's, the central cylinder's).
+_LATER_PANORAMA_KEYS = (*(f"fisheye_polynomial_k{i}" for i in range(5)),
+                        *(f"central_cylindrical_range_{a}_{m}" for a in "uv" for m in ("min", "max")),
+                        "central_cylindrical_radius")
 
 
 def render_scene(camera_obj, *, near: float = 0.01, use_cache: bool = True):

@@ -349,6 +349,18 @@ def _cycles_uv(p: np.ndarray, model: str, params) -> tuple[np.ndarray, np.ndarra
         u = (np.arctan2(d[:, 1], d[:, 0]) - ry) / rx
         v = (np.arccos(np.clip(d[:, 2], -1, 1)) - rw) / rz
         return np.stack([u, v], 1), np.ones(len(p), bool)
+    if model == "CENTRAL_CYLINDRICAL":                              # direction_to_central_
+        u_min, u_max, v_min, v_max = params                         # cylindrical, with Blender's
+        rx, ry, rz, rw = -u_min, -u_max, v_min, v_max               # sync of the range
+        across = np.hypot(d[:, 0], d[:, 1])
+        height = d[:, 2] / np.where(across > 0, across, np.nan)
+        u = (np.arctan2(d[:, 1], d[:, 0]) - rx) / (ry - rx)
+        v = (height - rz) / (rw - rz)
+        return np.stack([u, v], 1), across > 0
+    if model == "EQUIANGULAR_CUBEMAP_FACE":                         # direction_to_equiangular_
+        u = 0.5 - np.arctan2(d[:, 1], d[:, 0]) * 2 / np.pi          # cubemap_face; behind, its
+        v = np.arctan2(d[:, 2], d[:, 0]) * 2 / np.pi + 0.5          # atan2 jumps: not shown
+        return np.stack([u, v], 1), d[:, 0] > 0
     theta = np.arccos(np.clip(d[:, 0], -1, 1))
     rho = np.hypot(d[:, 1], d[:, 2])
     cos_phi = np.where(rho > 0, -d[:, 1] / np.where(rho > 0, rho, 1), 1.0)  # inverse of
@@ -396,8 +408,10 @@ def _uv_jacobian(p: np.ndarray, model: str, params, wraps: bool) -> np.ndarray:
 
 
 def wraps(model: str, params) -> bool:
-    """Whether an equirectangular image repeats across its left and right edges (360 degrees)."""
-    return model == "EQUIRECTANGULAR" and params[1] - params[0] >= 2 * np.pi - 1e-6
+    """Whether an equirectangular or central cylindrical image repeats across its left and right
+    edges (360 degrees of longitude)."""
+    return model in ("EQUIRECTANGULAR", "CENTRAL_CYLINDRICAL") and \
+        params[1] - params[0] >= 2 * np.pi - 1e-6
 
 
 def camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy,
@@ -410,12 +424,12 @@ def camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, 
     outside [near, far]; the SH direction is the camera's forward axis for every Gaussian.
     Panoramas: (u, v) = Cycles' mapping of the direction, xy = (fx u + cx, cy - fy v), J the
     Jacobian of that at the mean; depth |p|, culled outside [near, far] and where the mapping
-    shows nothing. With a 360-degree equirectangular image, u is taken into [0, 1) and each
-    Gaussian gets a copy one period P = 2 pi fx / (longitude range) over (towards the image),
-    returned under "copies" (rows where the copy reaches no pixel are invalid); a Gaussian whose
-    alpha >= 1/255 half-width sqrt(k2 Sigma_xx) (k2 = 2 ln(255 sigmoid) (1 + 1e-4) + 1e-4) exceeds
-    P/2 is a band instead: conic (0, 0, 1 / Sigma_yy), no copy, antialiasing factor
-    sqrt(Sigma_yy before dilation / Sigma_yy).
+    shows nothing. With a 360-degree equirectangular or central cylindrical image, u is taken
+    into [0, 1) and each Gaussian gets a copy one period P = 2 pi fx / (longitude range) over
+    (towards the image), returned under "copies" (rows where the copy reaches no pixel are
+    invalid); a Gaussian whose alpha >= 1/255 half-width sqrt(k2 Sigma_xx) (k2 = 2 ln(255
+    sigmoid) (1 + 1e-4) + 1e-4) exceeds P/2 is a band instead: conic (0, 0, 1 / Sigma_yy), no
+    copy, antialiasing factor sqrt(Sigma_yy before dilation / Sigma_yy).
     """
     means, log_scales, opacity_logits = _f64(means), _f64(log_scales), _f64(opacity_logits)
     sh, viewmat = _f64(sh), _f64(viewmat)

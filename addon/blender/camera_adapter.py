@@ -35,7 +35,9 @@ def to_matrix(m: np.ndarray):
 _PANORAMA_KEYS = ("panorama_type", "fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max",
                   "longitude_min", "longitude_max", "fisheye_polynomial_k0",
                   "fisheye_polynomial_k1", "fisheye_polynomial_k2", "fisheye_polynomial_k3",
-                  "fisheye_polynomial_k4")
+                  "fisheye_polynomial_k4", "central_cylindrical_range_u_min",
+                  "central_cylindrical_range_u_max", "central_cylindrical_range_v_min",
+                  "central_cylindrical_range_v_max", "central_cylindrical_radius")
 
 
 def _panorama_settings(cam) -> dict:

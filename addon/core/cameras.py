@@ -27,7 +27,8 @@ _MIN_RESOLUTION, _MAX_RESOLUTION = 4, 65536  # Blender's limits on resolution_x,
 # (v up), and then to pixels as col = fx u + cx, row = cy - fy v.
 MODELS = {"PINHOLE": (0, 0), "ORTHO": (1, 0), "EQUIRECTANGULAR": (2, 4),
           "FISHEYE_EQUIDISTANT": (3, 1), "FISHEYE_EQUISOLID": (4, 4), "MIRRORBALL": (5, 0),
-          "FISHEYE_LENS_POLYNOMIAL": (6, 8)}
+          "FISHEYE_LENS_POLYNOMIAL": (6, 8), "EQUIANGULAR_CUBEMAP_FACE": (7, 0),
+          "CENTRAL_CYLINDRICAL": (8, 4)}
 PANORAMAS = tuple(name for name, (code, _) in MODELS.items() if code >= 2)
 CAMERA_TYPES = ("PERSP", "ORTHO", "PANO")  # Blender's camera types that splats render through
 PANORAMA_TYPES = PANORAMAS  # Blender's panorama types that splats render through (named alike)
@@ -147,8 +148,10 @@ class BlenderCameraParams:
     type: 'PERSP' | 'ORTHO' | 'PANO'; ortho_scale: the fitted side's extent in world units;
     clip_start, clip_end: the camera's clipping (orthographic and panoramic renders cull
     Gaussians beyond clip_end; clip_start is the render's near plane, see `camera_near`).
-    panorama_type, fisheye_fov, fisheye_lens, latitude_min/max, longitude_min/max: Blender's
-    panorama settings (radians, mm).
+    panorama_type, fisheye_fov, fisheye_lens, latitude_min/max, longitude_min/max,
+    fisheye_polynomial_k0..k4, central_cylindrical_range_u_min/max (longitude, radians),
+    central_cylindrical_range_v_min/max (height), central_cylindrical_radius: Blender's panorama
+    settings (radians, mm, scene units).
     use_dof, aperture_fstop, focus_distance: the camera's depth of field (the focus distance
     along the view axis, a focus object's already resolved: `camera_adapter`).
     """
@@ -181,6 +184,11 @@ class BlenderCameraParams:
     fisheye_polynomial_k2: float = -3.3525323033245513e-06
     fisheye_polynomial_k3: float = 3.0992753181635635e-06
     fisheye_polynomial_k4: float = -2.60646473293491e-08
+    central_cylindrical_range_u_min: float = -np.pi
+    central_cylindrical_range_u_max: float = np.pi
+    central_cylindrical_range_v_min: float = -1.0
+    central_cylindrical_range_v_max: float = 1.0
+    central_cylindrical_radius: float = 1.0
     use_dof: bool = False
     aperture_fstop: float = 2.8
     focus_distance: float = 10.0
@@ -195,7 +203,10 @@ class BlenderCameraParams:
                      "fisheye_fov", "fisheye_lens", "latitude_min", "latitude_max",
                      "longitude_min", "longitude_max", "aperture_fstop", "focus_distance",
                      "fisheye_polynomial_k0", "fisheye_polynomial_k1", "fisheye_polynomial_k2",
-                     "fisheye_polynomial_k3", "fisheye_polynomial_k4"):
+                     "fisheye_polynomial_k3", "fisheye_polynomial_k4",
+                     "central_cylindrical_range_u_min", "central_cylindrical_range_u_max",
+                     "central_cylindrical_range_v_min", "central_cylindrical_range_v_max",
+                     "central_cylindrical_radius"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value}")
@@ -213,7 +224,7 @@ class BlenderCameraParams:
         if self.type not in CAMERA_TYPES:
             raise ValueError(f"camera type must be one of {CAMERA_TYPES}, got {self.type!r}")
         for name in ("lens", "sensor_width", "sensor_height", "pixel_aspect_x", "pixel_aspect_y",
-                     "ortho_scale", "fisheye_fov", "fisheye_lens"):
+                     "ortho_scale", "fisheye_fov", "fisheye_lens", "central_cylindrical_radius"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         for name in ("resolution_x", "resolution_y", "resolution_percentage"):
@@ -351,7 +362,9 @@ def _special_camera_from_blender(params: BlenderCameraParams, width: int, height
 
     and the model's parameters: EQUIRECTANGULAR (longitude min, max, latitude min, max),
     FISHEYE_EQUIDISTANT (fov), FISHEYE_EQUISOLID (lens, fov, sensor width, sensor height),
-    MIRRORBALL (none), FISHEYE_LENS_POLYNOMIAL (k0..k4, fov, sensor width, sensor height).
+    MIRRORBALL (none), FISHEYE_LENS_POLYNOMIAL (k0..k4, fov, sensor width, sensor height),
+    EQUIANGULAR_CUBEMAP_FACE (none), CENTRAL_CYLINDRICAL (longitude min, max, height min / radius,
+    height max / radius: Cycles' own division, so the heights are on a unit cylinder).
     Both cull beyond clip_end.
     """
     world_to_camera = _world_to_camera(params)
@@ -376,6 +389,14 @@ def _special_camera_from_blender(params: BlenderCameraParams, width: int, height
                         params.latitude_max)
         if not (model_params[1] > model_params[0] and model_params[3] > model_params[2]):
             raise ValueError("the equirectangular camera's latitude or longitude range is empty")
+    elif kind == "CENTRAL_CYLINDRICAL":
+        radius = params.central_cylindrical_radius
+        model_params = (params.central_cylindrical_range_u_min,
+                        params.central_cylindrical_range_u_max,
+                        params.central_cylindrical_range_v_min / radius,
+                        params.central_cylindrical_range_v_max / radius)
+        if not (model_params[1] > model_params[0] and model_params[3] > model_params[2]):
+            raise ValueError("the central cylindrical camera's longitude or height range is empty")
     elif kind == "FISHEYE_EQUIDISTANT":
         model_params = (params.fisheye_fov,)
     elif kind in ("FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL"):

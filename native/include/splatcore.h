@@ -86,6 +86,9 @@ typedef enum {
     SC_MIRRORBALL = 5,
     SC_FISHEYE_POLYNOMIAL = 6,  /* params: k0..k4 (theta = -(k0 + k1 r + ... + k4 r^4), r in mm
                                    on the sensor), field of view, sensor width, height */
+    SC_EQUIANGULAR_CUBEMAP_FACE = 7, /* one 90-degree face: u, v linear in atan2(x, z), atan2(-y, z) */
+    SC_CENTRAL_CYLINDRICAL = 8, /* params: longitude min, max (radians), height min, max on a
+                                   cylinder of radius 1 (-y / |(x, z)|) */
     SC_MODEL_COUNT
 } sc_model;
 enum { SC_MODEL_PARAMS = 10 };

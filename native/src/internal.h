@@ -51,9 +51,11 @@ sc_status sc_project_panorama(const sc_gaussians *g, const sc_camera *cam, const
                               int cull, sc_projection *out, sc_stats *stats);
 
 /* Whether the camera's panorama repeats across its left and right edges (a full 360 degrees of
- * equirectangular longitude), so that Gaussians on the seam are drawn on both sides. */
+ * equirectangular or central cylindrical longitude, params[0..1]), so that Gaussians on the seam
+ * are drawn on both sides. */
 static inline int sc_wraps(const sc_camera *cam) {
-    return cam->model == SC_EQUIRECTANGULAR && cam->params[1] - cam->params[0] >= 6.283185307179586 - 1e-6;
+    return (cam->model == SC_EQUIRECTANGULAR || cam->model == SC_CENTRAL_CYLINDRICAL) &&
+           cam->params[1] - cam->params[0] >= 6.283185307179586 - 1e-6;
 }
 
 /* The deepest depth drawn (the camera's far plane, else the largest float). */

@@ -1,12 +1,13 @@
-/* Projection through panoramic cameras (equirectangular, fisheye equidistant and equisolid,
- * mirror ball): Cycles' mappings from a camera-space direction to its normalised image (u, v),
+/* Projection through panoramic cameras (equirectangular, fisheye equidistant, equisolid and lens
+ * polynomial, mirror ball, equiangular cubemap face, central cylindrical): Cycles' mappings from a camera-space direction to its normalised image (u, v),
  * written in this library's camera frame (x right, y down, z forward; docs/conventions.md,
  * "Cameras beyond the pinhole"). Each Gaussian is drawn with the local Jacobian of the mapping
  * at its mean, EWA on the sphere: Sigma2 = J W Sigma W^T J^T + 0.3 I, exact to first order about
  * the mean, as the pinhole's EWA is. Depth is the distance |p| from the camera centre (what
  * Cycles' Depth pass holds for panoramas), so Gaussians are sorted and composed by distance.
  *
- * The equirectangular seam: with a full 360 degrees of longitude the image repeats with period
+ * The seam (equirectangular and central cylindrical): with a full 360 degrees of longitude the
+ * image repeats with period
  * P = 2 pi fx / (longitude range) pixels, and a Gaussian whose footprint crosses the left or right
  * edge also gets a copy one period over (row N + i of the projection), so it is drawn on both
  * sides, not cut. Its footprint is at most P/2 wide each side, so no pixel sees both. A Gaussian
@@ -89,6 +90,30 @@ static int map_point(const sc_camera *cam, const double p[3], double uv[2], doub
         if (h2 == 0.0) jac[0][0] = jac[0][2] = INFINITY;
         const double hs = h > 0.0 ? h : 1e-300, s = dv * y / (hs * r2);
         jac[1][0] = s * x, jac[1][1] = -dv * h / r2, jac[1][2] = s * z;
+        return 1;
+    }
+    if (cam->model == SC_CENTRAL_CYLINDRICAL) {
+        /* u: the longitude, as above; v: the height -y / |(x, z)| on the unit cylinder. Straight
+         * up or down is infinitely far along it: not drawn. */
+        const double h2 = x * x + z * z, h = sqrt(h2);
+        if (!(h2 > 0.0)) return 0;
+        const double du = 1.0 / (k[1] - k[0]), dv = 1.0 / (k[3] - k[2]), inv_h2 = 1.0 / h2;
+        uv[0] = (atan2(x, z) - k[0]) * du;
+        uv[1] = (-y / h - k[2]) * dv;
+        const double s = dv * y * inv_h2 / h;
+        jac[0][0] = du * z * inv_h2, jac[0][1] = 0.0, jac[0][2] = -du * x * inv_h2;
+        jac[1][0] = s * x, jac[1][1] = -dv / h, jac[1][2] = s * z;
+        return 1;
+    }
+    if (cam->model == SC_EQUIANGULAR_CUBEMAP_FACE) {
+        /* The face ahead, 90 degrees each way: u = 1/2 + atan2(x, z) 2/pi, v = 1/2 +
+         * atan2(-y, z) 2/pi. Behind (z <= 0) atan2 jumps and the face shows nothing. */
+        if (!(z > 0.0)) return 0;
+        const double s = 2.0 / PI, qx = s / (x * x + z * z), qy = s / (y * y + z * z);
+        uv[0] = 0.5 + s * atan2(x, z);
+        uv[1] = 0.5 + s * atan2(-y, z);
+        jac[0][0] = qx * z, jac[0][1] = 0.0, jac[0][2] = -qx * x;
+        jac[1][0] = 0.0, jac[1][1] = -qy * z, jac[1][2] = qy * y;
         return 1;
     }
     const double rho2 = x * x + y * y, rho = sqrt(rho2), r2 = rho2 + z * z;

@@ -34,7 +34,12 @@ PANORAMAS = {
     "fisheye_polynomial": ("FISHEYE_LENS_POLYNOMIAL",  # Blender's default coefficients
                            (-1.1735e-05, -0.019989, -3.3525e-06, 3.0993e-06, -2.6065e-08,
                             math.radians(36), 36.0, 27.0)),  # an image circle in the frame
+    "cubemap_face": ("EQUIANGULAR_CUBEMAP_FACE", ()),
+    "central_cylindrical": ("CENTRAL_CYLINDRICAL", (-math.pi, math.pi, -1.0, 1.0)),
+    "central_cylindrical_range": ("CENTRAL_CYLINDRICAL", (-1.3, 1.9, -0.6, 1.4)),
 }
+WRAPPING = {"EQUIRECTANGULAR": EQUIRECT_FULL, "CENTRAL_CYLINDRICAL": PANORAMAS[
+    "central_cylindrical"][1]}  # the panoramas with a seam (360 degrees of longitude)
 
 
 def _size(rng):
@@ -182,11 +187,12 @@ def test_panorama_render_matches_reference(rng, kind, layers):
     assert_images_match(got, want)
 
 
-def test_equirectangular_seam_and_poles_match_reference(rng):
+@pytest.mark.parametrize("model", list(WRAPPING))
+def test_seam_and_poles_match_reference(rng, model):
     # Large Gaussians all around the camera: many straddle the seam, some cover a pole (bands).
     gaussians = random_gaussians(rng, 300, 1, radius=3.0)
     gaussians.log_scales += np.float32(0.8)
-    camera = panorama_camera(rng, 96, 48, "EQUIRECTANGULAR", EQUIRECT_FULL)
+    camera = panorama_camera(rng, 96, 48, model, WRAPPING[model])
     want_proj = ref.project_scene(gaussians, camera)
     copies = want_proj["copies"]
     reach = copies["valid"] & ((copies["xy"][:, 0] < 0) | (copies["xy"][:, 0] > 96))
@@ -205,11 +211,12 @@ def _yawed(camera: Camera, angle: float) -> Camera:
     return dataclasses.replace(camera, world_to_camera=turn @ camera.world_to_camera)
 
 
-def test_equirectangular_is_continuous_across_the_seam(rng):
+@pytest.mark.parametrize("model", list(WRAPPING))
+def test_panorama_is_continuous_across_the_seam(rng, model):
     # Turning a 360-degree camera by 180 degrees rolls its image by half: Gaussians on the seam
     # in one image are in the middle of the other, so the seam draws them whole.
     gaussians = random_gaussians(rng, 300, 1, radius=3.0)
-    camera = panorama_camera(rng, 128, 64, "EQUIRECTANGULAR", EQUIRECT_FULL)
+    camera = panorama_camera(rng, 128, 64, model, WRAPPING[model])
     camera = dataclasses.replace(camera, cx=0.0, cy=64.0)  # no shift: whole-pixel roll
     a = api.render(gaussians, camera).alpha
     b = api.render(gaussians, _yawed(camera, math.pi)).alpha

@@ -65,7 +65,8 @@ MODELS = [("EQUIRECTANGULAR", FULL), ("EQUIRECTANGULAR", (-1.0, 2.0, -0.5, 1.0))
           ("FISHEYE_EQUIDISTANT", (math.radians(200),)),
           ("FISHEYE_EQUISOLID", (10.5, math.pi, 36.0, 24.0)), ("MIRRORBALL", ()),
           ("FISHEYE_LENS_POLYNOMIAL", (-1.1735e-05, -0.019989, -3.3525e-06, 3.0993e-06,
-                                       -2.6065e-08, math.radians(120), 36.0, 24.0))]
+                                       -2.6065e-08, math.radians(120), 36.0, 24.0)),
+          ("EQUIANGULAR_CUBEMAP_FACE", ()), ("CENTRAL_CYLINDRICAL", (-2.0, 2.5, -0.5, 1.5))]
 
 
 @pytest.mark.parametrize("model, params", MODELS)
@@ -83,6 +84,17 @@ def test_panoramas_put_ahead_right_and_up_where_blender_does(model, params):
                                    rtol=1e-9)
         np.testing.assert_allclose(up[1] - ahead[1], math.atan(0.3) / (lat_max - lat_min),
                                    rtol=1e-9)
+    elif model == "CENTRAL_CYLINDRICAL":  # u: the longitude; v: the height on the unit cylinder
+        lon_min, lon_max, h_min, h_max = params
+        np.testing.assert_allclose(ahead, [-lon_min / (lon_max - lon_min),
+                                           -h_min / (h_max - h_min)], atol=1e-12)
+        np.testing.assert_allclose(right - ahead, [math.atan(0.3) / (lon_max - lon_min), 0],
+                                   rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(up - ahead, [0, 0.3 / (h_max - h_min)], rtol=1e-9, atol=1e-12)
+    elif model == "EQUIANGULAR_CUBEMAP_FACE":  # equal angles, equal steps: 90 degrees across
+        np.testing.assert_allclose(ahead, [0.5, 0.5], atol=1e-12)
+        np.testing.assert_allclose(right, [0.5 + math.atan(0.3) / (math.pi / 2), 0.5], rtol=1e-9)
+        np.testing.assert_allclose(up, [0.5, 0.5 + math.atan(0.3) / (math.pi / 2)], rtol=1e-9)
     else:
         np.testing.assert_allclose(ahead, [0.5, 0.5], atol=1e-12)
         assert right[0] > 0.5 and abs(right[1] - 0.5) < 1e-12
@@ -106,6 +118,22 @@ def test_equirectangular_directions_of_the_full_sphere():
     assert min(abs(uv[0, 0]), abs(uv[0, 0] - 1)) < 1e-12
     np.testing.assert_allclose([uv[1, 1], uv[2, 1]], [1.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(uv[3], [0.25, 0.5], atol=1e-12)
+
+
+def test_cubemap_face_and_cylinder_edges():
+    # The face's corners are 45 degrees off its axis each way; it shows the half ahead only.
+    uv, shows = ref._cycles_uv(np.array([[1.0, -1.0, 1.0], [-1.0, 1.0, 1.0], [0.0, 0.0, -1.0],
+                                         [1.0, 0.0, -1e-3]]), "EQUIANGULAR_CUBEMAP_FACE", ())
+    np.testing.assert_allclose(uv[:2], [[1.0, 1.0], [0.0, 0.0]], atol=1e-12)
+    assert shows[:2].all() and not shows[2:].any()
+    # The cylinder: straight up/down are not shown (infinitely high); behind is its seam; a
+    # direction 45 degrees up is at height 1.
+    full = (-math.pi, math.pi, -1.0, 1.0)
+    uv, shows = ref._cycles_uv(np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 1.0],
+                                         [-1.0, 1.0, 0.0]]), "CENTRAL_CYLINDRICAL", full)
+    assert not shows[0] and shows[1:].all()
+    assert min(abs(uv[1, 0]), abs(uv[1, 0] - 1)) < 1e-12
+    np.testing.assert_allclose(uv[2:], [[0.5, 1.0], [0.25, 0.0]], atol=1e-12)
 
 
 def test_fisheyes_show_nothing_beyond_their_field_of_view():
