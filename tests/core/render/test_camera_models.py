@@ -406,7 +406,12 @@ def test_depth_of_field_matches_reference(rng, model, antialiased):
     assert_projection_close(got, want, gaussians, camera)
     sharp = api.project(gaussians, dataclasses.replace(camera, aperture=0.0), near=near,
                         antialiased=antialiased)
-    assert (got.conic[got.valid, 0] < 0.99 * sharp.conic[got.valid, 0]).mean() > 0.3  # blurred
+    # Blurred: a Gaussian widened by a Gaussian has a smaller inverse covariance (Loewner order),
+    # so no diagonal entry of the conic grows, and a visible share shrinks by 1 % or more (the
+    # smallest share over 300 seeds of this scene was 0.10; with no blur it is 0).
+    both = got.valid & sharp.valid
+    assert np.all(got.conic[both, 0] <= sharp.conic[both, 0] * (1 + 1e-5))
+    assert (got.conic[both, 0] < 0.99 * sharp.conic[both, 0]).mean() > 0.05
     image = api.render(gaussians, camera, antialiased=antialiased, near=near)
     assert_images_match(image, ref.render_scene(gaussians, camera, antialiased=antialiased,
                                                 near=near))
