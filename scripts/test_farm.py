@@ -123,9 +123,12 @@ class Results:
         self.lines: list[str] = []
         self.failed = False
 
-    def add(self, job: str, ok: bool, frames: str, worst: str, injected: str, detail: str = ""):
-        self.failed |= not ok
-        self.lines.append(f"{job:<14} {'ok' if ok else 'FAIL':<4}  frames {frames:<5}  "
+    def add(self, job: str, ok: bool | None, frames: str, worst: str, injected: str,
+            detail: str = ""):
+        """One job's line; `ok` None: not run (says "skip", neither passed nor failed)."""
+        self.failed |= ok is False
+        status = "skip" if ok is None else "ok" if ok else "FAIL"
+        self.lines.append(f"{job:<14} {status:<4}  frames {frames:<5}  "
                           f"worst {worst:<7}  injected {injected}"
                           + (f"  ({detail})" if detail else ""))
 
@@ -276,7 +279,7 @@ def main() -> int:
                        r"splatcore")
     finally:
         farm.stop()
-    results.add("5.3 splats", True, "-", "-", "-", "skipped: no real Blender 5.3 binary "
+    results.add("5.3 splats", None, "-", "-", "-", "no real Blender 5.3 binary "
                 "(only the bpy 5.3 module); Flamenco runs the blender executable")
 
     print()
