@@ -262,7 +262,7 @@ def test_render_is_invariant_when_object_and_camera_move_together(rng, antialias
     errors = compare_renders(before, after, depth_scale=scale)
     record_property("invariance_errors", errors)
     print("blender invariance errors", errors)
-    assert errors["depth_rel"] <= 1e-4
+    assert errors["depth_rel"] <= 1e-5
     # and the SH rotation is what makes it hold: without it the colours differ
     depsgraph = bpy.context.evaluated_depsgraph_get()
     world = gather.gather(depsgraph).gaussians

@@ -182,7 +182,7 @@ def test_render_invariance_under_similarity(rng, antialiased, record_property):
     errors = compare_renders(a, b, depth_scale=s)
     record_property("invariance_errors", errors)
     print("invariance errors", errors)
-    assert errors["depth_rel"] <= 1e-4
+    assert errors["depth_rel"] <= 1e-5
 
 
 # ---------------------------------------------------------------------------------- cleanup
