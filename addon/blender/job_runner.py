@@ -35,6 +35,7 @@ message (headless, Blender prints reports) and makes the object active.
 
 from __future__ import annotations
 
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
@@ -48,6 +49,10 @@ from .registration import register_classes, unregister_classes
 
 TIMER_STEP = 0.25  # seconds between polls of a background job
 STAGE_BUDGET = 0.1  # seconds of main-thread work per poll for a StagedJob
+# Seconds between two updates of a job's object on screen, whatever its step interval: each
+# update redraws the 3D view several times (Workbench's anti-aliasing samples), ~0.1-0.2 s a time
+# in software OpenGL (Blender 4.3 under Xvfb), and a UI busy redrawing answers late.
+SHOW_INTERVAL = 3.0
 
 
 @dataclass
@@ -63,6 +68,7 @@ class OperatorJob:
     target: Callable[[], object] = lambda: None  # the object snapshots go into (or None)
     progress: Progress = field(default_factory=Progress)
     pending: tuple[int, Gaussians] | None = None
+    shown_at: float = float("-inf")  # time.monotonic() of the last snapshot shown
 
 
 RUNNING: dict[str, OperatorJob] = {}
@@ -258,7 +264,11 @@ class JobOperator:
         if not _can_write(context, running.target()):
             running.pending = snapshot
             return
+        if time.monotonic() - running.shown_at < SHOW_INTERVAL:
+            running.pending = snapshot
+            return
         running.apply(*snapshot)
+        running.shown_at = time.monotonic()
 
     def modal(self, context, event):
         running = RUNNING.get(self._key)
@@ -285,7 +295,9 @@ class JobOperator:
             self.report({"ERROR"}, f"{running.title}: {error}")
             return {"CANCELLED"}
         ensure_status_draw()
-        _tag_redraw()
+        # The status bar only: a 3D view redraw costs far more (~190 ms a time in Blender 4.3's
+        # software OpenGL under Xvfb), and the view redraws by itself when `_show` changes it.
+        _tag_redraw(("STATUSBAR",))
         return {"PASS_THROUGH"}
 
     def _end(self, context, running: OperatorJob) -> set:

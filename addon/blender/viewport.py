@@ -391,6 +391,11 @@ def viewport_splats(depsgraph, scene) -> tuple[Gaussians, dict] | None:
     return gaussians, options
 
 
+def _same_view(key: tuple, previous: tuple) -> bool:
+    """Whether two draw keys (see `draw_view`) differ only in the splats or render options."""
+    return bool(previous) and key[:4] == previous[:4] and key[-1] == previous[-1]
+
+
 def _draw() -> None:
     draw_view(bpy.context)
 
@@ -421,6 +426,10 @@ def draw_view(context) -> None:
         pixels = region.width * region.height
         coarse_scale = min(1.0, float(np.sqrt(settings.viewport_coarse_pixels / max(pixels, 1))))
         full_scale = settings.viewport_resolution
+        if _same_view(key, state.key):
+            # Only the splats changed (training's updates, an edit): the last image stays up
+            # until the full one is ready; a coarse one between would flicker and cost a redraw.
+            coarse_scale = full_scale
         state.key, state.changed_at, state.full_requested = key, time.monotonic(), False
         state.job = _Job(region_id, key, gaussians,
                          camera_from_view(view, window, region.width, region.height, full_scale),

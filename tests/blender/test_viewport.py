@@ -242,6 +242,16 @@ def test_draw_handler_is_progressive(rng):
             pixels = np.array(framebuffer.read_color(0, 0, width, height, 4, 0, "UBYTE").to_list())
         expected = np.round(np.clip(full.rgba, 0, 1) * 255)
         assert np.abs(pixels - expected)[full.rgba[..., 3] > 1 / 255].max() <= 2
+        # The splats change, the view does not (training's updates): straight to full
+        # resolution, the last image drawn meanwhile, no coarse one between.
+        splat_object.replace_gaussians(bpy.data.objects["Splats"],
+                                       random_gaussians(rng, 300, 1, radius=1.0))
+        with offscreen.bind():
+            viewport.draw_view(context)
+            assert viewport.renderer.wait(30)
+        update = viewport.renderer.result(4242)
+        assert not update.coarse and update.rgba.shape[:2] == (height, width)
+        assert not np.array_equal(update.rgba, full.rgba)
         scene.splat_render.viewport = False       # the scene switch: nothing drawn
         viewport.draw_view(context)
     finally:

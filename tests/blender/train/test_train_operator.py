@@ -250,7 +250,8 @@ def _event(kind: str, value: str = "NOTHING"):
     return SimpleNamespace(type=kind, value=value)
 
 
-def test_modal_handler_updates_the_object_and_stops_on_esc(demo) -> None:
+def test_modal_handler_updates_the_object_and_stops_on_esc(demo, monkeypatch) -> None:
+    monkeypatch.setattr(job_runner, "SHOW_INTERVAL", 0.5)  # updates at least this far apart
     request = train_request(demo.collection, TrainConfig(steps=5000, max_gaussians=20_000,
                                                          sh_degree=1, threads=2),
                             downscale=4.0, checkpoint=str(demo.checkpoint), update_every=20,
@@ -260,16 +261,18 @@ def test_modal_handler_updates_the_object_and_stops_on_esc(demo) -> None:
     harness = _Harness(running.key)
     running.job.start()
     deadline = time.monotonic() + 30
-    updates = []
+    updates, times = [], []
     while time.monotonic() < deadline:  # the timer ticks until the object has formed twice
         assert harness.modal(bpy.context, _event("TIMER")) == {"PASS_THROUGH"}
         obj = running.target()
         if obj is not None and (not updates or obj["splat_trained_steps"] != updates[-1]):
             updates.append(obj["splat_trained_steps"])
+            times.append(time.monotonic())
         if len(updates) >= 2:
             break
         time.sleep(0.02)
     assert len(updates) >= 2 and all(u % 20 == 0 for u in updates)
+    assert times[1] - times[0] >= 0.5  # SHOW_INTERVAL apart, however often snapshots come
     assert harness.modal(bpy.context, _event("MOUSEMOVE")) == {"PASS_THROUGH"}
     assert harness.modal(bpy.context, _event("ESC", "PRESS")) == {"RUNNING_MODAL"}
     result = None

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# How late a 10 ms timer on Blender's main thread runs while Train Gaussians runs from the UI, in
+# a real Blender under Xvfb (tests/real_blender/ui_latency.py): the demo scene at 480x360, the
+# defaults, SECONDS idle then SECONDS training. A benchmark that prints a table, never a test.
+# Needs the real-Blender roots (../shared/real-blender) and builds the linux-x64 zip.
+#
+#   examples/bench_ui_latency_blender.sh [SUITE] [SECONDS]     (SUITE: trixie = Blender 4.3, sid = 5.2)
+set -uo pipefail
+cd "$(dirname "$0")/.."
+SUITE=${1:-trixie}; SECONDS_EACH=${2:-30}
+RB=${REAL_BLENDER_SCRIPTS:-$(cd ../shared/real-blender 2>/dev/null && pwd)}
+[ -n "$RB" ] && [ -x "$RB/run.sh" ] || { echo "bench_ui_latency_blender: no ../shared/real-blender" >&2; exit 1; }
+PY=.venv/bin/python
+$PY scripts/build_extension.py --platform linux-x64 > /dev/null || exit 1
+zip=$(ls -t dist/gaussian_splatting-*-linux_x64.zip | head -1)
+"$RB/setup.sh" "$SUITE" > /dev/null || exit 1
+root=$("$RB/root.sh" "$SUITE")
+io=$root/io/splat-ui-latency; t=/io/splat-ui-latency
+rm -rf "$io" && mkdir -p "$io/user"
+cp "$zip" "$io/extension.zip"
+cp -r examples/demo_colmap "$io/colmap"
+cp tests/real_blender/ui_latency.py tests/real_blender/ui_kit.py "$io/"
+blender() { "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user blender "$@"; }
+blender --command extension install-file -r user_default -e $t/extension.zip > "$io/install.log" 2>&1 \
+    || { echo "bench_ui_latency_blender: install failed (see $io/install.log)"; exit 1; }
+blender -b --python-expr "import bpy; bpy.ops.wm.read_homefile(); \
+bpy.ops.wm.save_as_mainfile(filepath='$t/start.blend')" > "$io/start.log" 2>&1
+timeout $((4 * SECONDS_EACH + 300)) "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user sh -c \
+    "xvfb-run -a -s '-screen 0 1600x900x24' blender $t/start.blend \
+     --python $t/ui_latency.py -- $t/colmap $t/latency.json $SECONDS_EACH > $t/ui.log 2>&1"
+[ -f "$io/latency.json" ] || { echo "bench_ui_latency_blender: no result (see $io/ui.log)"; exit 1; }
+$PY - "$io/latency.json" "$SUITE" <<'PYEOF'
+import json, sys
+import numpy as np
+r = json.load(open(sys.argv[1]))
+if r["errors"]:
+    sys.exit("bench_ui_latency_blender: " + r["errors"][0])
+print(f"Blender {'.'.join(map(str, r['version']))} ({sys.argv[2]}) under Xvfb, a {r['period_ms']:.0f} ms timer"
+      f" on the main thread")
+print("| phase | ticks | median ms late | p95 | max | 3D view draws | training steps |")
+print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+for name, p in r["phases"].items():
+    late = np.array(p["late_ms"])
+    steps = p.get("steps", "")
+    print(f"| {name} | {len(late)} | {np.median(late):.1f} | {np.percentile(late, 95):.1f} | "
+          f"{late.max():.1f} | {p['draws']} | {steps if steps is not None else p.get('note')} |")
+PYEOF

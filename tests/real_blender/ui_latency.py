@@ -1,0 +1,160 @@
+"""Runs inside a real Blender's UI (under Xvfb): how late a 10 ms timer on Blender's main thread
+runs while Train Gaussians runs as a user starts it (in the background: the modal timer, the
+status bar, the splat object updated as it trains and drawn by the add-on's viewport).
+
+    blender START.blend --python ui_latency.py -- COLMAP_DIR OUT.json [SECONDS]
+
+Phases of SECONDS each, in order: nothing running (Blender's own lateness); the 3D view
+redrawn every 0.25 s (what one redraw costs here); Train Gaussians with its defaults; the same
+with the add-on's viewport drawing off; then training again with no updates of the object
+(`Update Every` 0). OUT.json holds each phase's lateness in ms (every tick), the 3D view draws
+counted (the add-on's draw handler) and the training steps done. A benchmark, never a test:
+examples/bench_ui_latency_blender.sh runs it and prints the table.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+import bpy
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # ui_kit, copied beside this
+import ui_kit  # noqa: E402
+
+args = sys.argv[sys.argv.index("--") + 1:]
+COLMAP, OUT = args[0], args[1]
+SECONDS = float(args[2]) if len(args) > 2 else 30.0
+PERIOD = 0.01
+record: dict = {"version": list(bpy.app.version), "period_ms": PERIOD * 1000, "phases": {},
+                "errors": []}
+draws = [0]
+
+
+def addon_module(name: str):
+    return sys.modules[next(m for m in sys.modules if m.endswith(".blender." + name))]
+
+
+def override():
+    window, area, region = ui_kit.view3d(bpy)
+    return bpy.context.temp_override(window=window, area=area, region=region)
+
+
+class Ticker:
+    """A 10 ms timer that records how much later than asked each call came."""
+
+    def __init__(self) -> None:
+        self.late: list[float] | None = None
+        self.last = 0.0
+        bpy.app.timers.register(self.tick, first_interval=PERIOD, persistent=True)
+
+    def tick(self) -> float:
+        now = time.perf_counter()
+        if self.late is not None:
+            self.late.append((now - self.last - PERIOD) * 1000.0)
+        self.last = now
+        return PERIOD
+
+    def measure(self, name: str, extra=None):
+        """A step: record SECONDS of lateness (and 3D view draws) under `name`."""
+        state = {"end": None}
+
+        def step():
+            if state["end"] is None:
+                state["end"] = time.perf_counter() + SECONDS
+                self.late, draws[0] = [], 0
+                return 0.5
+            if time.perf_counter() < state["end"]:
+                return 0.5
+            record["phases"][name] = {"late_ms": self.late, "draws": draws[0],
+                                      **(extra() if extra else {})}
+            self.late = None
+            return None
+        return step
+
+
+ticker = Ticker()
+
+
+def count_draws():
+    """Count the add-on's draw handler calls: one per redraw of the 3D view."""
+    viewport = addon_module("viewport")
+    draw_view = viewport.draw_view
+
+    def counted(context):
+        draws[0] += 1
+        return draw_view(context)
+    viewport.draw_view = counted  # the handler looks the function up at each call
+
+
+def import_scene():
+    with override():
+        result = bpy.ops.splat.import_colmap(directory=COLMAP)
+    if "FINISHED" not in result:
+        raise RuntimeError(f"import_colmap: {result}")
+
+
+def start_training(**settings):
+    def step():
+        with override():
+            # What the dialog's Train button runs, in the background (interactive).
+            result = bpy.ops.splat.train("EXEC_DEFAULT", interactive=True, **settings)
+        if "RUNNING_MODAL" not in result:
+            raise RuntimeError(f"train: {result}")
+    return step
+
+
+def training_steps() -> dict:
+    job = next(iter(addon_module("job_runner").RUNNING.values()), None)
+    if job is None:
+        return {"steps": None, "note": "training was not running at the end"}
+    return {"steps": job.progress.step, "gaussians": job.progress.gaussians}
+
+
+def stop_training():
+    with override():
+        bpy.ops.splat.train_stop()
+
+
+def wait_until_stopped():
+    return 0.5 if addon_module("job_runner").RUNNING else None
+
+
+def redraws(on: bool):
+    """A step: tag the 3D view for redraw every 0.25 s, or stop doing so."""
+    def tick():
+        for window in bpy.context.window_manager.windows:
+            for area in window.screen.areas:
+                if area.type == "VIEW_3D":
+                    area.tag_redraw()
+        return 0.25 if record.get("redrawing") else None
+
+    def step():
+        record["redrawing"] = on
+        if on:
+            bpy.app.timers.register(tick)
+    return step
+
+
+def viewport(on: bool):
+    def step():
+        bpy.context.scene.splat_render.viewport = on
+    return step
+
+
+def finish():
+    with open(OUT + ".tmp", "w") as f:
+        json.dump(record, f)
+    os.replace(OUT + ".tmp", OUT)
+
+
+ui_kit.run_steps(bpy, [
+    count_draws, import_scene, ticker.measure("idle"),
+    redraws(True), ticker.measure("3D view redrawn every 0.25 s"), redraws(False),
+    start_training(), ticker.measure("training", training_steps),
+    viewport(False), ticker.measure("training, splats not in the viewport", training_steps),
+    stop_training, wait_until_stopped, viewport(True),
+    start_training(update_every=0), ticker.measure("training, no object updates", training_steps),
+    stop_training, wait_until_stopped], finish, record["errors"])
