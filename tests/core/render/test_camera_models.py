@@ -201,7 +201,9 @@ def test_seam_and_poles_match_reference(rng, model):
     assert band.sum() >= 1
     got = api.render(gaussians, camera)
     want = ref.render_scene(gaussians, camera)
-    assert_images_match(got, want)
+    # Gaussians this large put a whole contour (a band's row) at a threshold more often: over
+    # 300 scenes the ambiguous pixels were 0.22 % median, 0.52 % at p99, 2.3 % at worst.
+    assert_images_match(got, want, max_ambiguous=0.05)
 
 
 def _yawed(camera: Camera, angle: float) -> Camera:
