@@ -391,7 +391,8 @@ class TrainingSettings:
                          description="Worker threads for the kernels (0: every core)")
     update_every: IntProperty(name="Update Every", default=200, min=0, soft_max=2000,
                               description="Steps between updates of the splat object while "
-                                          "training in the background (0: only at the end)")
+                                          "training in the background, at most one every 3 s "
+                                          "(0: only at the end)")
 
 
 class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
