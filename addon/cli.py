@@ -184,7 +184,7 @@ def _train(args: argparse.Namespace) -> None:
     if collection is None:
         raise CommandError(f"{source}: no single COLMAP scene to train (name it with "
                            f"--collection)")
-    options = _options(args, ("steps", "max_gaussians", "strategy", "sh_degree", "downscale",
+    options = _options(args, ("steps", "max_gaussians", "strategy", "sh_degree", "downscale", "max_width",
                               "seed", "threads", "antialiased", "compact", "resume",
                               "checkpoint"))
     if args.image_folder is not None and source.suffix.lower() == ".blend":
@@ -338,6 +338,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "need), mcmc (to the ceiling), default (the reference's)")
     p.add_argument("--sh-degree", type=int, choices=range(4), help="SH bands to train")
     p.add_argument("--downscale", type=float, help="divide the photos' size by this")
+    p.add_argument("--max-width", type=int, help="photos wider than this train at this width "
+                   "(default 1600, as the reference 3DGS code; 0: full size)")
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="0: every core")
     p.add_argument("--antialiased", action="store_true", default=None,

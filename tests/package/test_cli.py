@@ -83,7 +83,8 @@ def test_import_train_render_and_mesh_from_the_venv(tmp_path):
     assert "Importing COLMAP: reading" in result.stdout  # a line per stage, headless
 
     trained = tmp_path / "trained.blend"
-    result = run("train", str(scene), "--out", str(trained), "--steps", "20", "--downscale", "4",
+    # --max-width 120: the 480x360 photos at 120x90, as --downscale 4 makes them for the resume
+    result = run("train", str(scene), "--out", str(trained), "--steps", "20", "--max-width", "120",
                  "--max-gaussians", "2000", "--checkpoint", str(tmp_path / "state.npz"))
     assert result.returncode == 0 and trained.is_file(), result.stderr
     assert "Training 20/20 (100 %)" in result.stdout

@@ -58,7 +58,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 
 from ...core.train import colmap_source as colmap_training
 from ...core.train.colmap_source import ColmapSource, TrainRequest
-from ...core.train.dataset import NO_CAMERA, Points
+from ...core.train.dataset import MAX_WIDTH, NO_CAMERA, Points
 from ...core.gaussians import Gaussians
 from ...core.jobs import Progress, TrainingJob, compaction_note
 from ...core.train.trainer import TrainConfig
@@ -210,7 +210,7 @@ def write_splats(collection_name: str, gaussians: Gaussians, *, antialiased: boo
 def train_request(collection, config: TrainConfig | None = None, *, image_folder: str = "",
                   downscale: float = 1.0, test_every: int = 8, checkpoint: str | Path = "",
                   resume: bool = False, checkpoint_every: int = 1000, update_every: int = 200,
-                  compact: bool = True) -> TrainRequest:
+                  compact: bool = True, max_width: int = MAX_WIDTH) -> TrainRequest:
     """Read the collection and check the inputs on the main thread; raises ValueError /
     FileNotFoundError, or MissingModule (an ImportError) for a module training needs."""
     for module in MODULES:
@@ -219,7 +219,7 @@ def train_request(collection, config: TrainConfig | None = None, *, image_folder
     return colmap_training.train_request(
         source_of(collection), path, config, resume=resume, image_folder=image_folder,
         downscale=downscale, test_every=test_every, checkpoint_every=checkpoint_every,
-        update_every=update_every, compact=compact)
+        update_every=update_every, compact=compact, max_width=max_width)
 
 
 class SceneBefore:
@@ -411,6 +411,10 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
         "path (empty: the import's)"))
     downscale: FloatProperty(name="Downscale", default=1.0, min=1.0, soft_max=8.0,
                              description="Divide the photos' size by this (faster, coarser)")
+    max_width: IntProperty(name="Max Width", default=MAX_WIDTH, min=0, soft_max=8000,
+                           subtype="PIXEL",
+                           description="Photos wider than this train at this width, as the "
+                                       "reference 3DGS code does (0: at their full size)")
     hold_out: IntProperty(name="Hold Out Every", default=8, min=0, soft_max=32,
                           description="Every n-th photo (by name) is a held-out test view "
                                       "(0: train on all)")
@@ -425,7 +429,7 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
                                            "user cache folder for an unsaved file)")
 
     DIALOG = ("collection", ("steps", "max_gaussians", "strategy", "sh_degree"),
-              ("image_folder", "downscale", "hold_out"),
+              ("image_folder", "downscale", "max_width", "hold_out"),
               ("update_every", "checkpoint_every", "threads", "seed"),
               "antialiased", "compact", "resume", "checkpoint")
 
@@ -460,7 +464,8 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
                              threads=self.threads, antialiased=self.antialiased)
         try:
             request = train_request(collection, config, image_folder=self.image_folder,
-                                    downscale=self.downscale, test_every=self.hold_out,
+                                    downscale=self.downscale, max_width=self.max_width,
+                                    test_every=self.hold_out,
                                     checkpoint=self.checkpoint, resume=self.resume,
                                     checkpoint_every=self.checkpoint_every,
                                     update_every=self.update_every, compact=self.compact)

@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import colmap
 from ..cameras import Camera
-from .dataset import ColmapDataset, Points, with_cameras
+from .dataset import MAX_WIDTH, ColmapDataset, Points, with_cameras
 from ..jobs import TrainingJob
 from .trainer import Trainer, TrainConfig
 
@@ -41,7 +41,7 @@ class ColmapSource:
     points: Points | None = None  # the points object in world space, if there is one
 
     def dataset(self, image_folder: str = "", *, downscale: float = 1.0, test_every: int = 8,
-                preload_threads: int = 0,
+                max_width: int = MAX_WIDTH, preload_threads: int = 0,
                 progress: Callable[[float, str], None] | None = None) -> ColmapDataset:
         """The training dataset in the Blender world (runs on the worker). `image_folder`
         overrides the import's (a name beside the model or an absolute path). Photos are decoded
@@ -52,7 +52,7 @@ class ColmapSource:
                                    cache_dir=self.cache_dir, align=False,
                                    progress=lambda f, m: report(0.3 * f, m))
         scene = with_cameras(scene.transformed(self.transform), self.cameras, self.points)
-        data = ColmapDataset(scene, downscale=downscale, test_every=test_every)
+        data = ColmapDataset(scene, downscale=downscale, test_every=test_every, max_width=max_width)
         if preload_threads >= 0:
             data.preload(preload_threads, lambda f, m: report(0.3 + 0.7 * f, m))
         report(1.0, f"{len(data)} photos ready")
@@ -87,13 +87,15 @@ class TrainRequest:
     checkpoint_every: int = 1000
     update_every: int = 200
     compact: bool = True
+    max_width: int = MAX_WIDTH
 
     def make_trainer(self, job: TrainingJob | None = None) -> Trainer:
         """Load the photos and make (or resume) the trainer; `job.loading` reports (and stops a
         cancelled job between batches of photos)."""
         threads = self.config.threads
         dataset = self.source.dataset(self.image_folder, downscale=self.downscale,
-                                      test_every=self.test_every, preload_threads=threads,
+                                      test_every=self.test_every, max_width=self.max_width,
+                                      preload_threads=threads,
                                       progress=job.loading if job is not None else None)
         if not self.resume:
             return Trainer(dataset, self.config)
@@ -112,13 +114,15 @@ class TrainRequest:
 def train_request(source: ColmapSource, checkpoint: Path, config: TrainConfig | None = None, *,
                   resume: bool = False, image_folder: str = "", downscale: float = 1.0,
                   test_every: int = 8, checkpoint_every: int = 1000, update_every: int = 200,
-                  compact: bool = True) -> TrainRequest:
+                  compact: bool = True, max_width: int = MAX_WIDTH) -> TrainRequest:
     """Check the inputs; raises ValueError / FileNotFoundError."""
     if resume and not Path(checkpoint).is_file():
         raise FileNotFoundError(f"no checkpoint to resume at {checkpoint}")
     if not downscale >= 1.0:
         raise ValueError(f"downscale must be at least 1, got {downscale}")
+    if max_width < 0:
+        raise ValueError(f"max_width must be >= 0 (0: no limit), got {max_width}")
     if not source.cameras:
         raise ValueError(f"{source.name!r} has no COLMAP camera objects left to train from")
     return TrainRequest(source, config or TrainConfig(), Path(checkpoint), resume, image_folder,
-                        downscale, test_every, checkpoint_every, update_every, compact)
+                        downscale, test_every, checkpoint_every, update_every, compact, max_width)

@@ -194,6 +194,17 @@ def test_training_takes_the_cameras_and_points_as_they_are_in_the_scene(demo) ->
     assert dataset.scene.missing[gone] == NO_CAMERA
 
 
+def test_max_width_reaches_the_dataset(demo) -> None:
+    # The operator's Max Width (the CLI's --max-width) through the request to the photos.
+    for max_width, width in ((120, 120), (0, 480), (1600, 480)):
+        request = train_request(demo.collection, TrainConfig(steps=1), max_width=max_width,
+                                checkpoint=str(demo.checkpoint))
+        dataset = request.source.dataset(max_width=request.max_width, preload_threads=-1)
+        assert {c.width for c in dataset.cameras} == {width}
+    with pytest.raises(ValueError, match="max_width"):
+        train_request(demo.collection, TrainConfig(steps=1), max_width=-5)
+
+
 def test_worker_thread_cancels_with_a_consistent_state(demo) -> None:
     request = train_request(demo.collection, TrainConfig(steps=5000, max_gaussians=20_000,
                                                          sh_degree=1, threads=2),

@@ -492,6 +492,20 @@ def test_dataset_cup_lazy_and_quick(shared_data):
         small.image(i)
     assert len(small._cache) <= 3 and small.cached_bytes <= small.max_cache_bytes
 
+    # max_width: wider photos train at that width (the reference's 1,600 leaves these alone)
+    def size(dataset):
+        c = dataset.cameras[5]
+        return c.width, c.height, c.fx, c.fy, c.cx, c.cy
+
+    half = ColmapDataset(scene, downscale=2)
+    for dataset in (ColmapDataset(scene, max_width=400), ColmapDataset(scene, downscale=1.5,
+                                                                       max_width=400)):
+        assert size(dataset) == size(half) and dataset.image(5).shape == (300, 400, 3)
+    assert size(ColmapDataset(scene, downscale=4, max_width=400)) == size(small)
+    assert size(data) == size(ColmapDataset(scene, max_width=0)) and data.cameras[5].width == 800
+    with pytest.raises(ValueError, match="max_width"):
+        ColmapDataset(scene, max_width=-1)
+
 
 def test_dataset_beer_partial_folder(shared_data, tmp_path):
     scene = read_colmap(shared_data / "beer", "images_8", cache_dir=tmp_path)
