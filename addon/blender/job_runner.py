@@ -261,10 +261,8 @@ class JobOperator:
         running.pending = None
         if snapshot is None or running.apply is None:
             return
-        if not _can_write(context, running.target()):
-            running.pending = snapshot
-            return
-        if time.monotonic() - running.shown_at < SHOW_INTERVAL:
+        if not _can_write(context, running.target()) or \
+                time.monotonic() - running.shown_at < SHOW_INTERVAL:
             running.pending = snapshot
             return
         running.apply(*snapshot)
@@ -295,8 +293,8 @@ class JobOperator:
             self.report({"ERROR"}, f"{running.title}: {error}")
             return {"CANCELLED"}
         ensure_status_draw()
-        # The status bar only: a 3D view redraw costs far more (~190 ms a time in Blender 4.3's
-        # software OpenGL under Xvfb), and the view redraws by itself when `_show` changes it.
+        # The status bar only: a 3D view redraw costs far more (see SHOW_INTERVAL), and the view
+        # redraws by itself when `_show` changes the object.
         _tag_redraw(("STATUSBAR",))
         return {"PASS_THROUGH"}
 
