@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 
 from addon.core import splat_io  # noqa: E402
 from addon.core.colmap import read_colmap  # noqa: E402
-from addon.core.train.dataset import ColmapDataset  # noqa: E402
+from addon.core.train.dataset import MAX_WIDTH, ColmapDataset  # noqa: E402
 from addon.core.train.trainer import Trainer, TrainConfig, compact, ply_bytes  # noqa: E402
 from addon.core.train.config import STRATEGY_NAMES  # noqa: E402
 
@@ -38,6 +38,8 @@ def arguments(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--colmap", required=True, help="COLMAP workspace or model folder")
     parser.add_argument("--images", default="images", help="image folder (images, images_4, ...)")
     parser.add_argument("--downscale", type=float, default=1.0, help="further downscale factor")
+    parser.add_argument("--max-width", type=int, default=MAX_WIDTH,
+                        help="photos wider than this train at this width (0: full size)")
     parser.add_argument("--steps", type=int, default=None, help="a fixed count (default: until done)")
     parser.add_argument("--stop-gain", type=float, default=TrainConfig.stop_below_db_per_minute,
                         help="without --steps: stop below this held-out gain, dB per minute "
@@ -64,7 +66,7 @@ def main(argv: list[str]) -> None:
     args = arguments(argv)
     start = time.perf_counter()
     scene = read_colmap(args.colmap, image_folder=args.images, cache_dir=args.cache_dir)
-    dataset = ColmapDataset(scene, downscale=args.downscale)
+    dataset = ColmapDataset(scene, downscale=args.downscale, max_width=args.max_width)
     dataset.preload(threads=args.threads)
     config = TrainConfig(steps=args.steps or 0, max_gaussians=args.max_gaussians,
                          strategy=args.strategy, sh_degree=args.sh_degree, seed=args.seed,
