@@ -51,6 +51,21 @@ def add_camera(name: str = "Camera", *, location=(0.0, -6.0, 0.0), rotation=(np.
     return camera
 
 
+def splats_and_cube_still(gaussians: Gaussians):
+    """A splat object, a cube in front of part of it and a 24x16 camera, rendered by Workbench
+    to PNG stills: the scene of the render-failure and helper-data tests."""
+    reset_scene()
+    scene = bpy.context.scene
+    splat_object.create_splat_object(gaussians, "Splats")
+    bpy.ops.mesh.primitive_cube_add(size=0.9, location=(0.35, -2.5, 0.15))
+    add_camera(location=(0.0, -6.0, 0.0), rotation=(np.pi / 2, 0, 0), width=24, height=16)
+    scene.render.engine = "BLENDER_WORKBENCH"
+    settings = scene.render.image_settings
+    settings.media_type = "IMAGE"
+    settings.file_format = "PNG"
+    return scene
+
+
 def camera_of(camera_obj, depsgraph) -> Camera:
     """The camera Blender renders for the evaluated camera object and the scene (perspective,
     orthographic or panoramic)."""

@@ -12,7 +12,6 @@ The same in real Blender 5.2, where a render cannot repair the bridge, is in scr
 
 from __future__ import annotations
 
-import math
 
 import bpy_support as bs
 from bpy_support import bpy  # the shared bpy import
@@ -26,18 +25,8 @@ from standard_view import read_png
 
 
 def _scene(rng):
-    bs.reset_scene()
-    for obj in list(bpy.data.objects):   # what generation scripts start with
-        bpy.data.objects.remove(obj)
-    scene = bpy.context.scene
-    splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
-    bpy.ops.mesh.primitive_cube_add(size=0.9, location=(0.35, -2.5, 0.15))
-    bs.add_camera(location=(0.0, -6.0, 0.0), rotation=(math.pi / 2, 0, 0), width=24, height=16)
-    scene.render.engine = "BLENDER_WORKBENCH"
-    settings = scene.render.image_settings
-    settings.media_type = "IMAGE"
-    settings.file_format = "PNG"
-    settings.color_mode = "RGBA"
+    scene = bs.splats_and_cube_still(random_gaussians(rng, 200, 1, radius=1.0))
+    scene.render.image_settings.color_mode = "RGBA"
     scene.render.dither_intensity = 0.0
     bridge.ensure_bridge(scene)
     return scene

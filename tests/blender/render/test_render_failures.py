@@ -8,7 +8,6 @@ that cannot be gathered, a native error while composing. The real-Blender script
 
 from __future__ import annotations
 
-import math
 import sys
 
 import bpy_support as bs
@@ -22,15 +21,7 @@ from scenes import random_gaussians
 
 
 def _scene(rng, tmp_path):
-    bs.reset_scene()
-    scene = bpy.context.scene
-    splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
-    bpy.ops.mesh.primitive_cube_add(size=0.9, location=(0.35, -2.5, 0.15))
-    bs.add_camera(location=(0.0, -6.0, 0.0), rotation=(math.pi / 2, 0, 0), width=24, height=16)
-    scene.render.engine = "BLENDER_WORKBENCH"
-    settings = scene.render.image_settings
-    settings.media_type = "IMAGE"
-    settings.file_format = "PNG"
+    scene = bs.splats_and_cube_still(random_gaussians(rng, 200, 1, radius=1.0))
     scene.render.filepath = str(tmp_path / "frame")
     return scene
 

@@ -199,8 +199,9 @@ def test_max_width_reaches_the_dataset(demo) -> None:
     for max_width, width in ((120, 120), (0, 480), (1600, 480)):
         request = train_request(demo.collection, TrainConfig(steps=1), max_width=max_width,
                                 checkpoint=str(demo.checkpoint))
-        dataset = request.source.dataset(max_width=request.max_width, preload_threads=-1)
-        assert {c.width for c in dataset.cameras} == {width}
+        trainer = request.make_trainer()  # the photos as the job loads them
+        assert {c.width for c in trainer.dataset.cameras} == {width}
+        assert trainer.dataset.image(1).shape[1] == width
     with pytest.raises(ValueError, match="max_width"):
         train_request(demo.collection, TrainConfig(steps=1), max_width=-5)
 
