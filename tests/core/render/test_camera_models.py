@@ -306,11 +306,13 @@ def cube_map_equirect(gaussians, world_to_camera, width, height, face_size):
 
 
 def _small_gaussians_all_around(rng, n, angle):
-    """`n` Gaussians 3 to 6 units from the origin in every direction, mostly below 60 degrees
-    of latitude, each about `angle` radians across (anisotropic)."""
-    direction = rng.normal(size=(n, 3))
-    direction[:, 1] *= 0.6
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    """`n` Gaussians 3 to 6 units from the origin in every direction within 60 degrees of the
+    equator (nearer the poles the equirectangular linearisation is poor; the poles have their
+    own test), each about `angle` radians across (anisotropic)."""
+    longitude = rng.uniform(-np.pi, np.pi, n)
+    latitude = np.arcsin(rng.uniform(-1.0, 1.0, n) * np.sin(np.radians(60.0)))
+    direction = np.stack([np.cos(latitude) * np.sin(longitude), -np.sin(latitude),
+                          np.cos(latitude) * np.cos(longitude)], axis=1)
     means = direction * rng.uniform(3.0, 6.0, (n, 1))
     g = random_gaussians(rng, n, 1)
     size = angle * rng.uniform(0.8, 1.2, (n, 1)) * np.linalg.norm(means, axis=1, keepdims=True)
@@ -336,8 +338,8 @@ def test_equirectangular_agrees_with_a_resampled_cube_map(rng):
     # faces up to 55 degrees off their axes), so the two agree to first order in the Gaussians'
     # angular size: halving it (and the pixels with it, so that the 0.3 px^2 dilation, which
     # differs between the images' pixels, stays as small; antialiased, so that it keeps their
-    # mass) must roughly halve the difference. Measured: 7.6-9.3 % at 2.7 degrees, 3.6-4.2 %
-    # at 1.15 (relative L1 of alpha and of colour).
+    # mass) must roughly halve the difference. Measured over 60 seeds: 8.1-13.6 % at 2.7
+    # degrees, 3.8-5.4 % at 1.15 (relative L1 of alpha and of colour), ratio at most 0.49.
     seed = int(rng.integers(1 << 31))
     errors = {}
     for angle, width in ((0.047, 512), (0.02, 1024)):
