@@ -24,7 +24,12 @@ API, with the settings its job type evaluates in the artist's Blender), and ever
   object hidden, disabled in viewports or deleted, the helper data taken away in turn
   (tests/farm/damage.py), and the add-on absent (--factory-startup): never a crash, each frame
   equal to the local one with or without splats as the case says, or a loud failure.
-- Blender 5.3's own splat point clouds: skipped, said so (no real Blender 5.3 binary here).
+- 5.3 splats: Blender 5.3's own splat point cloud (made by its PLY importer, rendered by the
+  add-on) in the `anim` scene, on a worker whose Blender is the official `bpy` 5.3.0 module
+  (`../shared/real-blender/bpy313.sh`; only the module, not the executable, runs here) behind
+  scripts/farm/bpy_blender.py, which carries out Blender's command line: each farm frame equals
+  the artist's `-a` frame (same module) and differs from it without the splats; a 5.3 worker
+  without the extension must fail its tasks with a message.
 
 Ends with one line per job and exits non-zero on a missing frame, a difference over 1/255, or an
 injected failure that was not reported. Bounded waits everywhere; every process started here is
@@ -63,14 +68,16 @@ def log(message: str) -> None:
 
 
 class Blender:
-    """The suite's real Blender through the worker wrapper, as a given user (HOME)."""
+    """The suite's real Blender through the worker wrapper, as a given user (HOME); `command`:
+    the Blender inside `root` when it is not `blender` (SPLAT_FARM_BLENDER)."""
 
-    def __init__(self, wrapper: Path, root: Path, farm: Path) -> None:
-        self.wrapper, self.root, self.farm = wrapper, root, farm
+    def __init__(self, wrapper: Path, root: Path, farm: Path, command: str = "") -> None:
+        self.wrapper, self.root, self.farm, self.command = wrapper, root, farm, command
 
     def env(self, home: Path) -> dict:
         return {"SPLAT_FARM_ROOT": str(self.root), "SPLAT_FARM_DIR": str(self.farm),
-                "SPLAT_FARM_HOME": str(home)}
+                "SPLAT_FARM_HOME": str(home),
+                **({"SPLAT_FARM_BLENDER": self.command} if self.command else {})}
 
     def run(self, home: Path, *args: str, timeout: float = 600, check: bool = True):
         home.mkdir(parents=True, exist_ok=True)
@@ -141,20 +148,23 @@ def make_inputs(farm: Path) -> dict:
     inputs.mkdir(parents=True, exist_ok=True)
     g = random_gaussians(np.random.default_rng(20261127), 400, 1, radius=1.0, stray=0.0)
     np.savez(inputs / "splats.npz", **g.arrays())
+    from addon.core.formats import ply
+    ply.save(g, inputs / "splats.ply")   # the same splats, for Blender 5.3's own PLY importer
     rng = np.random.default_rng(30)
     frames = [(n, random_gaussians(rng, 300, 1, centre=(-1.2 + 0.45 * n, 0.0, 0.0), radius=0.6,
                                    stray=0.0)) for n in FRAMES]
     seq_dir = farm / "storage" / "projects" / "sequence" / "frames"
     seq_dir.mkdir(parents=True, exist_ok=True)
     save_sequence(frames, seq_dir / "walk_####.ply")
-    return {"splats": inputs / "splats.npz", "sequence": seq_dir / "walk_####.ply"}
+    return {"splats": inputs / "splats.npz", "splats_ply": inputs / "splats.ply",
+            "sequence": seq_dir / "walk_####.ply"}
 
 
 def build_scene(blender: Blender, artist: Path, kind: str, source: Path, out: Path) -> dict:
     scripts = blender.farm / "scripts"   # inside the root too (the farm folder is bound there)
     scripts.mkdir(exist_ok=True)
     for script in ("tests/farm/farm_scene.py", "tests/real_blender/scene_kit.py",
-                   "tests/farm/damage.py"):
+                   "tests/farm/damage.py", "scripts/farm/bpy_blender.py"):
         shutil.copy2(REPO / script, scripts)
     result = blender.run(artist, "-b", "--python", str(scripts / "farm_scene.py"), "--",
                          kind, str(source), str(out))
@@ -277,10 +287,10 @@ def main() -> int:
                        r"Engine 'SPLAT_GAUSSIANS' not available")
         run_bad_worker(farm, blender, homes, "broken", anim_blend, anim_eval, storage, results,
                        r"splatcore")
+        run_splats53(farm, rb, wrapper, farm_dir, homes, inputs["splats_ply"], storage, zip_path,
+                     results, timings)
     finally:
         farm.stop()
-    results.add("5.3 splats", None, "-", "-", "-", "no real Blender 5.3 binary "
-                "(only the bpy 5.3 module); Flamenco runs the blender executable")
 
     print()
     print(f"farm test ({args.suite}), {time.monotonic() - start_time:.0f} s:")
@@ -293,6 +303,10 @@ def main() -> int:
                   f"{60 * len(FRAMES) / timings[f'local_{job}_s']:.1f}; submission to first "
                   f"frame {timings.get(f'{job}_first_frame_s', float('nan')):.1f} s"
                   + ("  (a worker killed and restarted during it)" if job == "anim" else ""))
+    if "farm_splats53_s" in timings:
+        print(f"splats53: frames per minute: farm (1 bpy {BPY53} worker) "
+              f"{60 * len(FRAMES) / timings['farm_splats53_s']:.1f}, local -a "
+              f"{60 * len(FRAMES) / timings['local_splats53_s']:.1f}")
     if args.keep or results.failed:
         print(f"the farm's files (logs in flamenco/, frames in storage/render/): {farm_dir}")
     else:
@@ -485,6 +499,61 @@ def run_missing_frame(farm, blend, evaluated, storage, results) -> None:
     results.add(name, ok, f"{len(written)}/{len(FRAMES)}", "-",
                 f"1 (frame {MISSING_FRAME} file missing: task {statuses.get(MISSING_FRAME)})",
                 f"job {record['status']}; log: {message[:110]}")
+
+
+BPY53 = "5.3.0"
+
+
+def run_splats53(farm, rb, wrapper, farm_dir, homes, ply_path, storage, zip_path, results,
+                 timings) -> None:
+    """Blender 5.3's own splats on a 5.3 worker (the official bpy module behind
+    scripts/farm/bpy_blender.py), then a 5.3 worker without the extension."""
+    name = "5.3 splats"
+    built = subprocess.run([str(rb / "bpy313.sh"), BPY53], capture_output=True, text=True)
+    if built.returncode != 0:
+        results.add(name, False, "-", "-", "-", f"bpy {BPY53} could not be set up: "
+                    f"{(built.stdout + built.stderr).strip()[-300:]}")
+        return
+    root = Path(subprocess.run([str(rb / "root.sh"), "py313"], capture_output=True, text=True,
+                               check=True).stdout.strip())
+    blender = Blender(wrapper, root, farm_dir, f"/opt/bpy-{BPY53}/bin/python "
+                      f"{farm_dir / 'scripts' / 'bpy_blender.py'}")
+    for user in ("artist53", "w53"):
+        install_extension(blender, homes / user, farm_dir / zip_path.name)
+    (homes / "noext53").mkdir(parents=True, exist_ok=True)
+    blend = storage / "projects" / "splats53" / "splats53.blend"
+    evaluated = build_scene(blender, homes / "artist53", "splats53", ply_path, blend)
+    local = farm_dir / "local"
+    t0 = time.monotonic()
+    blender.run(homes / "artist53", "-b", str(blend), "-o", str(local / "splats53" / "######"),
+                "-a")
+    timings["local_splats53_s"] = time.monotonic() - t0
+    blender.run(homes / "artist53", "-b", str(blend), "--python-expr",
+                "import bpy; [setattr(o, 'hide_render', True) for o in bpy.data.objects "
+                "if o.type == 'POINTCLOUD']", "-o", str(local / "splats53_hidden" / "######"),
+                "-a")
+    log(f"bpy {BPY53}: extension installed for artist53 and w53, scene built, local renders done")
+
+    farm.start_worker("w53", blender.env(homes / "w53"))
+    submitted = time.monotonic()
+    job = farm.api.submit("splats53", job_settings(evaluated, blend, storage / "render",
+                                                   "splats53"))
+    record, tasks = farm.wait_job(job["id"], timeout=300)
+    timings["farm_splats53_s"] = time.monotonic() - submitted
+    farm.stop_worker("w53")
+    written = frames_in(job_output(record))
+    missing, worst = compare_frames(written, frames_in(local / "splats53"), FRAMES)
+    hidden = frames_in(local / "splats53_hidden")
+    without_splats = [f for f in FRAMES if f in written and f in hidden
+                      and worst_difference(written[f], hidden[f]) <= 1]
+    ok = _render_tasks_completed(tasks) and not missing and worst <= 1 and not without_splats
+    detail = (f"bpy {BPY53} worker; render tasks {_statuses(tasks)}, "
+              f"{timings['farm_splats53_s']:.0f} s"
+              + (f"; frames {without_splats} have no splats" if without_splats else "")
+              + (f"; frames {missing} missing" if missing else ""))
+    results.add(name, ok, f"{len(written)}/{len(FRAMES)}", f"{worst}/255", "0", detail)
+    run_bad_worker(farm, blender, homes, "noext53", blend, evaluated, storage, results,
+                   r"Engine 'SPLAT_GAUSSIANS' not available")
 
 
 def run_bad_worker(farm, blender, homes, worker, blend, evaluated, storage, results,

@@ -12,13 +12,14 @@
 # `exec` all the way down: the process Flamenco starts (and signals) is Blender itself.
 set -euo pipefail
 root=${SPLAT_FARM_ROOT:?} farm=${SPLAT_FARM_DIR:?} home=${SPLAT_FARM_HOME:?}
+command=${SPLAT_FARM_BLENDER:-blender}
 exec unshare --mount --propagation private -- /bin/bash -c '
 set -e
-root=$1 farm=$2 home=$3; shift 3
+root=$1 farm=$2 home=$3 command=$4; shift 4
 mount -t proc proc "$root/proc"
 mount --rbind /dev "$root/dev"
 mount --rbind /sys "$root/sys"
 mkdir -p "$root$farm"
 mount --bind "$farm" "$root$farm"
 exec chroot "$root" /usr/bin/env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME="$home" \
-    LANG=C.UTF-8 TERM=dumb blender "$@"' blender_in_root "$root" "$farm" "$home" "$@"
+    LANG=C.UTF-8 TERM=dumb $command "$@"' blender_in_root "$root" "$farm" "$home" "$command" "$@"

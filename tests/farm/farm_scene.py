@@ -3,14 +3,17 @@ machine): builds a farm test scene and saves it where the farm reads it.
 
     blender -b --python farm_scene.py -- anim SPLATS.npz OUT.blend
     blender -b --python farm_scene.py -- sequence FRAMES_PATTERN OUT.blend
+    blender -b --python farm_scene.py -- splats53 SPLATS.ply OUT.blend     (Blender 5.3 and later)
 
 `anim`: random splats about the origin, a red cube in front, a blue plane behind, a camera that
 moves over frames 1-6 (64x48, Cycles on the CPU, emission materials). `sequence`: the same meshes
 and a still camera, and a splat sequence (one file per frame, FRAMES_PATTERN such as
 `.../frames/walk_####.ply`) stored relative to the .blend, so a worker that sees the .blend and its
-`frames/` folder in shared storage reads the same files. Both start, as generation scripts do,
-by emptying the file (`bpy.data.objects.remove` of every object). Then the settings Flamenco's
-add-on evaluates for "Simple Blender Render" are printed as one JSON line (`FARM_SETTINGS {...}`).
+`frames/` folder in shared storage reads the same files. `splats53`: the `anim` scene with the
+splats imported by Blender's own PLY importer (a point cloud of type 'GAUSSIAN_SPLAT', which the
+add-on renders). All start, as generation scripts do, by emptying the file
+(`bpy.data.objects.remove` of every object). Then the settings Flamenco's add-on evaluates for
+"Simple Blender Render" are printed as one JSON line (`FARM_SETTINGS {...}`).
 """
 
 from __future__ import annotations
@@ -61,6 +64,10 @@ def main(kind: str, source: str, out: str) -> None:
     camera = scene_kit.meshes_and_camera(bpy, scene)
     _render_settings(scene)
     os.makedirs(os.path.dirname(out), exist_ok=True)
+    if kind in ("anim", "splats53"):
+        for frame, x, z in ((1, -0.8, -0.3), (6, 0.8, 0.4)):   # the camera moves
+            camera.location = (x, -6.0, z)
+            camera.keyframe_insert("location", frame=frame)
     if kind == "anim":
         gaussians_mod = importlib.import_module(ADDON + ".core.gaussians")
         splat_object = importlib.import_module(ADDON + ".blender.splat_object")
@@ -68,9 +75,11 @@ def main(kind: str, source: str, out: str) -> None:
         g = gaussians_mod.Gaussians(data["means"], data["log_scales"], data["quats"],
                                     data["opacity_logits"], data["sh"])
         splat_object.create_splat_object(g, "Splats")
-        for frame, x, z in ((1, -0.8, -0.3), (6, 0.8, 0.4)):   # the camera moves
-            camera.location = (x, -6.0, z)
-            camera.keyframe_insert("location", frame=frame)
+    elif kind == "splats53":
+        bpy.ops.wm.ply_import(filepath=source)
+        splats = bpy.context.active_object
+        assert splats.type == "POINTCLOUD" and splats.data.type == "GAUSSIAN_SPLAT", splats
+        importlib.import_module(ADDON + ".blender.blender_splats.ownership").sync_scene(scene)
     elif kind == "sequence":
         operators = importlib.import_module(ADDON + ".blender.io.operators")
         bpy.ops.wm.save_as_mainfile(filepath=out)           # a home for the relative path
