@@ -47,11 +47,10 @@ def render_frames(bpy, first: int, last: int) -> None:
         raise RuntimeError(f"render of frames {first}..{last} {result}")
 
 
-def frame_range(text: str, scene) -> tuple[int, int]:
+def frame_range(text: str) -> tuple[int, int]:
+    """`N` or `A..B`, as Flamenco writes a task's frames."""
     first, _, last = text.partition("..")
-    def frame(value: str) -> int:
-        return scene.frame_end if value == "$" else int(value)
-    return frame(first), frame(last or first)
+    return int(first), int(last or first)
 
 
 def run(bpy, argv: list[str]) -> int:
@@ -99,7 +98,7 @@ def run(bpy, argv: list[str]) -> int:
         elif arg in ("-F", "--render-format"):
             scene.render.image_settings.file_format = value
         elif arg in ("-f", "--render-frame"):
-            render_frames(bpy, *frame_range(value, scene))
+            render_frames(bpy, *frame_range(value))
         else:
             print(f"bpy_blender: unsupported argument {arg}", file=sys.stderr)
             return 2
