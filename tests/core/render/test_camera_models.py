@@ -417,8 +417,10 @@ def test_depth_of_field_matches_reference(rng, model, antialiased):
     assert np.all(got.conic[both, 0] <= sharp.conic[both, 0] * (1 + 1e-5))
     assert (got.conic[both, 0] < 0.99 * sharp.conic[both, 0]).mean() > 0.05
     image = api.render(gaussians, camera, antialiased=antialiased, near=near)
+    # Blurred splats are wide, so more pixels sit at an alpha threshold (ambiguous in float32):
+    # over 150 seeds up to 0.9 % of an orthographic view (median 0.34 %), hence 3 %.
     assert_images_match(image, ref.render_scene(gaussians, camera, antialiased=antialiased,
-                                                near=near))
+                                                near=near), max_ambiguous=0.03)
 
 
 def test_depth_of_field_off_is_bit_for_bit_the_sharp_render(rng):
