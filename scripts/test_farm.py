@@ -323,7 +323,8 @@ DAMAGE = [("hide-render", True, "meshes"), ("hide-viewport", True, "splats"),
           ("helper-deleted", True, "fails"), ("helper-deleted, saved", True, "splats"),
           ("compositing-off", True, "splats"),
           ("nothing", False, "fails"), ("hide-render", False, "fails"), ("delete", False, "fails"),
-          ("compositing-off", False, "meshes")]   # the user turned the compositor off: no splats
+          ("compositing-off", False, "meshes"),   # a script turned the compositor off: no splats
+          ("compositing-off, saved", False, "fails")]   # saved by the add-on: compositing on
 
 
 def run_damage(blender, homes, blend, local, results) -> None:
@@ -350,7 +351,8 @@ def run_damage(blender, homes, blend, local, results) -> None:
                         str(blender.farm / "scripts" / "damage.py"), "--python-expr",
                         f"import bpy; bpy.ops.wm.save_as_mainfile(filepath={str(damaged)!r})",
                         "--", case.split(",")[0])
-            args = ["-b", "-y", str(damaged), "-o", str(out / "######"), "-f", "1"]
+            args = ["-b"] + ([] if with_addon else ["--factory-startup"]) + [
+                "-y", str(damaged), "-o", str(out / "######"), "-f", "1"]
         result = blender.run(homes / "artist", *args, check=False)
         written = frames_in(out)
         if result.returncode < 0 or result.returncode > 128:

@@ -475,18 +475,23 @@ def _on_load_post(*_args) -> None:
 
 @persistent
 def _on_save_pre(*_args) -> None:
-    """Files are saved with their bridge and without the helpers' borrowed cameras (see
-    `compositor_bridge`): a Blender without the add-on then refuses to render them. Blender up
-    to 5.0 sets the bridge up only when a render starts, so a file a script saves right after
-    adding splats gets it here (5.1+ has it from the scene's update)."""
-    if _SET_UP_AT_RENDER:
-        for scene in [s for s in bpy.data.scenes if not bridge.is_helper(s)]:
-            try:
-                if settings_of(scene).enabled and scene.render.engine != ENGINE_ID \
-                        and bridge.bridge_node(scene) is None and bridge.has_splats(scene):
-                    bridge.ensure_bridge(scene)
-            except Exception:   # never keep a file from being saved
-                traceback.print_exc()
+    """Files are saved with their bridge, with Compositing on and without the helpers' borrowed
+    cameras (see `compositor_bridge`): a Blender without the add-on then refuses to render them.
+    Blender up to 5.0 sets the bridge up only when a render starts, so a file a script saves
+    right after adding splats gets it here (5.1+ has it from the scene's update). Compositing
+    switched off by hand would let such a Blender skip the compositor, and with it the helper
+    scene's error, and write frames without splats; the add-on's own renders turn it on anyway."""
+    for scene in [s for s in bpy.data.scenes if not bridge.is_helper(s)]:
+        try:
+            if not (settings_of(scene).enabled and scene.render.engine != ENGINE_ID
+                    and bridge.has_splats(scene)):
+                continue
+            if _SET_UP_AT_RENDER and bridge.bridge_node(scene) is None:
+                bridge.ensure_bridge(scene)
+            if bridge.bridge_node(scene) is not None and not scene.render.use_compositing:
+                scene.render.use_compositing = True
+        except Exception:   # never keep a file from being saved
+            traceback.print_exc()
     bridge.detach_cameras()
 
 
