@@ -473,6 +473,9 @@ def _on_load_post(*_args) -> None:
             set_up_bridge_later(scene.name)
 
 
+_compositing_off: list[str] = []   # scenes whose Compositing is on only in the file being saved
+
+
 @persistent
 def _on_save_pre(*_args) -> None:
     """Files are saved with their bridge, with Compositing on and without the helpers' borrowed
@@ -480,7 +483,10 @@ def _on_save_pre(*_args) -> None:
     Blender up to 5.0 sets the bridge up only when a render starts, so a file a script saves
     right after adding splats gets it here (5.1+ has it from the scene's update). Compositing
     switched off by hand would let such a Blender skip the compositor, and with it the helper
-    scene's error, and write frames without splats; the add-on's own renders turn it on anyway."""
+    scene's error, and write frames without splats; it is on in the file only (save_post puts
+    the session's value back: a job that renders with it off, such as Bake to Splats, goes on
+    as it was)."""
+    _compositing_off.clear()
     for scene in [s for s in bpy.data.scenes if not bridge.is_helper(s)]:
         try:
             if not (settings_of(scene).enabled and scene.render.engine != ENGINE_ID
@@ -490,6 +496,7 @@ def _on_save_pre(*_args) -> None:
                 bridge.ensure_bridge(scene)
             if bridge.bridge_node(scene) is not None and not scene.render.use_compositing:
                 scene.render.use_compositing = True
+                _compositing_off.append(scene.name)
         except Exception:   # never keep a file from being saved
             traceback.print_exc()
     bridge.detach_cameras()
@@ -500,6 +507,10 @@ def _on_save_post(*_args) -> None:
     for scene in bpy.data.scenes:
         if bridge.is_helper(scene):
             bridge.attach_camera(scene)
+    for name in _compositing_off:
+        if name in bpy.data.scenes:
+            bpy.data.scenes[name].render.use_compositing = False
+    _compositing_off.clear()
 
 
 _HANDLERS = (

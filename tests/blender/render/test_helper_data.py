@@ -131,15 +131,16 @@ def test_files_are_saved_without_the_borrowed_camera(rng, tmp_path):
 
 
 def test_files_are_saved_with_compositing_on(rng, tmp_path):
-    """Compositing switched off by hand is saved on in a scene with splats: a Blender without the
-    add-on would otherwise skip the compositor (and the helper's "no camera" error) and write
-    frames without splats. Without splats the user's choice stands."""
+    """Compositing switched off by hand is saved on in a scene with splats (in the file only): a
+    Blender without the add-on would otherwise skip the compositor (and the helper's "no camera"
+    error) and write frames without splats. Without splats the user's choice stands."""
     scene = _scene(rng)
     scene.render.use_compositing = False
     path = str(tmp_path / "splats.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
     with bpy.data.libraries.load(path, link=True) as (source, target):
         target.scenes = [scene.name]
+    assert not scene.render.use_compositing   # on in the file only
     linked = next(s for s in bpy.data.scenes if s.library is not None and s.name == scene.name)
     assert linked.render.use_compositing
     bs.reset_scene()
