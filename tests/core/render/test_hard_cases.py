@@ -12,7 +12,7 @@ from addon.core.render import renderer as api
 from addon.core.cameras import Camera
 from addon.core.gaussians import Gaussians
 from tests import reference as ref
-from tests.checks import assert_images_match, assert_projection_matches
+from tests.checks import assert_images_match, assert_projection_matches, compare_renders
 from tests.scenes import random_camera, random_gaussians, random_scene
 
 
@@ -165,10 +165,10 @@ def test_zero_and_unnormalised_quaternions(rng):
     tiny.quats *= np.float32(1e-6)
     base = api.render(g, cam)
     for other in (scaled, tiny):
-        got = api.render(other, cam)
-        # Normalised on use: the same rotation up to the rounding of the normalisation.
-        np.testing.assert_allclose(got.rgb, base.rgb, rtol=0, atol=1e-5)
-        np.testing.assert_allclose(got.alpha, base.alpha, rtol=0, atol=1e-5)
+        # Normalised on use: the same rotation up to the rounding of the normalisation, which
+        # can flip a threshold at a few pixels (seed 1271355671: 3 of 1,920 by 0.0019; about
+        # one scene in 400), as in any two frames of one scene.
+        compare_renders(base, api.render(other, cam), atol=1e-5)
     _check(scaled, cam)
 
 
