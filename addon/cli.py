@@ -4,15 +4,16 @@
     python -m addon <verb> [options]                  this project's venv (the bpy wheel)
 
 Verbs (each has `--help`):
+    reconstruct PHOTOS|VIDEO --out FOLDER              photos or a video to a COLMAP workspace
     import-colmap FOLDER --out scene.blend             COLMAP cameras, photos and points
     train FOLDER|scene.blend --out out.ply|out.blend   train Gaussians on the CPU
     render scene.blend --out /tmp/frame_ [--frames 1-24]
     convert-to-mesh in.ply|scene.blend --out mesh.blend
     convert in.ply out.spz [--forward Z --up -Y]       splat file to splat file
 
-Every verb but `convert` runs Blender's own operators (the ones the menus run, with their
+Every verb but `convert` and `reconstruct` runs Blender's own operators (the ones the menus run, with their
 defaults: an option left out here is the operator's default), headless: long jobs print a
-line per stage and every few seconds. `convert` needs no Blender at all. Exit status: 0 done,
+line per stage and every few seconds. `convert` and `reconstruct` need no Blender at all. Exit status: 0 done,
 1 the work failed (the reason on stderr, once), 2 bad arguments (an unknown verb or option, a
 bad value, an output name whose extension the verb cannot write).
 
@@ -257,6 +258,35 @@ def _convert_to_mesh(args: argparse.Namespace) -> None:
     _save(bpy, Path(args.out))
 
 
+def _reconstruct(args: argparse.Namespace) -> None:
+    """Photos or a video to a COLMAP workspace, without Blender. `--json` (for the add-on's
+    operator, which runs this verb in a process of its own) prints one JSON object a line:
+    {"step": ...} as it goes, then {"report": ...}; errors go to stderr as for every verb."""
+    import json
+    import time
+
+    from .core import sfm
+
+    options = sfm.Options(**_options(args, ("frames", "max_size", "matching", "mapper",
+                                            "threads")))
+    last = {"stage": None, "at": float("-inf")}
+
+    def on_step(step: sfm.Step) -> None:
+        if args.json:
+            print(json.dumps({"step": step.to_json()}), flush=True)
+            return
+        now = time.monotonic()
+        if step.stage != last["stage"] or now - last["at"] >= 2.0 or step.done == step.total:
+            last.update(stage=step.stage, at=now)
+            print(f"Reconstructing: {step.line()} ({100 * step.fraction:.0f} %)", flush=True)
+
+    report = sfm.run(args.source, args.out, options, on_step=on_step)
+    if args.json:
+        print(json.dumps({"report": report.to_json()}), flush=True)
+    else:
+        print(report.summary(), flush=True)
+
+
 def _convert(args: argparse.Namespace) -> None:
     """File to file without Blender: read, take the input's frame to Blender's and Blender's
     to the output's (one rotation, snapped: the identity leaves the data untouched), write."""
@@ -291,6 +321,29 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
         epilog="Each verb has --help. Options left out take the operator's default "
                "(docs/guide/blender.md).")
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+    p = verbs.add_parser("reconstruct", help="photos or a video to a COLMAP workspace "
+                         "(no Blender needed)",
+                         description="Find the cameras of a folder of photos or a video "
+                                     "(structure from motion: SIFT, matching and mapping by "
+                                     "COLMAP on the CPU) and write a COLMAP workspace that "
+                                     "import-colmap and train take as it is. Each stage is "
+                                     "cached in FOLDER: running again resumes.")
+    p.add_argument("source", help="a folder of JPEG/PNG/TIFF photos, or a video file")
+    p.add_argument("--out", required=True, help="the workspace folder (new, empty, or an "
+                                                "earlier reconstruction's)")
+    p.add_argument("--frames", type=int, help="frames taken from a video, the sharpest of "
+                                              "each time slice (default 200)")
+    p.add_argument("--max-size", type=int, help="long side of the workspace's photos in "
+                                                "pixels (default 1600; 0: as they are)")
+    p.add_argument("--matching", choices=("auto", "exhaustive", "sequential", "retrieval"),
+                   help="which photos are matched (default auto: sequential for a video, "
+                        "exhaustive up to 100 photos, retrieval beyond)")
+    p.add_argument("--mapper", choices=("global", "incremental"),
+                   help="COLMAP's mapper (default global)")
+    p.add_argument("--threads", type=int, help="0: every core (default)")
+    p.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
+    p.set_defaults(run=_reconstruct)
 
     p = verbs.add_parser("import-colmap", help="COLMAP cameras, photos and points to a .blend",
                          description="Import a COLMAP (or GLOMAP) workspace or model folder into "

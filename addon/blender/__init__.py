@@ -14,6 +14,7 @@ MODULE_NAMES: list[str] = [
     "properties", "gather", "io.operators", "edit_operators",  # splat objects
     "io.sequence",  # splat sequences: the frame's file on the object (frame_change_pre)
     "io.colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
+    "io.reconstruct",  # photos or a video: File > Import > Photos or Video
     "render.panel", "render.failures", "render.hooks", "viewport",  # rendering with meshes
     "job_runner",  # long jobs: status bar, Esc, splat.train_stop
     "train.operator", "train.scene_to_splats",  # training: splat.train, splat.bake_to_splats

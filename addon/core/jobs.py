@@ -375,17 +375,23 @@ def ui_kernel_threads() -> int:
 
 class StagedJob:
     """Work that must stay on one thread (it touches Blender data), done in small steps:
-    `steps` is a generator of (stage, fraction of that stage) whose return value becomes
-    `result`; `stages` names them in order, for the overall fraction. The same interface as
-    `TrainingJob` (start, poll, run, cancel, join, progress), so one runner drives both:
+    `steps` is a generator of (stage, fraction of that stage) or (stage, fraction, what the
+    status line says instead of the stage's name) whose return value becomes `result`;
+    `stages` names them in order, for the overall fraction (`weights`: their shares). The same
+    interface as `TrainingJob` (start, poll, run, cancel, join, progress), so one runner drives both:
     `poll(seconds)` advances it for about that long (from a UI timer), `run()` to the end.
     Cancelling closes the generator at the next poll (its `finally` blocks clean up)."""
 
     def __init__(self, steps: Generator[tuple[str, float], None, object],
-                 stages: Sequence[str], *,
+                 stages: Sequence[str], *, weights: Sequence[float] | None = None,
                  on_progress: Callable[[Progress], None] | None = None) -> None:
         self._steps = steps
         self.stages = tuple(stages)
+        # Each stage's share of the overall fraction (default: equal shares).
+        shares = list(weights) if weights is not None else [1.0] * len(self.stages)
+        total = sum(shares) or 1.0
+        self._starts = [sum(shares[:k]) / total for k in range(len(shares))]
+        self._shares = [share / total for share in shares]
         self.on_progress = on_progress
         self.result = None
         self.error: BaseException | None = None
@@ -417,7 +423,7 @@ class StagedJob:
                 self._end("cancelled")
                 return
             try:
-                stage, fraction = next(self._steps)
+                stage, fraction, *detail = next(self._steps)
             except StopIteration as finished:
                 self.result = finished.value
                 self._end("done")
@@ -428,8 +434,9 @@ class StagedJob:
                 self._end("failed", f"{type(error).__name__}: {error}")
                 return
             index = self.stages.index(stage) if stage in self.stages else 0
-            overall = (index + min(max(fraction, 0.0), 1.0)) / max(len(self.stages), 1)
-            self._set(phase="working", message=stage, prepared=overall)
+            overall = (self._starts[index] + self._shares[index] * min(max(fraction, 0.0), 1.0)
+                       if self.stages else 0.0)
+            self._set(phase="working", message=detail[0] if detail else stage, prepared=overall)
             if time.perf_counter() >= deadline:
                 return
 

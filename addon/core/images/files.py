@@ -79,6 +79,24 @@ def read_header(path: str | os.PathLike) -> ImageHeader:
         inp.close()
 
 
+def check_decodes(path: str | os.PathLike) -> None:
+    """ImageError unless every pixel of the file decodes (`ImageBuf` fills what a truncated
+    JPEG lacks with grey and reports nothing; `ImageInput` reports it)."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ImageError(f"{path}: cannot read image: {oiio.geterror() or 'unknown format'}")
+    try:
+        pixels = inp.read_image("uint8")
+        error = inp.geterror()  # a truncated JPEG: pixels (partly grey) and an error
+        if pixels is None or error:
+            raise ImageError(f"{path}: cannot read image: {error or 'no pixels'}")
+    finally:
+        inp.close()
+
+
 def read_pixels(path: str | os.PathLike, *, orientation: int = 1,
                 size: tuple[int, int] | None = None) -> np.ndarray:
     """The photo's pixels (H, W, C) in its own type (uint8, uint16, float16 or float32).

@@ -1,0 +1,197 @@
+"""Photos or a video to a scene: File > Import > Photos or Video (reconstruct cameras).
+
+    bpy.ops.splat.import_photos(filepath="/path/to/photos/", output="/path/to/scene")
+
+Finds the cameras with `core.sfm` in a process of its own (`core.sfm.process`: Blender stays
+responsive, Esc ends it at once, and a run again resumes from the stages it cached in the output
+folder), then imports the workspace exactly as File > Import > COLMAP Scene does (`colmap_import`:
+cameras with photo backgrounds, points, upright, Standard look, a light for meshes) and, with
+Train After, starts training on it. Cancelled or failed at any stage, the scene is left as it was.
+The report says how many photos were placed of how many and names those left out, with why.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+
+from ...core.jobs import StagedJob, ui_kernel_threads
+from ...core.sfm.photos import DEFAULT_MAX_SIZE
+from ...core.sfm.process import ReconstructionProcess
+from ...core.sfm.source import VIDEO_SUFFIXES
+from ...core.sfm.video import DEFAULT_FRAME_COUNT
+from .. import dependencies
+from ..job_runner import JobOperator, OperatorJob, wants_background
+from ..registration import module_registration
+from . import colmap_import
+
+# The reconstruction runs in a child process that imports pycolmap itself, so a Blender that
+# must not load pycolmap in-process could still reconstruct; the import that follows reads the
+# model in-process, hence the same modules as Import COLMAP (and PyAV for videos, in the child).
+MODULES = colmap_import.MODULES
+FEATURE = "Reconstructing cameras from photos"
+STAGES = ("reconstructing", "importing")
+WEIGHTS = (0.95, 0.05)  # of the progress bar: the import is a few seconds
+POLL_SLEEP = 0.05  # seconds between looks at the child process
+
+
+def default_output(source: Path) -> Path:
+    """`<folder>_scene` beside a folder of photos, `<video name>_scene` beside a video."""
+    source = source.resolve()
+    return source.parent / f"{source.stem if source.is_file() else source.name}_scene"
+
+
+def reconstruct_steps(source: Path, output: Path, options: dict, import_options: dict):
+    """Generator of (stage, fraction, status) for `StagedJob`: the child process, then the
+    import; returns (report as JSON, the new collection). Closing it ends the child."""
+    process = ReconstructionProcess(source, output, options)
+    try:
+        while process.running:
+            step = process.step
+            if step is None:
+                yield "reconstructing", 0.0, "starting"
+            else:
+                yield "reconstructing", step["fraction"], step["line"]
+            time.sleep(POLL_SLEEP)
+        report = process.report()
+    finally:
+        process.stop()
+    steps = colmap_import.import_steps(output, "images", **import_options)
+    try:  # closing this generator closes the import, which removes what it built
+        while True:
+            try:
+                stage, fraction = next(steps)
+            except StopIteration as done:
+                collection = done.value
+                break
+            parts = len(colmap_import.STAGES)
+            yield ("importing", (colmap_import.STAGES.index(stage) + fraction) / parts,
+                   "importing the scene")
+    finally:
+        steps.close()
+    collection["reconstruction_left_out"] = "\n".join(f"{n}: {w}" for n, w in report["left_out"])
+    return report, collection
+
+
+def report_message(report: dict) -> tuple[str, str]:
+    """(level, message) for the user: placed of how many, and the ones left out, named."""
+    what = "frames" if report["kind"] == "video" else "photos"
+    message = (f"placed {len(report['registered'])} of {report['photos']} {what} "
+               f"({report['mapper']} mapping, {report['matching']} matching)")
+    left = report["left_out"] + report["skipped"]
+    if not left:
+        return "INFO", message
+    shown = "; ".join(f"{name}: {why}" for name, why in left[:4])
+    more = f"; and {len(left) - 4} more (listed in {report['workspace']}/reconstruction.json)" \
+        if len(left) > 4 else ""
+    return "WARNING", f"{message}; left out {shown}{more}"
+
+
+class SPLAT_OT_import_photos(JobOperator, bpy.types.Operator):
+    """Find the cameras of a folder of photos or a video (structure from motion, on the CPU)
+    and import them as a COLMAP scene: cameras with the photos, points, ready to train"""
+
+    bl_idname = "splat.import_photos"
+    bl_label = "Import Photos or Video"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(name="Photos or Video", subtype="FILE_PATH",
+                             description="A folder of photos (open it and accept) or a video "
+                                         "file")
+    filter_folder: BoolProperty(default=True, options={"HIDDEN"})
+    filter_image: BoolProperty(default=True, options={"HIDDEN"})
+    filter_movie: BoolProperty(default=True, options={"HIDDEN"})
+    output: StringProperty(name="Output Folder", subtype="DIR_PATH", default="",
+                           description="Where the COLMAP workspace goes (photos, database, "
+                                       "model); empty: '<name>_scene' beside the photos or "
+                                       "video. Running again on it resumes")
+    frames: IntProperty(name="Video Frames", default=DEFAULT_FRAME_COUNT, min=3, soft_max=1000,
+                        description="Frames taken from a video: the sharpest of each equal "
+                                    "slice of time")
+    max_size: IntProperty(name="Max Size", default=DEFAULT_MAX_SIZE, min=0, soft_max=8192,
+                          subtype="PIXEL", description="Long side of the photos kept for "
+                                                       "training (0: as they are)")
+    matching: EnumProperty(name="Matching", default="auto", items=[
+        ("auto", "Automatic", "Sequential for a video, every pair up to 100 photos, "
+                              "retrieval beyond"),
+        ("exhaustive", "Every Pair", "Each photo with every other"),
+        ("sequential", "Sequential", "Each photo with the next ones in name order"),
+        ("retrieval", "Similar Photos", "Each photo with the 20 that look most alike")])
+    mapper: EnumProperty(name="Mapper", default="global", items=[
+        ("global", "Global", "COLMAP 4's global structure from motion (faster)"),
+        ("incremental", "Incremental", "COLMAP's incremental mapper, one photo at a time")])
+    threads: IntProperty(name="Threads", default=0, min=0,
+                         description="0: every core but one (Blender keeps one)")
+    train_after: BoolProperty(name="Train After", default=False,
+                              description="Start training Gaussians on the scene once it is "
+                                          "imported")
+
+    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"})
+
+    @classmethod
+    def poll(cls, context):
+        return dependencies.poll_unavailable(cls, MODULES, FEATURE)
+
+    def invoke(self, context, event):
+        self.interactive = wants_background(context)
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        for name in ("output", "frames", "max_size", "matching", "mapper", "threads",
+                     "train_after"):
+            layout.prop(self, name)
+
+    def _source(self) -> Path:
+        path = Path(bpy.path.abspath(self.filepath))
+        if not path.is_file() or path.suffix.lower() not in VIDEO_SUFFIXES:
+            path = path if path.is_dir() else path.parent  # a photo picked: its folder
+        return path
+
+    def execute(self, context):
+        try:
+            colmap_import.require_modules()
+        except dependencies.MissingModule as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        source = self._source()
+        output = Path(bpy.path.abspath(self.output)) if self.output else default_output(source)
+        threads = self.threads or (ui_kernel_threads() if self.interactive else 0)
+        options = {"frames": self.frames, "max_size": self.max_size, "matching": self.matching,
+                   "mapper": self.mapper, "threads": threads}
+        steps = reconstruct_steps(source, output, options, {"scene": context.scene})
+        train_after = self.train_after
+
+        def finish(running, write):
+            job = running.job
+            if job.error is not None:
+                return "ERROR", f"{source}: {job.error}" if str(source) not in str(job.error) \
+                    else str(job.error), None
+            if job.result is None:
+                return "WARNING", "reconstruction cancelled: the scene is unchanged (running " \
+                                  "it again resumes where it stopped)", None
+            report, collection = job.result
+            level, message = report_message(report)
+            if train_after:
+                mode = "INVOKE_DEFAULT" if wants_background(bpy.context) else "EXEC_DEFAULT"
+                bpy.ops.splat.train(mode, collection=collection.name)
+            return level, f"{message}; imported into '{collection.name}'", None
+
+        key = f"reconstruct:{output}"
+        return self.run_job(context, OperatorJob(key, "Reconstructing",
+                                                 StagedJob(steps, STAGES, weights=WEIGHTS), finish))
+
+
+def _menu_import(self, context):
+    self.layout.operator(SPLAT_OT_import_photos.bl_idname,
+                         text="Photos or Video (reconstruct cameras)")
+
+
+register, unregister = module_registration(
+    (SPLAT_OT_import_photos,), menus=[("TOPBAR_MT_file_import", _menu_import)])

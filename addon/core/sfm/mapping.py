@@ -1,0 +1,145 @@
+"""Cameras and poses from the matches: COLMAP's incremental or global mapping, the largest model
+kept, and why each photo left out was left out.
+
+Focal length: each camera starts from its photos' EXIF prior (`photos.exif_focal_px`) when they
+have one, else from COLMAP's guess (1.2 x the long side, no prior). A prior is never trusted
+blindly: photos cropped or exported after capture keep an EXIF focal length that is off by
+several times, so when fewer than `GOOD_SHARE` of the photos register with the priors, the
+mapping runs again without them and the run that registers more is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from .photos import Photo
+
+MAPPERS = ("global", "incremental")
+DEFAULT_FOCAL_FACTOR = 1.2  # COLMAP's focal length guess: 1.2 x the long side
+GOOD_SHARE = 0.8
+MIN_MATCHES = 15  # inlier matches that make a verified pair (COLMAP's min_num_matches)
+
+
+@dataclass
+class Mapped:
+    """The outcome of mapping: the kept model (None: nothing registered) and the others."""
+
+    model: object | None  # pycolmap.Reconstruction
+    others: list = field(default_factory=list)
+    used_priors: bool = False
+    retried: bool = False
+
+    @property
+    def registered(self) -> set[str]:
+        if self.model is None:
+            return set()
+        return {image.name for image in self.model.images.values() if image.has_pose}
+
+
+def set_cameras(pycolmap, database: Path, photos: list[Photo], use_priors: bool) -> bool:
+    """Start every camera from its photos' EXIF focal length (`use_priors`) or COLMAP's guess;
+    returns whether any prior was set."""
+    by_name = {p.name: p for p in photos}
+    any_prior = False
+    db = pycolmap.Database.open(str(database))
+    try:
+        photo_of_camera: dict[int, Photo] = {}
+        for image in db.read_all_images():
+            if image.name in by_name:
+                photo_of_camera.setdefault(image.camera_id, by_name[image.name])
+        for camera in db.read_all_cameras():
+            photo = photo_of_camera.get(camera.camera_id)
+            if photo is None:
+                continue
+            prior = photo.focal_px if use_priors else None
+            focal = prior or DEFAULT_FOCAL_FACTOR * max(camera.width, camera.height)
+            params = list(camera.params)
+            params[0] = focal
+            camera.params = params
+            camera.has_prior_focal_length = prior is not None
+            any_prior |= prior is not None
+            db.update_camera(camera)
+    finally:
+        db.close()
+    return any_prior
+
+
+def run_mapper(pycolmap, mapper: str, database: Path, images_dir: Path, output: Path,
+               threads: int, on_image: Callable[[], None] | None = None) -> list:
+    """The reconstructions COLMAP finds (largest first)."""
+    output.mkdir(parents=True, exist_ok=True)
+    if mapper == "global":
+        options = pycolmap.GlobalPipelineOptions()
+        options.num_threads = threads
+        options.random_seed = 0
+        found = pycolmap.global_mapping(str(database), str(images_dir), str(output), options)
+    else:
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = threads
+        options.random_seed = 0
+        options.min_model_size = 3
+        found = pycolmap.incremental_mapping(str(database), str(images_dir), str(output),
+                                             options, next_image_callback=on_image)
+    models = list(found.values())
+    models.sort(key=lambda m: -m.num_reg_images())
+    return models
+
+
+def map_photos(pycolmap, mapper: str, database: Path, images_dir: Path, scratch: Path,
+               photos: list[Photo], threads: int,
+               on_image: Callable[[], None] | None = None) -> Mapped:
+    """Map with the EXIF priors where there are any, again without them when too few photos
+    register; the run that registers more wins."""
+    attempts = [True, False] if any(p.focal_px for p in photos) else [False]
+    best: Mapped | None = None
+    for number, use_priors in enumerate(attempts):
+        set_cameras(pycolmap, database, photos, use_priors)
+        models = run_mapper(pycolmap, mapper, database, images_dir, scratch / str(number),
+                            threads, on_image)
+        mapped = Mapped(models[0] if models else None, models[1:], use_priors, number > 0)
+        if best is None or len(mapped.registered) > len(best.registered):
+            best = mapped
+        if len(best.registered) >= GOOD_SHARE * len(photos):
+            break
+    return best
+
+
+def left_out(pycolmap, database: Path, photos: list[Photo], mapped: Mapped
+             ) -> list[tuple[str, str]]:
+    """(photo name, why) for every photo the kept model does not hold."""
+    registered = mapped.registered
+    elsewhere = {}
+    for model in mapped.others:
+        size = model.num_reg_images()
+        for image in model.images.values():
+            if image.has_pose:
+                elsewhere[image.name] = size
+    db = pycolmap.Database.open(str(database))
+    try:
+        ids = {image.name: image.image_id for image in db.read_all_images()}
+        features = {name: db.num_keypoints_for_image(i) for name, i in ids.items()}
+        pair_ids, inliers = db.read_two_view_geometry_num_inliers()
+    finally:
+        db.close()
+    verified: set[int] = set()
+    for pair_id, count in zip(pair_ids, inliers):
+        if count >= MIN_MATCHES:
+            verified.update(pycolmap.pair_id_to_image_pair(pair_id))
+    reasons = []
+    for photo in photos:
+        if photo.name in registered:
+            continue
+        image_id = ids.get(photo.name)
+        if image_id is None or not features.get(photo.name):
+            why = "no features found (a blank, dark or blurred photo?)"
+        elif image_id not in verified:
+            why = "overlaps no other photo (no matches that agree on a camera motion)"
+        elif photo.name in elsewhere:
+            why = (f"belongs to a separate model of {elsewhere[photo.name]} photos (another "
+                   f"capture, or a part that does not connect to the rest)")
+        else:
+            why = "too few matches to place it in the model"
+        reasons.append((photo.name, why))
+    return reasons

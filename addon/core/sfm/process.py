@@ -1,0 +1,124 @@
+"""The reconstruction in a process of its own, for Blender's operator.
+
+COLMAP's mapping is one long call that holds Python's lock and cannot be interrupted; in its own
+process it leaves Blender's interface free, stops the moment the user cancels (the process is
+ended: every stage writes its files atomically, so the next run resumes), and a crash in it
+cannot take Blender (and the user's unsaved work) with it. The child is the `reconstruct`
+command-line verb with `--json`, run by the same Python interpreter with the same module path
+(`sys.executable`: Blender's own Python in an official Blender), so it finds the extension's
+wheels as Blender does.
+
+    process = ReconstructionProcess(source, folder, {"threads": 2})
+    while process.running:
+        print(process.step)        # the newest `Step` as JSON (stage, line, fraction), or None
+    report = process.report()      # the Report as JSON, or ReconstructionError with the reason
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+from collections import deque
+from pathlib import Path
+
+from .errors import ReconstructionError
+
+_PACKAGE = Path(__file__).resolve().parents[2]  # the add-on's package folder
+# Runs `<package>.cli.main(argv)` with the package imported by its folder name: a plain Python
+# process has no `bl_ext` namespace, and the package's __init__ imports nothing of Blender.
+_BOOT = ("import importlib, sys; sys.path.insert(0, sys.argv[1]); "
+         "sys.exit(importlib.import_module(sys.argv[2] + '.cli').main(sys.argv[3:]))")
+STOP_GRACE = 5.0  # seconds between asking the child to end and killing it
+
+
+def command(source: str | os.PathLike, folder: str | os.PathLike, options: dict) -> list[str]:
+    argv = [sys.executable, "-c", _BOOT, str(_PACKAGE.parent), _PACKAGE.name, "reconstruct",
+            str(source), "--out", str(folder), "--json"]
+    for name, value in options.items():
+        argv += [f"--{name.replace('_', '-')}", str(value)]
+    return argv
+
+
+def environment() -> dict[str, str]:
+    """This process's environment with its module path, so the child imports what it does."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
+    env["PYTHONIOENCODING"] = "utf-8"
+    return env
+
+
+class ReconstructionProcess:
+    """The child process and what it has said so far (read on two daemon threads)."""
+
+    def __init__(self, source, folder, options: dict | None = None) -> None:
+        flags = getattr(subprocess, "CREATE_NO_WINDOW", 0)  # Windows: no console window
+        try:
+            self._process = subprocess.Popen(
+                command(source, folder, options or {}), stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, env=environment(),
+                encoding="utf-8", errors="replace", creationflags=flags)
+        except OSError as error:
+            raise ReconstructionError(f"cannot start the reconstruction process "
+                                      f"({sys.executable}): {error}") from None
+        self.step: dict | None = None
+        self._report: dict | None = None
+        self._errors: deque[str] = deque(maxlen=40)
+        self._readers = [threading.Thread(target=self._read_stdout, daemon=True),
+                         threading.Thread(target=self._read_stderr, daemon=True)]
+        for reader in self._readers:
+            reader.start()
+
+    def _read_stdout(self) -> None:
+        for line in self._process.stdout:
+            try:
+                message = json.loads(line)
+            except ValueError:
+                continue  # a library's own print: not ours
+            if isinstance(message, dict) and "step" in message:
+                self.step = message["step"]
+            elif isinstance(message, dict) and "report" in message:
+                self._report = message["report"]
+
+    def _read_stderr(self) -> None:
+        for line in self._process.stderr:
+            if line.strip():
+                self._errors.append(line.rstrip())
+
+    @property
+    def running(self) -> bool:
+        return self._process.poll() is None or any(r.is_alive() for r in self._readers)
+
+    def wait(self, timeout: float | None = None) -> int | None:
+        try:
+            code = self._process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            return None
+        for reader in self._readers:
+            reader.join(timeout)
+        return code
+
+    def stop(self) -> None:
+        """End the child now (cancelling): politely, then by force."""
+        if self._process.poll() is None:
+            self._process.terminate()
+            if self.wait(STOP_GRACE) is None:
+                self._process.kill()
+                self.wait()
+
+    def report(self) -> dict:
+        """The finished run's report; ReconstructionError with the child's reason otherwise."""
+        code = self.wait()
+        if code == 0 and self._report is not None:
+            return self._report
+        lines = list(self._errors)
+        starts = [k for k, line in enumerate(lines) if " reconstruct: error: " in line]
+        if starts:  # the verb's own message, with any lines that continue it
+            first = starts[-1]
+            reason = [lines[first].split(" error: ", 1)[1]] + lines[first + 1:]
+            raise ReconstructionError("\n".join(reason))
+        tail = "\n".join(lines[-8:])
+        raise ReconstructionError(f"the reconstruction process ended with status {code}"
+                                  + (f":\n{tail}" if tail else ""))

@@ -1,0 +1,145 @@
+"""Bad and awkward input to the reconstruction: each a ReconstructionError naming the problem (or
+a named skip), and a user's folder never written into."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from addon.core import sfm
+from addon.core.images import files as image_io
+from addon.core.sfm.source import find_source, natural_key
+
+DEMO_PHOTOS = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap" / "images"
+
+
+def demo_photos(folder: Path, names) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        shutil.copy(DEMO_PHOTOS / name, folder / name)
+    return folder
+
+
+def noise_photo(path: Path, rng: np.random.Generator, size=(240, 320)) -> None:
+    image_io.write_pixels(path, rng.integers(0, 256, size=(*size, 3), dtype=np.uint8))
+
+
+def test_an_empty_folder(tmp_path):
+    (tmp_path / "photos").mkdir()
+    with pytest.raises(sfm.ReconstructionError, match="no JPEG, PNG or TIFF photos"):
+        sfm.run(tmp_path / "photos", tmp_path / "out")
+
+
+def test_a_missing_folder_and_a_file_that_is_no_video(tmp_path):
+    with pytest.raises(sfm.ReconstructionError, match="no such folder or video"):
+        sfm.run(tmp_path / "nowhere", tmp_path / "out")
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(sfm.ReconstructionError, match="not a video"):
+        sfm.run(tmp_path / "notes.txt", tmp_path / "out")
+
+
+def test_one_photo_is_not_a_scene(tmp_path):
+    photos = demo_photos(tmp_path / "photos", ["000.jpg"])
+    (photos / "readme.txt").write_text("x")
+    with pytest.raises(sfm.ReconstructionError, match=r"1 usable photo.*\n.*readme.txt"):
+        sfm.run(photos, tmp_path / "out")
+
+
+def test_other_files_folders_and_links_out_are_skipped_by_name(tmp_path):
+    photos = demo_photos(tmp_path / "photos", ["000.jpg", "001.jpg"])
+    (photos / "notes.txt").write_text("x")
+    (photos / "sub").mkdir()
+    outside = demo_photos(tmp_path / "elsewhere", ["002.jpg"]) / "002.jpg"
+    os.symlink(outside, photos / "linked.jpg")
+    source = find_source(photos)
+    assert [p.name for p in source.photos] == ["000.jpg", "001.jpg"]
+    skipped = dict(source.skipped)
+    assert set(skipped) == {"notes.txt", "sub", "linked.jpg"}
+    assert "outside" in skipped["linked.jpg"]
+
+
+def test_names_sort_in_capture_order():
+    names = ["IMG_10.jpg", "IMG_9.jpg", "img_1.JPG", "IMG_100.jpg"]
+    assert sorted(names, key=natural_key) == ["img_1.JPG", "IMG_9.jpg", "IMG_10.jpg",
+                                              "IMG_100.jpg"]
+
+
+def test_photos_that_do_not_overlap_place_no_camera(tmp_path, rng):
+    photos = tmp_path / "noise"
+    photos.mkdir()
+    for i in range(5):
+        noise_photo(photos / f"{i}.png", rng)
+    with pytest.raises(sfm.ReconstructionError, match="no cameras could be placed"):
+        sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+
+
+def test_a_truncated_photo_is_left_out_by_name(tmp_path):
+    photos = demo_photos(tmp_path / "photos", [f"{i:03d}.jpg" for i in range(8)])
+    data = (DEMO_PHOTOS / "001.jpg").read_bytes()
+    (photos / "broken.jpg").write_bytes(data[: len(data) // 3])
+    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+    assert dict(report.skipped)["broken.jpg"].startswith("cannot be read")
+    # An arc of 8 views: an end photo may not place (which, varies with COLMAP's threads).
+    assert report.photos == 8 and len(report.registered) >= 6
+    assert "broken.jpg" not in report.registered + [name for name, _ in report.left_out]
+    assert "skipped broken.jpg: cannot be read" in report.summary()
+
+
+def test_mixed_captures_keep_the_largest_and_name_the_rest(tmp_path, rng):
+    photos = demo_photos(tmp_path / "photos", [f"{i:03d}.jpg" for i in range(12)])
+    for i in range(3):
+        noise_photo(photos / f"noise_{i}.png", rng)
+    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+    assert len(report.registered) >= 10 and not any("noise" in n for n in report.registered)
+    why = dict(report.left_out)
+    assert set(why) | set(report.registered) == {p.name for p in photos.iterdir()}
+    assert all("overlaps no other photo" in why[f"noise_{i}.png"] for i in range(3))
+
+
+def test_a_users_folder_is_never_taken(tmp_path):
+    photos = demo_photos(tmp_path / "photos", ["000.jpg", "001.jpg"])
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("precious")
+    with pytest.raises(sfm.ReconstructionError, match="not empty"):
+        sfm.run(photos, mine)
+    assert [p.name for p in mine.iterdir()] == ["thesis.txt"]
+    with pytest.raises(sfm.ReconstructionError, match="cannot hold the photos"):
+        sfm.run(photos, photos)
+    with pytest.raises(sfm.ReconstructionError, match="cannot hold the photos"):
+        sfm.run(photos, tmp_path)
+
+
+def test_an_output_that_cannot_be_written(tmp_path):
+    photos = demo_photos(tmp_path / "photos", ["000.jpg", "001.jpg"])
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(sfm.ReconstructionError, match="exists and is not a folder"):
+        sfm.run(photos, tmp_path / "a_file")
+    with pytest.raises(sfm.ReconstructionError, match="cannot write there"):
+        sfm.run(photos, tmp_path / "a_file" / "out")
+
+
+def test_bad_options_are_refused_before_any_work(tmp_path):
+    for options in (sfm.Options(matching="magic"), sfm.Options(mapper="magic"),
+                    sfm.Options(frames=1), sfm.Options(max_size=10)):
+        with pytest.raises(ValueError):
+            sfm.run(tmp_path, tmp_path / "out", options)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_cancelled_run_resumes_where_it_stopped(tmp_path):
+    photos = demo_photos(tmp_path / "photos", [f"{i:03d}.jpg" for i in range(20)])
+    out = tmp_path / "out"
+    steps = sfm.reconstruct(photos, out, sfm.Options(threads=2))
+    for step in steps:
+        if step.stage == "matching":
+            break
+    steps.close()  # cancelled in the middle of matching
+    assert not (out / "sparse").exists()
+    report = sfm.run(photos, out, sfm.Options(threads=2))
+    assert report.cached == ["photos", "features"]
+    assert len(report.registered) >= 18
