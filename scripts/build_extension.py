@@ -57,9 +57,11 @@ PYTHONS = ("3.11", "3.13", "3.14")
 #                                            off sys.path (5.0) or lack it (4.2); Debian lacks it
 #   xatlas       Convert to Mesh (UV atlas)  in no Blender
 #   zstandard    .spz version 4              official builds and bpy's dependencies; not Debian
+#   av           video frames for            in no Blender (PyAV: FFmpeg inside, one abi3
+#                Import Photos or Video      wheel per platform)
 # Versions are requirements.txt's pins (tested there), except where a pin has no wheel for a
 # Python: OVERRIDES names the version used for it.
-BUNDLED = ("pycolmap", "OpenImageIO", "xatlas", "zstandard")
+BUNDLED = ("pycolmap", "OpenImageIO", "xatlas", "zstandard", "av")
 OVERRIDES = {("openimageio", "3.14"): "3.1.19.0"}  # the 3.0 line publishes no cp314 wheels
 
 

@@ -28,8 +28,9 @@ zip and the data are staged under its /io for the run. The stages, each in a new
             EXR (Blender's own mesh colour and depth), the splats the add-on gathered, and the
             camera; so a Blender that cannot compose (or read images) fails the check, not
             the checker.
-  colmap    import the distorted COLMAP model ../shared/data/beer (SIMPLE_RADIAL, images_8),
-            train briefly, Convert to Mesh the result, export it.
+  colmap    reconstruct 16 of cup's photos (Import Photos or Video, its child process in that
+            bpy's Python); import the distorted COLMAP model ../shared/data/beer (SIMPLE_RADIAL,
+            images_8), train briefly, Convert to Mesh the result, export it.
   blender_splats  (Blender 5.3 and later, which have splat point clouds of their own) the
             checks of tests/real_blender/splats53.py, run as they are (the zip installed into a
             fresh user folder of their own): Blender's importers against the add-on's, round
@@ -66,7 +67,7 @@ BPY_VERSIONS = ("4.2.23", "4.5.15", "5.0.1", "5.1.2", "5.2.3", "5.3.0")
 PY313_FROM = (5, 1)         # the first bpy line built for Python 3.13
 BLENDER_SPLATS_FROM = (5, 3)  # the first Blender with splat point clouds of its own
 STAGES = ("install", "formats", "render", "colmap", "blender_splats")
-MODULES = ("splatcore", "pycolmap", "OpenImageIO", "xatlas", "zstandard")
+MODULES = ("splatcore", "pycolmap", "OpenImageIO", "xatlas", "zstandard", "av")
 EXTENSION = "bl_ext.user_default.gaussian_splatting"
 
 
@@ -625,6 +626,20 @@ def stage_render(bpy, work: Path, data: Path) -> None:
 def stage_colmap(bpy, work: Path, data: Path) -> None:
     trained = None
     collection = None
+    with check("Import Photos or Video: 16 of cup's photos reconstructed and imported") as c:
+        photos = work / "photos"
+        photos.mkdir(exist_ok=True)
+        for number in range(1, 17):
+            shutil.copy(data / "cup" / "images" / f"{number}.jpg", photos)
+        before = set(bpy.data.collections)
+        result = bpy.ops.splat.import_photos(filepath=str(photos) + "/", threads=2,
+                                             output=str(work / "photos_scene"))
+        assert result == {"FINISHED"}, result
+        (made,) = set(bpy.data.collections) - before
+        cameras = [o for o in made.all_objects if "colmap_image_name" in o]
+        assert len(cameras) >= 12, f"{len(cameras)} cameras placed of 16"
+        c.detail = f"{len(cameras)} of 16 photos placed"
+        bpy.data.collections.remove(made)
     with check("COLMAP import of a distorted model (beer, SIMPLE_RADIAL, images_8)") as c:
         before = set(bpy.data.collections)
         result = bpy.ops.splat.import_colmap(directory=str(data / "beer"),

@@ -27,7 +27,7 @@ from pathlib import Path
 
 # What to install for each module (pip names differ from import names).
 _PIP_NAMES = {"OpenImageIO": "OpenImageIO", "pycolmap": "pycolmap", "xatlas": "xatlas",
-              "zstandard": "zstandard", "splatcore": "splatcore"}
+              "zstandard": "zstandard", "splatcore": "splatcore", "av": "av"}
 # The manifest of the installed extension (beside the add-on package); absent in a checkout.
 MANIFEST = Path(__file__).resolve().parents[1] / "blender_manifest.toml"
 _WHEEL = re.compile(r"wheels/([A-Za-z0-9_.]+?)-[^-/]+-(cp\d+|py\d+)-")

@@ -140,7 +140,7 @@ def test_install_the_zip_and_render_like_a_farm_node(rng, tmp_path):
     wheels = {n for n in names if n.startswith("wheels/") and n.endswith(".whl")}
     assert sorted(manifest["wheels"]) == sorted(f"./{n}" for n in wheels)
     assert manifest["platforms"] == ["linux-x64"]
-    for module in ("splatcore", "pycolmap", "openimageio", "xatlas", "zstandard"):
+    for module in ("splatcore", "pycolmap", "openimageio", "xatlas", "zstandard", "av"):
         assert any(n.startswith(f"wheels/{module}-") for n in wheels), (module, wheels)
     assert not any("__pycache__" in n for n in names)
 

@@ -10,13 +10,14 @@ mapping runs again without them and the run that registers more is kept.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Generator
 
 from .photos import Photo
 
-MAPPERS = ("global", "incremental")
+MAPPERS = ("incremental", "global")
 DEFAULT_FOCAL_FACTOR = 1.2  # COLMAP's focal length guess: 1.2 x the long side
 GOOD_SHARE = 0.8
 MIN_MATCHES = 15  # inlier matches that make a verified pair (COLMAP's min_num_matches)
@@ -67,8 +68,10 @@ def set_cameras(pycolmap, database: Path, photos: list[Photo], use_priors: bool)
 
 
 def run_mapper(pycolmap, mapper: str, database: Path, images_dir: Path, output: Path,
-               threads: int, on_image: Callable[[], None] | None = None) -> list:
-    """The reconstructions COLMAP finds (largest first)."""
+               threads: int, on_image: Callable[[], None] | None = None,
+               cancel=None) -> list:
+    """The reconstructions COLMAP finds (largest first). `cancel`: a pycolmap
+    CancellationToken (the incremental mapper stops at its next photo; the global one has none)."""
     output.mkdir(parents=True, exist_ok=True)
     if mapper == "global":
         options = pycolmap.GlobalPipelineOptions()
@@ -81,29 +84,59 @@ def run_mapper(pycolmap, mapper: str, database: Path, images_dir: Path, output: 
         options.random_seed = 0
         options.min_model_size = 3
         found = pycolmap.incremental_mapping(str(database), str(images_dir), str(output),
-                                             options, next_image_callback=on_image)
+                                             options, next_image_callback=on_image,
+                                             cancellation_token=cancel)
     models = list(found.values())
     models.sort(key=lambda m: -m.num_reg_images())
     return models
 
 
 def map_photos(pycolmap, mapper: str, database: Path, images_dir: Path, scratch: Path,
-               photos: list[Photo], threads: int,
-               on_image: Callable[[], None] | None = None) -> Mapped:
+               photos: list[Photo], threads: int) -> Generator[int, None, Mapped]:
     """Map with the EXIF priors where there are any, again without them when too few photos
-    register; the run that registers more wins."""
+    register; the run that registers more wins. A generator: COLMAP maps on a worker thread
+    (it releases Python's lock) while this yields the photos placed so far, about 5 times a
+    second; closing it cancels the mapper and waits for it."""
     attempts = [True, False] if any(p.focal_px for p in photos) else [False]
     best: Mapped | None = None
     for number, use_priors in enumerate(attempts):
         set_cameras(pycolmap, database, photos, use_priors)
-        models = run_mapper(pycolmap, mapper, database, images_dir, scratch / str(number),
-                            threads, on_image)
+        models = yield from _on_a_thread(pycolmap, mapper, database, images_dir,
+                                         scratch / str(number), threads)
         mapped = Mapped(models[0] if models else None, models[1:], use_priors, number > 0)
         if best is None or len(mapped.registered) > len(best.registered):
             best = mapped
         if len(best.registered) >= GOOD_SHARE * len(photos):
             break
     return best
+
+
+def _on_a_thread(pycolmap, mapper, database, images_dir, output, threads):
+    placed = [0]
+    outcome: dict = {}
+    cancel = pycolmap.CancellationToken()
+
+    def work() -> None:
+        try:
+            outcome["models"] = run_mapper(pycolmap, mapper, database, images_dir, output,
+                                           threads, lambda: placed.__setitem__(0, placed[0] + 1),
+                                           cancel)
+        except BaseException as error:  # handed to the caller below
+            outcome["error"] = error
+
+    worker = threading.Thread(target=work, name="colmap-mapping", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(0.2)
+            yield placed[0]
+    finally:
+        if worker.is_alive():
+            cancel.cancel()
+            worker.join()
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["models"]
 
 
 def left_out(pycolmap, database: Path, photos: list[Photo], mapped: Mapped

@@ -54,7 +54,7 @@ class Options:
     frames: int = DEFAULT_FRAME_COUNT  # frames to take from a video
     max_size: int = DEFAULT_MAX_SIZE  # long side of the workspace's photos (0: as they are)
     matching: str = "auto"  # pairs.METHODS
-    mapper: str = "global"  # mapping.MAPPERS (global: as exact and faster, docs/benchmarks)
+    mapper: str = "incremental"  # mapping.MAPPERS (incremental: the reliable one, docs/benchmarks)
     threads: int = 0  # 0: every core
 
     def check(self) -> None:
@@ -454,16 +454,19 @@ def _match(pycolmap, workspace: Workspace, photos: list[Photo], method: str, thr
 def _map(pycolmap, workspace: Workspace, photos: list[Photo], mapper: str, threads: int):
     scratch = workspace.folder / "mapping"
     shutil.rmtree(scratch, ignore_errors=True)
-    placed = [0]
-
-    def on_image() -> None:
-        placed[0] += 1
-
-    # The mapper runs in one call: progress comes from its callback, one step per photo placed,
-    # reported once it returns (incremental) or not at all (global).
-    yield _Clock().step("mapping", 0, len(photos), "photos placed")
-    mapped = mapping.map_photos(pycolmap, mapper, workspace.database, workspace.images, scratch,
-                                photos, threads, on_image)
+    clock = _Clock()
+    steps = mapping.map_photos(pycolmap, mapper, workspace.database, workspace.images, scratch,
+                               photos, threads)
+    try:  # photos placed so far (the incremental mapper counts them; the global does not)
+        while True:
+            try:
+                placed = next(steps)
+            except StopIteration as finished:
+                mapped = finished.value
+                break
+            yield clock.step("mapping", min(placed, len(photos)), len(photos), "photos placed")
+    finally:
+        steps.close()  # cancelled: the mapper stops and is waited for
     if mapped.model is None or len(mapped.registered) < 2:
         shutil.rmtree(scratch, ignore_errors=True)
         raise ReconstructionError(

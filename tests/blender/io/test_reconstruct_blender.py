@@ -1,0 +1,72 @@
+"""File > Import > Photos or Video (bpy): the demo photos reconstructed in a child process and
+imported as a COLMAP scene; cancelled at every stage or given bad input, the scene stays as it
+was and the report says why."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import bpy
+import pytest
+
+from addon.blender.io import reconstruct
+from addon.core.jobs import StagedJob
+from tests.bpy_support import reset_scene, scene_state
+
+DEMO_PHOTOS = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap" / "images"
+
+
+@pytest.fixture(autouse=True)
+def empty_scene():
+    reset_scene()
+
+
+def test_the_demo_photos_become_a_scene_of_cameras(tmp_path):
+    result = bpy.ops.splat.import_photos(filepath=str(DEMO_PHOTOS) + "/", threads=2,
+                                         output=str(tmp_path / "demo_scene"))
+    assert result == {"FINISHED"}
+    (collection,) = bpy.data.collections
+    cameras = [o for o in collection.objects if "colmap_image_name" in o]
+    assert len(cameras) == 30 and collection.name == "demo_scene"
+    assert any(o.type == "POINTCLOUD" or o.type == "MESH" for o in collection.objects)
+    assert bpy.context.scene.view_settings.view_transform == "Standard"
+    assert (tmp_path / "demo_scene" / "sparse" / "0" / "images.bin").is_file()
+
+
+def test_the_menu_entry_and_the_default_output(tmp_path):
+    assert reconstruct.default_output(DEMO_PHOTOS) == DEMO_PHOTOS.parent / "images_scene"
+    video = tmp_path / "walk.mp4"
+    video.write_bytes(b"")
+    assert reconstruct.default_output(video) == tmp_path / "walk_scene"
+    assert reconstruct._menu_import in bpy.types.TOPBAR_MT_file_import._dyn_ui_initialize()
+
+
+def test_bad_input_is_reported_and_changes_nothing(tmp_path):
+    photos = tmp_path / "one"
+    photos.mkdir()
+    shutil.copy(DEMO_PHOTOS / "000.jpg", photos)
+    before = scene_state()
+    with pytest.raises(RuntimeError, match="1 usable photo"):
+        bpy.ops.splat.import_photos(filepath=str(photos) + "/", output=str(tmp_path / "out"))
+    assert scene_state() == before and not bpy.data.collections
+
+
+@pytest.mark.parametrize("stage", ["starting", "finding features", "matching", "importing"])
+def test_cancelled_at_any_stage_leaves_the_scene_as_it_was(tmp_path, stage):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in range(12):
+        shutil.copy(DEMO_PHOTOS / f"{i:03d}.jpg", photos)
+    before = scene_state()
+    steps = reconstruct.reconstruct_steps(photos, tmp_path / "out", {"threads": 2},
+                                          {"scene": bpy.context.scene})
+    job = StagedJob(steps, reconstruct.STAGES, weights=reconstruct.WEIGHTS).start()
+    while not job.done and not job.progress().message.startswith(stage):
+        job.poll(0.05)
+    assert not job.done, f"finished before reaching {stage!r}"
+    job.cancel()
+    job.join()
+    assert job.progress().phase == "cancelled" and job.result is None
+    assert scene_state() == before and not bpy.data.collections
+    assert not list(tmp_path.glob("out/sparse/0/*.bin")) or stage == "importing"
