@@ -261,14 +261,16 @@ def _convert_to_mesh(args: argparse.Namespace) -> None:
 def _reconstruct(args: argparse.Namespace) -> None:
     """Photos or a video to a COLMAP workspace, without Blender. `--json` (for the add-on's
     operator, which runs this verb in a process of its own) prints one JSON object a line:
-    {"step": ...} as it goes, then {"report": ...}; errors go to stderr as for every verb."""
+    {"step": ...} as it goes, then {"report": ...}; errors go to stderr as for every verb. In a
+    Blender that must not load pycolmap (a Linux distribution's build), the work runs in a
+    process of that Blender's own Python, which can."""
     import json
     import time
 
     from .core import sfm
+    from .core.colmap.errors import pycolmap_refusal
 
-    options = sfm.Options(**_options(args, ("frames", "max_size", "matching", "mapper",
-                                            "threads")))
+    names = ("frames", "max_size", "matching", "mapper", "threads")
     last = {"stage": None, "at": float("-inf")}
 
     def on_step(step: sfm.Step) -> None:
@@ -280,11 +282,35 @@ def _reconstruct(args: argparse.Namespace) -> None:
             last.update(stage=step.stage, at=now)
             print(f"Reconstructing: {step.line()} ({100 * step.fraction:.0f} %)", flush=True)
 
-    report = sfm.run(args.source, args.out, options, on_step=on_step)
+    if pycolmap_refusal() is not None and not args.json:
+        report = _reconstruct_in_a_process(args, names, on_step)
+    else:
+        report = sfm.run(args.source, args.out, sfm.Options(**_options(args, names)),
+                         on_step=on_step)
     if args.json:
         print(json.dumps({"report": report.to_json()}), flush=True)
     else:
         print(report.summary(), flush=True)
+
+
+def _reconstruct_in_a_process(args: argparse.Namespace, names, on_step):
+    import time
+
+    from .core import sfm
+    from .core.sfm.process import ReconstructionProcess
+
+    process = ReconstructionProcess(args.source, args.out, _options(args, names))
+    seen = None
+    try:
+        while process.running:
+            if process.step is not None and process.step is not seen:
+                seen = process.step
+                on_step(sfm.Step(**{k: seen[k] for k in ("stage", "done", "total", "unit",
+                                                         "eta")}))
+            time.sleep(0.2)
+        return sfm.Report.from_json(process.report())
+    finally:
+        process.stop()
 
 
 def _convert(args: argparse.Namespace) -> None:

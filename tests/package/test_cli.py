@@ -16,7 +16,7 @@ from addon.core.images import files as image_io
 from addon.core.transform import transform_gaussians
 
 ROOT = Path(__file__).resolve().parents[2]
-VERBS = ("import-colmap", "train", "render", "convert-to-mesh", "convert")
+VERBS = ("reconstruct", "import-colmap", "train", "render", "convert-to-mesh", "convert")
 
 
 def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -55,6 +55,28 @@ def test_bad_arguments_and_bad_input_are_clear(tmp_path, capsys):
     assert cli.main(["convert", "a.ply", "b.ply", "--up", "W"]) == 2
     assert cli.main(["render", "x.blend", "--frames", "5-2"]) == 2
     assert cli.main(["nonsense"]) == 2
+
+
+def test_reconstruct_prints_what_it_placed_and_needs_no_blender(tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in range(10):
+        (photos / f"{i:03d}.jpg").write_bytes(
+            (ROOT / "examples" / "demo_colmap" / "images" / f"{i:03d}.jpg").read_bytes())
+    (photos / "notes.txt").write_text("x")
+    result = run("reconstruct", str(photos), "--out", str(tmp_path / "scene"), "--threads", "2")
+    assert result.returncode == 0
+    assert "Reconstructing: finding features" in result.stdout
+    assert "registered " in result.stdout and "of 10 photos" in result.stdout
+    assert "skipped notes.txt: not a JPEG, PNG or TIFF photo" in result.stdout
+    probe = subprocess.run([sys.executable, "-c", "import sys; from addon import cli; "
+                            f"cli.main(['reconstruct', {str(photos)!r}, '--out', "
+                            f"{str(tmp_path / 'scene')!r}]); print('bpy' in sys.modules)"],
+                           cwd=ROOT, text=True, capture_output=True, timeout=120)
+    assert probe.stdout.strip().endswith("False")  # and all taken from the cache
+    bad = run("reconstruct", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x"))
+    assert bad.returncode == 1 and "no such folder or video file" in bad.stderr
+    assert run("reconstruct", str(photos), "--out", "x", "--matching", "magic").returncode == 2
 
 
 def test_convert_keeps_the_frame_by_default_and_turns_it_with_axes(rng, tmp_path):

@@ -50,6 +50,18 @@ def pose_errors(pycolmap, found: dict[str, tuple[np.ndarray, np.ndarray]],
     return PoseErrors(names, np.array(angles), np.linalg.norm(aligned - tgt, axis=1) / size, size)
 
 
+def largest_step(poses: dict[str, tuple[np.ndarray, np.ndarray]]) -> float:
+    """For photos taken in name order (a video's frames): the largest distance between two
+    consecutive camera centres, in median distances. A smooth path stays near 1-2; a segment
+    of cameras placed on the wrong side of a symmetric object shows as a jump of 10 or more."""
+    from .source import natural_key
+
+    names = sorted(poses, key=natural_key)
+    centres = np.array([poses[n][1] for n in names])
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    return float(steps.max() / np.median(steps)) if len(steps) else 0.0
+
+
 def model_poses(model) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """name -> (world_from_camera rotation, centre) of a pycolmap Reconstruction's placed photos."""
     poses = {}

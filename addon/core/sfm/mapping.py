@@ -143,12 +143,12 @@ def left_out(pycolmap, database: Path, photos: list[Photo], mapped: Mapped
              ) -> list[tuple[str, str]]:
     """(photo name, why) for every photo the kept model does not hold."""
     registered = mapped.registered
-    elsewhere = {}
-    for model in mapped.others:
+    elsewhere: dict[str, int] = {}  # name -> the size of the largest other model holding it
+    for model in mapped.others:  # largest first
         size = model.num_reg_images()
         for image in model.images.values():
             if image.has_pose:
-                elsewhere[image.name] = size
+                elsewhere.setdefault(image.name, size)
     db = pycolmap.Database.open(str(database))
     try:
         ids = {image.name: image.image_id for image in db.read_all_images()}

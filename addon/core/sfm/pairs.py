@@ -1,9 +1,10 @@
 """Which photos to match with which: the pairs, chosen by the capture.
 
 - `exhaustive`: every pair; certain, and quadratic: for small sets.
-- `sequential`: each photo with the next `overlap` ones and, quadratically, with those 2, 4,
-  8, ... ahead (COLMAP's sequential matching with quadratic overlap): for a video or photos taken
-  walking around, in capture order.
+- `sequential`: each photo with the next `overlap` ones (and, with `quadratic`, with those 2, 4,
+  8, ... ahead, as COLMAP's quadratic overlap does): for a video, in frame order. Quadratic
+  overlap is off: on beer's video (a symmetric can) its long-range pairs matched the can's back
+  to its front and placed 20 frames on the wrong side (docs/benchmarks/reconstruction.md).
 - `retrieval`: each photo with the `neighbours` photos that look most alike, found with visual
   words computed from this capture's own SIFT descriptors (k-means on a sample, then tf-idf
   histograms compared by cosine; Sivic and Zisserman's "Video Google"), plus the sequential
@@ -11,7 +12,9 @@
   nothing downloaded (COLMAP's vocabulary trees are files fetched from the internet).
 
 `choose` picks one: a video is sequential; up to `EXHAUSTIVE_MAX` photos are exhaustive; more
-photos use retrieval. Names are in capture (natural) order everywhere.
+photos use retrieval. Photos are not matched sequentially by default: their names need not be
+their capture order (cup's 77 photos placed 39 that way, against 77 exhaustively). Names are in
+natural order everywhere.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ def exhaustive(count: int) -> list[tuple[int, int]]:
 
 
 def sequential(count: int, overlap: int = SEQUENTIAL_OVERLAP,
-               quadratic: bool = True) -> list[tuple[int, int]]:
+               quadratic: bool = False) -> list[tuple[int, int]]:
     pairs = set()
     for i in range(count):
         steps = set(range(1, overlap + 1))

@@ -131,6 +131,13 @@ class Report:
         data["workspace"], data["source"] = str(self.workspace), str(self.source)
         return data
 
+    @classmethod
+    def from_json(cls, data: dict) -> "Report":
+        return cls(**{**data, "workspace": Path(data["workspace"]),
+                      "source": Path(data["source"]),
+                      "left_out": [tuple(x) for x in data["left_out"]],
+                      "skipped": [tuple(x) for x in data["skipped"]]})
+
 
 class _Clock:
     """ETA of a stage from its rate so far."""

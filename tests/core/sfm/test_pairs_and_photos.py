@@ -17,7 +17,8 @@ def test_exhaustive_and_sequential_pairs():
     assert pairs.exhaustive(4) == [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
     plain = pairs.sequential(10, overlap=2, quadratic=False)
     assert plain == sorted({(i, j) for i in range(10) for j in (i + 1, i + 2) if j < 10})
-    quadratic = set(pairs.sequential(40, overlap=3))
+    assert pairs.sequential(10, overlap=2) == plain  # quadratic overlap only when asked
+    quadratic = set(pairs.sequential(40, overlap=3, quadratic=True))
     assert {(0, 1), (0, 2), (0, 3), (0, 4)} <= quadratic and (0, 5) not in quadratic
     assert len(pairs.sequential(200)) < 200 * 20  # linear in the count
 

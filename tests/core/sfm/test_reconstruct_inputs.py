@@ -77,27 +77,38 @@ def test_photos_that_do_not_overlap_place_no_camera(tmp_path, rng):
         sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
 
 
+# The demo's photos 7-9 see little texture: an arc through them may split in two, so the tests
+# that reconstruct part of the ring take photos from 12 on.
+STEADY = [f"{i:03d}.jpg" for i in range(12, 30)]
+
+
 def test_a_truncated_photo_is_left_out_by_name(tmp_path):
-    photos = demo_photos(tmp_path / "photos", [f"{i:03d}.jpg" for i in range(8)])
+    photos = demo_photos(tmp_path / "photos", STEADY[:8])
     data = (DEMO_PHOTOS / "001.jpg").read_bytes()
     (photos / "broken.jpg").write_bytes(data[: len(data) // 3])
     report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
     assert dict(report.skipped)["broken.jpg"].startswith("cannot be read")
     # An arc of 8 views: an end photo may not place (which, varies with COLMAP's threads).
-    assert report.photos == 8 and len(report.registered) >= 6
+    assert report.photos == 8 and len(report.registered) >= 7
     assert "broken.jpg" not in report.registered + [name for name, _ in report.left_out]
     assert "skipped broken.jpg: cannot be read" in report.summary()
 
 
-def test_mixed_captures_keep_the_largest_and_name_the_rest(tmp_path, rng):
-    photos = demo_photos(tmp_path / "photos", [f"{i:03d}.jpg" for i in range(12)])
-    for i in range(3):
+def test_mixed_captures_keep_the_largest_and_name_the_rest(tmp_path, rng, shared_data):
+    """18 of the demo's photos, 8 of cup's (another capture) and 2 of noise in one folder."""
+    photos = demo_photos(tmp_path / "photos", STEADY)
+    for number in range(1, 9):
+        shutil.copy(shared_data / "cup" / "images" / f"{number}.jpg", photos / f"cup_{number}.jpg")
+    for i in range(2):
         noise_photo(photos / f"noise_{i}.png", rng)
     report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
-    assert len(report.registered) >= 10 and not any("noise" in n for n in report.registered)
+    print(report.summary())
+    assert len(report.registered) >= 16
+    assert all(name in STEADY for name in report.registered)
     why = dict(report.left_out)
     assert set(why) | set(report.registered) == {p.name for p in photos.iterdir()}
-    assert all("overlaps no other photo" in why[f"noise_{i}.png"] for i in range(3))
+    assert all("overlaps no other photo" in why[f"noise_{i}.png"] for i in range(2))
+    assert sum("separate model" in why[f"cup_{n}.jpg"] for n in range(1, 9)) >= 6
 
 
 def test_a_users_folder_is_never_taken(tmp_path):
@@ -132,7 +143,7 @@ def test_bad_options_are_refused_before_any_work(tmp_path):
 
 
 def test_a_cancelled_run_resumes_where_it_stopped(tmp_path):
-    photos = demo_photos(tmp_path / "photos", [f"{i:03d}.jpg" for i in range(20)])
+    photos = demo_photos(tmp_path / "photos", STEADY)
     out = tmp_path / "out"
     steps = sfm.reconstruct(photos, out, sfm.Options(threads=2))
     for step in steps:
@@ -142,4 +153,69 @@ def test_a_cancelled_run_resumes_where_it_stopped(tmp_path):
     assert not (out / "sparse").exists()
     report = sfm.run(photos, out, sfm.Options(threads=2))
     assert report.cached == ["photos", "features"]
-    assert len(report.registered) >= 18
+    assert len(report.registered) >= 16
+
+
+def test_a_wrong_exif_focal_length_is_not_trusted(tmp_path):
+    """The demo photos with an EXIF 35 mm focal length five times their true one (28.8 mm: fx
+    400 px on a 600 px diagonal), as a crop or an export leaves it: the scene still comes out
+    right, with the priors or from the run without them."""
+    import OpenImageIO as oiio
+    import pycolmap
+
+    from addon.core.sfm.compare import model_poses, pose_errors
+    from tests.core.sfm.test_reconstruct_demo import known_poses
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for source in sorted(DEMO_PHOTOS.iterdir()):
+        pixels = image_io.read_pixels(source)
+        spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, "uint8")
+        spec.attribute("Exif:FocalLengthIn35mmFilm", 144)
+        out = oiio.ImageOutput.create(str(photos / source.name))
+        assert out.open(str(photos / source.name), spec) and out.write_image(pixels)
+        out.close()
+    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+    print(f"priors used: {report.used_priors}, retried: {report.retried}, "
+          f"placed {len(report.registered)}")
+    model = pycolmap.Reconstruction(str(tmp_path / "out" / "sparse" / "0"))
+    (camera,) = model.cameras.values()
+    assert camera.focal_length == pytest.approx(400.0, rel=0.02)
+    errors = pose_errors(pycolmap, model_poses(model), known_poses())
+    assert len(errors.names) >= 28 and errors.rotation_deg.max() <= 0.5
+
+
+def test_too_few_placed_with_the_priors_maps_again_without_them(tmp_path, monkeypatch):
+    """The retry rule itself, with COLMAP's mapper replaced: 5 of 30 placed with the EXIF priors
+    (under GOOD_SHARE), 28 without: the run without them is kept."""
+    from types import SimpleNamespace
+
+    from addon.core.sfm import mapping
+    from addon.core.sfm.photos import Photo
+
+    photos = [Photo(f"{i}.jpg", f"{i}.jpg", 640, 480, 500.0) for i in range(30)]
+    priors_seen = []
+
+    def fake_model(count):
+        images = {i: SimpleNamespace(name=f"{i}.jpg", has_pose=True) for i in range(count)}
+        return SimpleNamespace(images=images, num_reg_images=lambda: count)
+
+    def set_cameras(pycolmap, database, photos, use_priors):
+        priors_seen.append(use_priors)
+        return use_priors
+
+    def run_mapper(pycolmap, mapper, database, images, output, threads, on_image, cancel):
+        return [fake_model(5 if priors_seen[-1] else 28)]
+
+    monkeypatch.setattr(mapping, "set_cameras", set_cameras)
+    monkeypatch.setattr(mapping, "run_mapper", run_mapper)
+    steps = mapping.map_photos(SimpleNamespace(CancellationToken=lambda: None), "incremental",
+                               tmp_path / "db", tmp_path, tmp_path, photos, 1)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            mapped = done.value
+            break
+    assert priors_seen == [True, False]
+    assert len(mapped.registered) == 28 and mapped.retried and not mapped.used_priors

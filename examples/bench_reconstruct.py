@@ -1,0 +1,172 @@
+"""Photos or a video to cameras (`python -m addon reconstruct`), measured: for each capture the
+time of each stage, the peak memory of the process, the share of photos placed, and the camera
+poses against a reference (rotation error in degrees and position error as a share of the scene
+size, after a similarity alignment of the camera centres), and for captures in order how smooth
+the camera path is (`compare.largest_step`). Numbers only, never a test.
+
+    .venv/bin/python examples/bench_reconstruct.py [--threads 2] [--only demo cup ...]
+                                                   [--mapper incremental|global] [--out DIR]
+
+Captures: `demo` (examples/demo_colmap/images, 30 renders, reference: their exact cameras),
+`cup` (77 photos, reference: the shipped COLMAP model), `beer` (71 video frames as photos,
+reference: the shipped model), `beer-video` (the same 71 frames made into an MPEG-4 video at 10
+fps, H.264 at CRF 18, reconstructed from the video file, frames matched to the reference by number). cup and beer
+come from ../shared/data.
+
+`--train-steps N` then trains N steps (the default recipe, seed 0) on the reconstruction and on
+the reference model (the demo's shipped exact model, cup's and beer's shipped models) at the same
+photo size (`--downscale`: cup and beer are trained at a quarter of their size) and prints the
+held-out PSNR of each (every 8th photo by name held out: the same photos in both, when every
+photo is placed). Runs of one recipe drift by themselves (docs/benchmarks/training_sizes.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from addon.core.sfm.compare import largest_step, model_poses, pose_errors  # noqa: E402
+from addon.core.sfm.process import command, environment  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data"
+DEMO = ROOT / "examples" / "demo_colmap"
+
+
+def demo_truth(pycolmap) -> dict:
+    known = json.loads((DEMO / "known_poses.json").read_text())
+    flip = np.diag([1.0, -1.0, -1.0])  # Blender's camera axes to OpenCV's
+    return {n: (np.array(v["camera_to_world"])[:3, :3] @ flip,
+                np.array(v["camera_to_world"])[:3, 3]) for n, v in known["images"].items()}
+
+
+def make_video(frames: list[Path], path: Path, rate: int = 10) -> None:
+    import av
+
+    from addon.core.images import files as image_io
+    with av.open(str(path), "w") as container:
+        # H.264 at a phone's quality (CRF 18): an encoder's default bit rate blurs the frames
+        stream = container.add_stream("libx264", rate=rate, options={"crf": "18"})
+        first = image_io.read_pixels(frames[0])
+        stream.height, stream.width = first.shape[:2]
+        stream.pix_fmt = "yuv420p"
+        for frame in frames:
+            pixels = image_io.read_pixels(frame)[:, :, :3]
+            for packet in stream.encode(av.VideoFrame.from_ndarray(pixels, format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+
+
+def held_out_psnr(workspace: Path, downscale: float, steps: int, threads: int,
+                  cache: Path) -> tuple[float, int]:
+    from addon.core.colmap import read_colmap
+    from addon.core.train.dataset import ColmapDataset
+    from addon.core.train.trainer import Trainer, TrainConfig
+
+    scene = read_colmap(workspace, image_folder="images", cache_dir=cache)
+    dataset = ColmapDataset(scene, downscale=downscale)
+    dataset.preload(threads=threads)
+    trainer = Trainer(dataset, TrainConfig(steps=steps, seed=0, threads=threads))
+    for _ in trainer.run():
+        pass
+    return trainer.evaluate().psnr, len(dataset.test_indices)
+
+
+def run(source: Path, out: Path, options: dict) -> tuple[dict, float, float]:
+    """The verb in its own process: (report, wall seconds, peak resident MB)."""
+    started = time.perf_counter()
+    process = subprocess.Popen(command(source, out, options), stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, env=environment(), text=True)
+    lines = process.stdout.read().splitlines()
+    _, status, usage = os.wait4(process.pid, 0)
+    process.returncode = os.waitstatus_to_exitcode(status)
+    seconds = time.perf_counter() - started
+    reports = [json.loads(line)["report"] for line in lines if line.startswith('{"report"')]
+    if process.returncode != 0 or not reports:
+        raise RuntimeError(f"{source}: the reconstruction failed (status {process.returncode})")
+    return reports[0], seconds, usage.ru_maxrss / 1024
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--mapper", default="incremental")
+    parser.add_argument("--only", nargs="*", default=["demo", "cup", "beer", "beer-video"])
+    parser.add_argument("--out", type=Path, help="keep the workspaces here")
+    parser.add_argument("--train-steps", type=int, default=0,
+                        help="also train this many steps on each and its reference")
+    args = parser.parse_args()
+    import pycolmap
+
+    work = args.out or Path(tempfile.mkdtemp(prefix="bench-reconstruct-"))
+    rows, trained = [], []
+    for name in args.only:
+        out = work / name
+        if name == "demo":
+            source, truth, reference_dir, downscale = DEMO / "images", demo_truth(pycolmap), DEMO, 1
+        else:
+            capture = "beer" if name.startswith("beer") else name
+            reference = pycolmap.Reconstruction(str(DATA / capture / "sparse" / "0"))
+            truth = model_poses(reference)
+            source, reference_dir, downscale = DATA / capture / "images", DATA / capture, 4
+            if name == "beer-video":
+                frames = sorted(source.iterdir())
+                source = work / "beer.mp4"
+                work.mkdir(parents=True, exist_ok=True)
+                make_video(frames, source)
+                # frame_00012.jpg is the 13th frame, 0012.jpg in the reference
+                truth = {f"frame_{int(Path(n).stem):05d}.jpg": pose for n, pose in truth.items()}
+        report, seconds, peak = run(source, out, {"threads": args.threads,
+                                                  "mapper": args.mapper})
+        found = model_poses(pycolmap.Reconstruction(str(out / "sparse" / "0")))
+        errors = pose_errors(pycolmap, found, truth)
+        stages = report["seconds"]
+        rows.append((name, f"{len(report['registered'])}/{report['photos']}",
+                     report["matching"], *(f"{stages.get(s, 0):.1f}" for s in
+                                           ("photos", "features", "matching", "mapping")),
+                     f"{seconds:.1f}", f"{peak:.0f}",
+                     f"{np.median(errors.rotation_deg):.3f} / {errors.rotation_deg.max():.3f}",
+                     f"{100 * np.median(errors.position):.3f} / {100 * errors.position.max():.3f}",
+                     f"{largest_step(found):.1f} / {largest_step(truth):.1f}"))
+        print(f"{name}: {report['photos']} photos, {errors.summary()}", flush=True)
+        if args.train_steps:
+            cache = work / "train-cache"
+            ours = held_out_psnr(out, downscale, args.train_steps, args.threads, cache)
+            theirs = held_out_psnr(reference_dir, downscale, args.train_steps, args.threads, cache)
+            trained.append((name, f"1/{downscale}", str(ours[1]), f"{theirs[0]:.2f}",
+                            f"{ours[0]:.2f}", f"{ours[0] - theirs[0]:+.2f}"))
+            print(f"{name}: held-out PSNR after {args.train_steps} steps: reference "
+                  f"{theirs[0]:.2f} dB, reconstruction {ours[0]:.2f} dB", flush=True)
+    header = ("capture", "placed", "matching", "photos s", "features s", "matching s",
+              "mapping s", "total s", "peak MB", "rotation err median / max (deg)",
+              "position err median / max (% of scene)",
+              "largest step between consecutive cameras, ours / reference (median steps)")
+    print()
+    print("| " + " | ".join(header) + " |")
+    print("|" + " --- |" * len(header))
+    for row in rows:
+        print("| " + " | ".join(row) + " |")
+    print(f"\n{args.threads} threads, {args.mapper} mapping, workspaces in {work}")
+    if trained:
+        header = ("capture", "size", "held-out views", "reference PSNR", "reconstruction PSNR",
+                  "difference")
+        print(f"\nAfter {args.train_steps} training steps:\n")
+        print("| " + " | ".join(header) + " |")
+        print("|" + " --- |" * len(header))
+        for row in trained:
+            print("| " + " | ".join(row) + " |")
+
+
+if __name__ == "__main__":
+    main()
