@@ -288,7 +288,8 @@ def _reconstruct(args: argparse.Namespace) -> None:
         report = sfm.run(args.source, args.out, sfm.Options(**_options(args, names)),
                          on_step=on_step)
     if args.json:
-        print(json.dumps({"report": report.to_json()}), flush=True)
+        from .core.sfm.process import peak_memory_mb
+        print(json.dumps({"report": report.to_json(), "peak_mb": peak_memory_mb()}), flush=True)
     else:
         print(report.summary(), flush=True)
 

@@ -13,7 +13,8 @@ reference: the shipped model), `beer-video` (the same 71 frames made into an MPE
 fps, H.264 at CRF 18, reconstructed from the video file, frames matched to the reference by number). cup and beer
 come from ../shared/data.
 
-`--train-steps N` then trains N steps (the default recipe, seed 0) on the reconstruction and on
+`--train-steps N` then trains N steps (0: until done; the default recipe, each of `--seeds`) on
+the reconstruction and on
 the reference model (the demo's shipped exact model, cup's and beer's shipped models) at the same
 photo size (`--downscale`: cup and beer are trained at a quarter of their size) and prints the
 held-out PSNR of each (every 8th photo by name held out: the same photos in both, when every
@@ -24,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -69,33 +69,32 @@ def make_video(frames: list[Path], path: Path, rate: int = 10) -> None:
 
 
 def held_out_psnr(workspace: Path, downscale: float, steps: int, threads: int,
-                  cache: Path) -> tuple[float, int]:
+                  cache: Path, seed: int) -> tuple[float, int]:
     from addon.core.colmap import read_colmap
     from addon.core.train.dataset import ColmapDataset
-    from addon.core.train.trainer import Trainer, TrainConfig
+    from addon.core.train.trainer import Trainer, TrainConfig, compact
 
     scene = read_colmap(workspace, image_folder="images", cache_dir=cache)
     dataset = ColmapDataset(scene, downscale=downscale)
     dataset.preload(threads=threads)
-    trainer = Trainer(dataset, TrainConfig(steps=steps, seed=0, threads=threads))
+    trainer = Trainer(dataset, TrainConfig(steps=steps, seed=seed, threads=threads))
     for _ in trainer.run():
         pass
+    if trainer.until_done:
+        compact(trainer)  # as the product's own run until done ends
     return trainer.evaluate().psnr, len(dataset.test_indices)
 
 
 def run(source: Path, out: Path, options: dict) -> tuple[dict, float, float]:
-    """The verb in its own process: (report, wall seconds, peak resident MB)."""
+    """The verb in its own process: (report, wall seconds, its peak resident MB)."""
     started = time.perf_counter()
-    process = subprocess.Popen(command(source, out, options), stdout=subprocess.PIPE,
-                               stderr=subprocess.DEVNULL, env=environment(), text=True)
-    lines = process.stdout.read().splitlines()
-    _, status, usage = os.wait4(process.pid, 0)
-    process.returncode = os.waitstatus_to_exitcode(status)
+    done = subprocess.run(command(source, out, options), capture_output=True, text=True,
+                          env=environment())
     seconds = time.perf_counter() - started
-    reports = [json.loads(line)["report"] for line in lines if line.startswith('{"report"')]
-    if process.returncode != 0 or not reports:
-        raise RuntimeError(f"{source}: the reconstruction failed (status {process.returncode})")
-    return reports[0], seconds, usage.ru_maxrss / 1024
+    last = [json.loads(line) for line in done.stdout.splitlines() if line.startswith('{"report"')]
+    if done.returncode != 0 or not last:
+        raise RuntimeError(f"{source}: the reconstruction failed (status {done.returncode})")
+    return last[0]["report"], seconds, last[0]["peak_mb"]
 
 
 def main() -> None:
@@ -104,8 +103,10 @@ def main() -> None:
     parser.add_argument("--mapper", default="incremental")
     parser.add_argument("--only", nargs="*", default=["demo", "cup", "beer", "beer-video"])
     parser.add_argument("--out", type=Path, help="keep the workspaces here")
-    parser.add_argument("--train-steps", type=int, default=0,
-                        help="also train this many steps on each and its reference")
+    parser.add_argument("--train-steps", type=int, default=None,
+                        help="also train this many steps on each and its reference (0: until "
+                             "done, the default recipe's stop)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="training seeds")
     args = parser.parse_args()
     import pycolmap
 
@@ -140,14 +141,15 @@ def main() -> None:
                      f"{100 * np.median(errors.position):.3f} / {100 * errors.position.max():.3f}",
                      f"{largest_step(found):.1f} / {largest_step(truth):.1f}"))
         print(f"{name}: {report['photos']} photos, {errors.summary()}", flush=True)
-        if args.train_steps:
+        for seed in args.seeds if args.train_steps is not None else ():
             cache = work / "train-cache"
-            ours = held_out_psnr(out, downscale, args.train_steps, args.threads, cache)
-            theirs = held_out_psnr(reference_dir, downscale, args.train_steps, args.threads, cache)
-            trained.append((name, f"1/{downscale}", str(ours[1]), f"{theirs[0]:.2f}",
+            ours = held_out_psnr(out, downscale, args.train_steps, args.threads, cache, seed)
+            theirs = held_out_psnr(reference_dir, downscale, args.train_steps, args.threads,
+                                   cache, seed)
+            trained.append((name, str(seed), f"1/{downscale}", str(ours[1]), f"{theirs[0]:.2f}",
                             f"{ours[0]:.2f}", f"{ours[0] - theirs[0]:+.2f}"))
-            print(f"{name}: held-out PSNR after {args.train_steps} steps: reference "
-                  f"{theirs[0]:.2f} dB, reconstruction {ours[0]:.2f} dB", flush=True)
+            print(f"{name}: held-out PSNR, seed {seed}: reference {theirs[0]:.2f} dB, "
+                  f"reconstruction {ours[0]:.2f} dB", flush=True)
     header = ("capture", "placed", "matching", "photos s", "features s", "matching s",
               "mapping s", "total s", "peak MB", "rotation err median / max (deg)",
               "position err median / max (% of scene)",
@@ -159,9 +161,9 @@ def main() -> None:
         print("| " + " | ".join(row) + " |")
     print(f"\n{args.threads} threads, {args.mapper} mapping, workspaces in {work}")
     if trained:
-        header = ("capture", "size", "held-out views", "reference PSNR", "reconstruction PSNR",
-                  "difference")
-        print(f"\nAfter {args.train_steps} training steps:\n")
+        header = ("capture", "seed", "size", "held-out views", "reference PSNR",
+                  "reconstruction PSNR", "difference")
+        print(f"\nTrained {args.train_steps or 'until done'} steps:\n")
         print("| " + " | ".join(header) + " |")
         print("|" + " --- |" * len(header))
         for row in trained:

@@ -157,7 +157,7 @@ class InPy313Root:
             copy_tree(ROOT / "tests" / "real_blender", staged / "checkout" / "tests"
                       / "real_blender")
             shutil.copy2(zip_path, staged)
-            for name in ("splats", "beer"):  # what the stages read
+            for name in ("splats", "beer", "cup"):  # what the stages read
                 copy_tree(data / name, staged / "data" / name)
             InPy313Root.staged = staged
         self.script = self.staged / "checkout" / "scripts" / Path(__file__).name

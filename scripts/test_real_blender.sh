@@ -8,7 +8,8 @@
 # In each Blender: `extension validate` and `extension install-file` of the linux-x64 zip that
 # scripts/build_extension.py builds; a scene with splats, a cube in front and a plane behind
 # (tests/real_blender/scene.py); `blender -c gaussian_splatting` (each verb's --help, a conversion,
-# a missing file); F12 (`bpy.ops.render.render(write_still=True)`) and
+# a missing file, `reconstruct` on the demo photos); File > Import > Photos or Video (imports, or
+# greyed out naming pycolmap where it cannot load: tests/real_blender/photos.py); F12 (`bpy.ops.render.render(write_still=True)`) and
 # `blender -b scene.blend -a`, each written PNG held against the native composite within 1/255
 # (tests/real_blender/check.py); forced composite failures (a missing module, splats that cannot
 # be gathered, a native error), each of which must fail the render with a non-zero exit code and
@@ -58,7 +59,7 @@ for suite in $SUITES; do
     # a format conversion, and a missing file, which must fail with exit status 1.
     cp examples/demo_scene.ply "$io/demo_scene.ply"
     ok=ok; detail=""
-    for verb in "" import-colmap train render convert-to-mesh convert; do
+    for verb in "" reconstruct import-colmap train render convert-to-mesh convert; do
         run blender -c gaussian_splatting $verb --help
         rc=$?; [ $rc = 0 ] || { ok=FAIL; detail="$detail ${verb:-(command)} --help exit $rc;"; }
     done
@@ -67,6 +68,22 @@ for suite in $SUITES; do
     run blender -c gaussian_splatting convert $t/missing.ply $t/out/x.ply
     rc=$?; [ $rc = 1 ] || { ok=FAIL; detail="$detail convert of a missing file exit $rc;"; }
     note "$suite" "blender -c" $ok "${detail:-the help of every verb, convert, a missing file (exit 1)}"
+
+    # Photos to cameras: `reconstruct` on the demo photos (where this Blender cannot load
+    # pycolmap, Debian's 5.2, the verb runs in a process of its own Python), then File > Import >
+    # Photos or Video on the same folder: it imports, or it is greyed out naming pycolmap.
+    mkdir -p "$io/photos" && cp examples/demo_colmap/images/*.jpg "$io/photos/"
+    run blender -c gaussian_splatting reconstruct $t/photos --out $t/out/photos_scene --threads 2
+    rc=$?; line=$(grep -m1 '^registered' "$io/last.log")
+    if [ $rc = 0 ] && [[ "$line" == "registered 30 of 30"* ]]; then
+        note "$suite" "reconstruct" ok "${line%% in /*}"
+    else
+        note "$suite" "reconstruct" FAIL "exit $rc: $(tail -c 300 "$io/last.log" | tr '\n' ' ')"
+    fi
+    run blender -b --python $t/photos.py -- $t/photos $t/out/photos_scene
+    rc=$?; line=$(grep -m1 '^photos:' "$io/last.log")
+    note "$suite" "Import Photos or Video" "$([ $rc = 0 ] && echo ok || echo FAIL)" \
+        "${line:-no result, see $io/last.log}"
 
     run blender -b --factory-startup --python $t/scene.py -- $t/splats.npz $t/scene.blend
     [ -f "$io/scene.blend" ] || { note "$suite" scene FAIL "see $io/last.log"; continue; }

@@ -373,10 +373,15 @@ def ui_kernel_threads() -> int:
     return max(1, cpu_count() - 1)
 
 
+WAIT_STEP = 0.05  # seconds a blocking StagedJob sleeps when its steps wait on other work
+
+
 class StagedJob:
     """Work that must stay on one thread (it touches Blender data), done in small steps:
     `steps` is a generator of (stage, fraction of that stage) or (stage, fraction, what the
-    status line says instead of the stage's name) whose return value becomes `result`;
+    status line says instead of the stage's name), or None while it waits on work elsewhere (a
+    process, a thread: `poll` then returns at once, `run` sleeps a little), whose return value
+    becomes `result`;
     `stages` names them in order, for the overall fraction (`weights`: their shares). The same
     interface as `TrainingJob` (start, poll, run, cancel, join, progress), so one runner drives both:
     `poll(seconds)` advances it for about that long (from a UI timer), `run()` to the end.
@@ -423,7 +428,7 @@ class StagedJob:
                 self._end("cancelled")
                 return
             try:
-                stage, fraction, *detail = next(self._steps)
+                step = next(self._steps)
             except StopIteration as finished:
                 self.result = finished.value
                 self._end("done")
@@ -433,6 +438,12 @@ class StagedJob:
                 self.error_traceback = traceback.format_exc()
                 self._end("failed", f"{type(error).__name__}: {error}")
                 return
+            if step is None:  # waiting on work elsewhere
+                if seconds != float("inf"):
+                    return  # the thread is the caller's until the next poll
+                time.sleep(WAIT_STEP)  # blocking (`run`): wait a little
+                continue
+            stage, fraction, *detail = step
             index = self.stages.index(stage) if stage in self.stages else 0
             overall = (self._starts[index] + self._shares[index] * min(max(fraction, 0.0), 1.0)
                        if self.stages else 0.0)

@@ -12,7 +12,6 @@ The report says how many photos were placed of how many and names those left out
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import bpy
@@ -35,7 +34,6 @@ MODULES = colmap_import.MODULES
 FEATURE = "Reconstructing cameras from photos"
 STAGES = ("reconstructing", "importing")
 WEIGHTS = (0.95, 0.05)  # of the progress bar: the import is a few seconds
-POLL_SLEEP = 0.05  # seconds between looks at the child process
 
 
 def default_output(source: Path) -> Path:
@@ -45,8 +43,9 @@ def default_output(source: Path) -> Path:
 
 
 def reconstruct_steps(source: Path, output: Path, options: dict, import_options: dict):
-    """Generator of (stage, fraction, status) for `StagedJob`: the child process, then the
-    import; returns (report as JSON, the new collection). Closing it ends the child."""
+    """Generator of (stage, fraction, status) for `StagedJob`: the child process (yielding None
+    while it works, so that Blender's main thread only looks in on it), then the import;
+    returns (report as JSON, the new collection). Closing it ends the child."""
     process = ReconstructionProcess(source, output, options)
     try:
         while process.running:
@@ -55,7 +54,7 @@ def reconstruct_steps(source: Path, output: Path, options: dict, import_options:
                 yield "reconstructing", 0.0, "starting"
             else:
                 yield "reconstructing", step["fraction"], step["line"]
-            time.sleep(POLL_SLEEP)
+            yield None
         report = process.report()
     finally:
         process.stop()

@@ -50,6 +50,19 @@ def environment() -> dict[str, str]:
     return env
 
 
+def peak_memory_mb() -> float | None:
+    """This process's peak resident memory since it started its program, in MB (Linux's
+    VmHWM; `getrusage` would also count what a forked parent had resident before the exec)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 class ReconstructionProcess:
     """The child process and what it has said so far (read on two daemon threads)."""
 

@@ -5,6 +5,7 @@ was and the report says why."""
 from __future__ import annotations
 
 import shutil
+import time
 from pathlib import Path
 
 import bpy
@@ -64,6 +65,7 @@ def test_cancelled_at_any_stage_leaves_the_scene_as_it_was(tmp_path, stage):
     job = StagedJob(steps, reconstruct.STAGES, weights=reconstruct.WEIGHTS).start()
     while not job.done and not job.progress().message.startswith(stage):
         job.poll(0.05)
+        time.sleep(0.02)  # as the modal timer: the main thread is Blender's between polls
     assert not job.done, f"finished before reaching {stage!r}"
     job.cancel()
     job.join()

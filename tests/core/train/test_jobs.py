@@ -53,6 +53,28 @@ def test_staged_job_polls_cancels_and_fails_cleanly() -> None:
         StagedJob(_steps([], fail_at="load"), STAGES).run()
 
 
+def test_steps_that_wait_give_the_thread_back_and_weights_share_the_bar() -> None:
+    """A step of None (the work is elsewhere, a child process) ends a poll at once, whatever its
+    budget; `run` waits through it. Details replace the stage's name in the status line."""
+    def waiting():
+        yield "wait", 0.5, "half done elsewhere"
+        for _ in range(3):
+            yield None
+        yield "finish", 1.0
+        return "ok"
+
+    job = StagedJob(waiting(), ("wait", "finish"), weights=(3, 1)).start()
+    job.poll(10.0)  # returns at the first None, not after 10 s
+    assert job.progress().message == "half done elsewhere"
+    assert job.progress().fraction == pytest.approx(0.375)
+    for _ in range(2):  # the other two waits
+        job.poll(10.0)
+    assert not job.done
+    job.poll(10.0)
+    assert job.done and job.result == "ok"
+    assert StagedJob(waiting(), ("wait", "finish")).run().result == "ok"
+
+
 def test_printer_writes_a_line_per_stage_not_per_step() -> None:
     lines: list[str] = []
     printer = ProgressPrinter("Converting", interval=3600.0, write=lines.append)
