@@ -192,7 +192,9 @@ def zip_name(version: str, platform: str) -> str:
 
 
 def build_zip(out_dir: Path, platform: str, wheels: list[Path]) -> Path:
-    wheels = sorted(set(wheels), key=lambda p: p.name)
+    # One wheel a name: an abi3 wheel (splatcore, av) is fetched once per Python, each time
+    # into that Python's cache folder.
+    wheels = sorted({w.name: w for w in wheels}.values(), key=lambda p: p.name)
     manifest, version = manifest_for(platform, [w.name for w in wheels])
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / zip_name(version, platform)

@@ -43,3 +43,21 @@ def test_every_import_is_in_blender_or_bundled():
     assert not missing, f"imported by the add-on but neither in Blender nor bundled: {missing}"
     # and the check sees the imports it must: the bundled ones are all really used
     assert set(build_extension.BUNDLED) <= set(third_party)
+
+
+def test_an_abi3_wheel_fetched_for_each_python_goes_into_the_zip_once(tmp_path):
+    """av and splatcore are one abi3 wheel for every Python; fetched per Python, each copy lies
+    in that Python's cache folder, and the zip must hold it once (a second entry of the same
+    name is a broken zip and 36 MB more)."""
+    import zipfile
+
+    copies = []
+    for python in ("3.11", "3.13"):
+        wheel = tmp_path / python / "av-18.1.0-cp311-abi3-manylinux_2_28_x86_64.whl"
+        wheel.parent.mkdir()
+        wheel.write_bytes(b"wheel")
+        copies.append(wheel)
+    zip_path = build_extension.build_zip(tmp_path / "dist", "linux-x64", copies)
+    with zipfile.ZipFile(zip_path) as archive:
+        wheels = [n for n in archive.namelist() if n.startswith("wheels/")]
+    assert wheels == ["wheels/av-18.1.0-cp311-abi3-manylinux_2_28_x86_64.whl"]

@@ -133,7 +133,9 @@ def test_install_the_zip_and_render_like_a_farm_node(rng, tmp_path):
                    capture_output=True, timeout=600)
     (zip_path,) = dist.glob("gaussian_splatting-*-linux_x64.zip")
     with zipfile.ZipFile(zip_path) as archive:
-        names = set(archive.namelist())
+        listed = archive.namelist()
+        names = set(listed)
+        assert len(listed) == len(names), "a name twice in the zip"
         manifest = tomllib.loads(archive.read("blender_manifest.toml").decode())
     assert {"blender_manifest.toml", "__init__.py", "blender/render/hooks.py",
             "core/render/renderer.py"} <= names
