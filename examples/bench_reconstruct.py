@@ -37,7 +37,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from addon.core.sfm.compare import largest_step, model_poses, pose_errors  # noqa: E402
-from addon.core.sfm.process import command, environment  # noqa: E402
+from addon.core.child import environment  # noqa: E402
+from addon.core.sfm.process import command  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 DEMO = ROOT / "examples" / "demo_colmap"

@@ -8,8 +8,9 @@
 # In each Blender: `extension validate` and `extension install-file` of the linux-x64 zip that
 # scripts/build_extension.py builds; a scene with splats, a cube in front and a plane behind
 # (tests/real_blender/scene.py); `blender -c gaussian_splatting` (each verb's --help, a conversion,
-# a missing file, `reconstruct` on the demo photos); File > Import > Photos or Video (imports, or
-# greyed out naming pycolmap where it cannot load: tests/real_blender/photos.py); F12 (`bpy.ops.render.render(write_still=True)`) and
+# a missing file, `reconstruct` on the demo photos); File > Import > Photos or Video and a short
+# training (in Debian's 5.2, whose process cannot load pycolmap, COLMAP's work runs in a child
+# process of its Python: tests/real_blender/photos.py); F12 (`bpy.ops.render.render(write_still=True)`) and
 # `blender -b scene.blend -a`, each written PNG held against the native composite within 1/255
 # (tests/real_blender/check.py); forced composite failures (a missing module, splats that cannot
 # be gathered, a native error), each of which must fail the render with a non-zero exit code and
@@ -71,7 +72,7 @@ for suite in $SUITES; do
 
     # Photos to cameras: `reconstruct` on the demo photos (where this Blender cannot load
     # pycolmap, Debian's 5.2, the verb runs in a process of its own Python), then File > Import >
-    # Photos or Video on the same folder: it imports, or it is greyed out naming pycolmap.
+    # Photos or Video on the same folder and a short training on the scene.
     mkdir -p "$io/photos" && cp examples/demo_colmap/images/*.jpg "$io/photos/"
     run blender -c gaussian_splatting reconstruct $t/photos --out $t/out/photos_scene --threads 2
     rc=$?; line=$(grep -m1 '^registered' "$io/last.log")

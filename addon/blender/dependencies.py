@@ -61,10 +61,15 @@ def bundled_pythons(module: str, manifest: Path | None = None) -> list[str] | No
 
 
 def _refusal(module: str) -> str | None:
-    """Why `module` must not even be imported in this process (None: it may be tried)."""
+    """Why `module` cannot be had at all (None: it may be tried). pycolmap refused in this
+    process (a distribution's Blender) is no refusal when it is there for a child process of
+    this Python: COLMAP work then runs there (`core.colmap.outside`, `core.sfm.process`)."""
     if module == "pycolmap":
         from ..core.colmap.errors import pycolmap_refusal
-        return pycolmap_refusal()
+        refusal = pycolmap_refusal()
+        if refusal is not None and importlib.util.find_spec("pycolmap") is not None:
+            return None
+        return refusal
     return None
 
 
@@ -143,9 +148,10 @@ def require(module: str, feature: str) -> None:
     if refusal is not None:
         raise MissingModule(_message(module, feature, refusal))
     try:
-        if module == "pycolmap":  # its one import
-            from ..core.colmap.errors import import_pycolmap
-            import_pycolmap()
+        if module == "pycolmap":  # its one import, unless it is for child processes only
+            from ..core.colmap.errors import import_pycolmap, pycolmap_refusal
+            if pycolmap_refusal() is None:
+                import_pycolmap()
         else:
             importlib.import_module(module)
     except Exception as error:  # noqa: BLE001 - see `available`

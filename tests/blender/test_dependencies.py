@@ -62,12 +62,22 @@ def test_a_wheel_for_this_python_that_does_not_load_says_reinstall(installed, mo
 
 
 def test_pycolmap_refused_in_a_distribution_blender_says_one_thing(monkeypatch):
-    """Debian's Blender links the system's gflags: pycolmap would close it. The message says
-    so and what to use, and nothing about installing pycolmap (which would not help)."""
+    """Debian's Blender links the system's gflags: pycolmap would close it. Where its wheel is
+    there, COLMAP work runs in a child process of Blender's Python, so nothing is refused; where
+    it is not, the message says so and what to use, and nothing about installing pycolmap."""
+    import importlib.util
+
     monkeypatch.delitem(sys.modules, "pycolmap", raising=False)
     monkeypatch.setattr(colmap_errors, "_shared_gflags_loaded", lambda: True)
     dependencies.forget()
     try:
+        dependencies.require("pycolmap", "Importing a COLMAP scene")  # out of process: fine
+        assert "pycolmap" not in sys.modules  # and not imported here
+        assert dependencies.unavailable("pycolmap", "Importing a COLMAP scene") is None
+        dependencies.forget()
+        find_spec = importlib.util.find_spec
+        monkeypatch.setattr(importlib.util, "find_spec",
+                            lambda name, *a: None if name == "pycolmap" else find_spec(name, *a))
         with pytest.raises(dependencies.MissingModule) as caught:
             dependencies.require("pycolmap", "Importing a COLMAP scene")
         message = str(caught.value)

@@ -354,7 +354,7 @@ def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
 
     def read() -> None:
         try:
-            outcome["data"] = colmap.read_colmap(
+            outcome["data"] = colmap.read_colmap_anywhere(
                 directory, image_folder, cache_dir=cache_dir, align=align, up=up,
                 scene_size=scene_size, copy_photos=copy_photos, progress=progress)
         except BaseException as error:  # handed to the main thread below

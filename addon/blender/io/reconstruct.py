@@ -27,9 +27,8 @@ from ..job_runner import JobOperator, OperatorJob, wants_background
 from ..registration import module_registration
 from . import colmap_import
 
-# The reconstruction runs in a child process that imports pycolmap itself, so a Blender that
-# must not load pycolmap in-process could still reconstruct; the import that follows reads the
-# model in-process, hence the same modules as Import COLMAP (and PyAV for videos, in the child).
+# What Import COLMAP needs (pycolmap in this process or, in a distribution's Blender, in a child
+# process: `dependencies`); PyAV, for videos, is the reconstruction's child process's to load.
 MODULES = colmap_import.MODULES
 FEATURE = "Reconstructing cameras from photos"
 STAGES = ("reconstructing", "importing")

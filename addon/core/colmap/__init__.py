@@ -43,6 +43,9 @@ folders, links included; points and observations with NaN or Inf are dropped and
 
 Blender-free: numpy, pycolmap and OpenImageIO only.
 
+Where pycolmap cannot load in this process (a Linux distribution's Blender), `read_colmap_anywhere`
+reads in a child process of the same Python (`outside`); Blender's import and training use it.
+
 The package, one job per module: `model` finds the model and its photos and reads it; `checks`
 holds what a model from a stranger must pass (sizes, parameters, names that stay inside their
 folders, finite values); `undistort` maps distorted cameras to pinhole; `cache` holds the
@@ -57,6 +60,7 @@ from .cache import CACHE_VERSION, Progress, user_cache_dir
 from .errors import ColmapError, import_pycolmap
 from .model import (IMAGE_FOLDERS, MODEL_FILES, check_binary_model, find_image_dir, find_model,
                     read_reconstruction)
+from .outside import read_colmap_anywhere
 from .reader import read_colmap
 from .scene import PINHOLE_MODELS, ColmapImage, ColmapPoints, ColmapScene
 from .undistort import PinholeIntrinsics, pinhole_of, undistortion_map
@@ -66,6 +70,6 @@ __all__ = [
     "ColmapError", "ColmapImage", "ColmapPoints", "ColmapScene", "PinholeIntrinsics", "Progress",
     "alignment", "camera_up_vectors", "check_binary_model", "decompose_similarity", "estimate_up",
     "find_image_dir", "find_model", "ground_plane", "import_pycolmap", "look_at_centre",
-    "pinhole_of", "read_colmap", "read_reconstruction", "similarity", "transform_camera",
-    "transform_points", "undistortion_map", "user_cache_dir",
+    "pinhole_of", "read_colmap", "read_colmap_anywhere", "read_reconstruction", "similarity",
+    "transform_camera", "transform_points", "undistortion_map", "user_cache_dir",
 ]

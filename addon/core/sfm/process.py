@@ -1,12 +1,10 @@
 """The reconstruction in a process of its own, for Blender's operator.
 
-COLMAP's mapping is one long call that holds Python's lock and cannot be interrupted; in its own
-process it leaves Blender's interface free, stops the moment the user cancels (the process is
-ended: every stage writes its files atomically, so the next run resumes), and a crash in it
-cannot take Blender (and the user's unsaved work) with it. The child is the `reconstruct`
-command-line verb with `--json`, run by the same Python interpreter with the same module path
-(`sys.executable`: Blender's own Python in an official Blender), so it finds the extension's
-wheels as Blender does.
+In its own process the reconstruction leaves Blender's interface free, stops the moment the
+user cancels (the process is ended: every stage writes its files atomically, so the next run
+resumes), a crash in it cannot take Blender (and the user's unsaved work) with it, and it runs
+in a Blender that cannot load pycolmap itself. The child is the `reconstruct` command-line verb
+with `--json` (`core.child`: the same Python and module path as Blender's).
 
     process = ReconstructionProcess(source, folder, {"threads": 2})
     while process.running:
@@ -22,32 +20,18 @@ import subprocess
 import sys
 import threading
 from collections import deque
-from pathlib import Path
 
+from ..child import environment, python_command
 from .errors import ReconstructionError
 
-_PACKAGE = Path(__file__).resolve().parents[2]  # the add-on's package folder
-# Runs `<package>.cli.main(argv)` with the package imported by its folder name: a plain Python
-# process has no `bl_ext` namespace, and the package's __init__ imports nothing of Blender.
-_BOOT = ("import importlib, sys; sys.path.insert(0, sys.argv[1]); "
-         "sys.exit(importlib.import_module(sys.argv[2] + '.cli').main(sys.argv[3:]))")
 STOP_GRACE = 5.0  # seconds between asking the child to end and killing it
 
 
 def command(source: str | os.PathLike, folder: str | os.PathLike, options: dict) -> list[str]:
-    argv = [sys.executable, "-c", _BOOT, str(_PACKAGE.parent), _PACKAGE.name, "reconstruct",
-            str(source), "--out", str(folder), "--json"]
+    args = ["reconstruct", str(source), "--out", str(folder), "--json"]
     for name, value in options.items():
-        argv += [f"--{name.replace('_', '-')}", str(value)]
-    return argv
-
-
-def environment() -> dict[str, str]:
-    """This process's environment with its module path, so the child imports what it does."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
-    env["PYTHONIOENCODING"] = "utf-8"
-    return env
+        args += [f"--{name.replace('_', '-')}", str(value)]
+    return python_command("cli", args)
 
 
 def peak_memory_mb() -> float | None:

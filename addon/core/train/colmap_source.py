@@ -48,7 +48,7 @@ class ColmapSource:
         now on `preload_threads` threads (0: every core; -1: lazily, on first use).
         `progress(fraction, message)` may raise to cancel."""
         report = progress or (lambda fraction, message: None)
-        scene = colmap.read_colmap(self.model_dir, image_folder or self.image_folder,
+        scene = colmap.read_colmap_anywhere(self.model_dir, image_folder or self.image_folder,
                                    cache_dir=self.cache_dir, align=False,
                                    progress=lambda f, m: report(0.3 * f, m))
         scene = with_cameras(scene.transformed(self.transform), self.cameras, self.points)

@@ -5,12 +5,14 @@ was and the report says why."""
 from __future__ import annotations
 
 import shutil
+import sys
 import time
 from pathlib import Path
 
 import bpy
 import pytest
 
+from addon.blender import dependencies
 from addon.blender.io import reconstruct
 from addon.core.jobs import StagedJob
 from tests.bpy_support import reset_scene, scene_state
@@ -72,3 +74,34 @@ def test_cancelled_at_any_stage_leaves_the_scene_as_it_was(tmp_path, stage):
     assert job.progress().phase == "cancelled" and job.result is None
     assert scene_state() == before and not bpy.data.collections
     assert not list(tmp_path.glob("out/sparse/0/*.bin")) or stage == "importing"
+
+
+def test_a_distribution_blender_reconstructs_imports_and_trains_out_of_process(tmp_path,
+                                                                             monkeypatch):
+    """As in Debian's Blender (the system's gflags loaded: pycolmap must not load here): the
+    reconstruction, the COLMAP reading for the import and for training each run in a child
+    process of this Python, and pycolmap is never imported in this one."""
+    from addon.core.colmap import errors as colmap_errors
+
+    monkeypatch.setattr(colmap_errors, "_shared_gflags_loaded", lambda: True)
+    monkeypatch.delitem(sys.modules, "pycolmap", raising=False)
+    dependencies.forget()
+    try:
+        assert bpy.ops.splat.import_photos.poll() and bpy.ops.splat.import_colmap.poll()
+        photos = tmp_path / "photos"
+        photos.mkdir()
+        for i in range(12, 30):
+            shutil.copy(DEMO_PHOTOS / f"{i:03d}.jpg", photos)
+        assert bpy.ops.splat.import_photos(filepath=str(photos) + "/", threads=2,
+                                           output=str(tmp_path / "scene")) == {"FINISHED"}
+        (collection,) = bpy.data.collections
+        assert sum("colmap_image_name" in o for o in collection.objects) >= 16
+        before = set(bpy.data.objects)
+        assert bpy.ops.splat.train(collection=collection.name, steps=30, threads=2,
+                                   max_gaussians=5000, sh_degree=0, update_every=0,
+                                   checkpoint_every=0,
+                                   checkpoint=str(tmp_path / "t.npz")) == {"FINISHED"}
+        assert len(set(bpy.data.objects) - before) == 1
+        assert "pycolmap" not in sys.modules
+    finally:
+        dependencies.forget()

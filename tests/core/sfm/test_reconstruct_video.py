@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from addon.core.sfm.compare import largest_step, model_poses
-from addon.core.sfm.process import command, environment
+from addon.core.child import environment
+from addon.core.sfm.process import command
 
 av = pytest.importorskip("av")
 MEMORY_BOUND_MB = 1500
