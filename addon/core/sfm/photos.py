@@ -23,6 +23,10 @@ from ..atomic import atomic_write
 from ..images import files as image_io
 from .errors import ReconstructionError
 
+
+class UnreadablePhoto(ReconstructionError):
+    """A source photo that cannot be decoded (corrupt, truncated, not an image): skipped."""
+
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)  # 43.27 mm
 DEFAULT_MAX_SIZE = 1600
 
@@ -73,30 +77,34 @@ def output_name(source: Path, taken: set[str]) -> str:
 
 
 def write_photo(source: Path, images_dir: Path, name: str, max_size: int) -> Photo:
-    """Write `source` as `images_dir / name`, upright and bounded; ReconstructionError for a
-    photo that cannot be read."""
+    """Write `source` as `images_dir / name`, upright and bounded. UnreadablePhoto for a photo
+    that cannot be decoded; ReconstructionError naming the target when it cannot be written (a
+    full disk: that stops the run, it does not skip photos)."""
     try:
         header = image_io.read_header(source)
+        image_io.check_decodes(source)  # a truncated or corrupt file fails here, by name
+        width, height = header.size(oriented=True)
+        size = bounded_size(width, height, max_size)
+        pixels = None
+        if header.orientation != 1 or size != (width, height) or \
+                source.suffix.lower() != Path(name).suffix.lower():
+            pixels = image_io.read_pixels(source, orientation=header.orientation, size=size)
     except image_io.ImageError as error:
-        raise ReconstructionError(str(error)) from None
-    width, height = header.size(oriented=True)
-    size = bounded_size(width, height, max_size)
+        raise UnreadablePhoto(str(error)) from None
     target = images_dir / name
     try:
-        image_io.check_decodes(source)  # a truncated or corrupt file fails here, by name
-        if header.orientation == 1 and size == (width, height) and \
-                source.suffix.lower() == target.suffix.lower():
+        if pixels is None:  # upright, small enough, same format: the file as it is
             with open(source, "rb") as src, atomic_write(target) as dst:
                 shutil.copyfileobj(src, dst)
         else:
-            pixels = image_io.read_pixels(source, orientation=header.orientation, size=size)
             if pixels.shape[2] in (2, 4):  # alpha: COLMAP and training take colour
                 pixels = pixels[:, :, :pixels.shape[2] - 1]
             if target.suffix.lower() == ".jpg" and pixels.dtype != "uint8":
                 pixels = (image_io.to_float(pixels) * 255.0 + 0.5).clip(0, 255).astype("uint8")
             image_io.write_pixels(target, pixels)
-    except image_io.ImageError as error:
-        raise ReconstructionError(str(error)) from None
+    except OSError as error:  # ImageError included
+        raise ReconstructionError(f"{target}: cannot write the photo: "
+                                  f"{getattr(error, 'strerror', None) or error}") from None
     focal = exif_focal_px(_exif_35mm(source), *size)
     return Photo(name, source.name, size[0], size[1], focal)
 

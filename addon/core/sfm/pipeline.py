@@ -33,7 +33,7 @@ from ..atomic import atomic_write
 from ..colmap.errors import import_pycolmap
 from . import mapping, pairs
 from .errors import ReconstructionError
-from .photos import DEFAULT_MAX_SIZE, Photo, output_name, write_photo
+from .photos import DEFAULT_MAX_SIZE, Photo, UnreadablePhoto, output_name, write_photo
 from .source import Source, find_source
 from .video import DEFAULT_FRAME_COUNT, sample_video
 
@@ -345,7 +345,7 @@ def _write_photos(source: Source, workspace: Workspace, options: Options):
         name = output_name(path, taken)
         try:
             photo = write_photo(path, workspace.images, name, options.max_size)
-        except ReconstructionError as error:
+        except UnreadablePhoto as error:
             source.skipped.append((path.name, f"cannot be read ({_short(error, path)})"))
         else:
             photos.append(photo)

@@ -219,3 +219,18 @@ def test_too_few_placed_with_the_priors_maps_again_without_them(tmp_path, monkey
             break
     assert priors_seen == [True, False]
     assert len(mapped.registered) == 28 and mapped.retried and not mapped.used_priors
+
+
+def test_a_full_disk_stops_the_run_by_name_instead_of_skipping_photos(tmp_path, monkeypatch):
+    import errno
+
+    from addon.core.sfm import photos as photos_module
+
+    photos = demo_photos(tmp_path / "photos", ["000.jpg", "001.jpg"])
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(photos_module, "atomic_write", full)
+    with pytest.raises(sfm.ReconstructionError, match="000.jpg: cannot write the photo: No space"):
+        sfm.run(photos, tmp_path / "out")
