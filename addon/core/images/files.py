@@ -45,6 +45,7 @@ class ImageHeader:
     channels: int
     pixel_type: str  # "uint8" | "uint16" | "half" | "float"
     orientation: int  # EXIF orientation, 1..8 (1 = as stored)
+    focal_35mm: float = 0.0  # EXIF FocalLengthIn35mmFilm (0: not in the file)
 
     def size(self, oriented: bool) -> tuple[int, int]:
         """(width, height) as stored, or after turning the photo upright."""
@@ -74,7 +75,8 @@ def read_header(path: str | os.PathLike) -> ImageHeader:
         spec = inp.spec()
         orientation = spec.get_int_attribute("Orientation", 1)
         return ImageHeader(path, spec.width, spec.height, spec.nchannels, _pixel_type(spec),
-                           orientation if 1 <= orientation <= 8 else 1)
+                           orientation if 1 <= orientation <= 8 else 1,
+                           spec.get_float_attribute("Exif:FocalLengthIn35mmFilm", 0.0))
     finally:
         inp.close()
 

@@ -105,17 +105,4 @@ def write_photo(source: Path, images_dir: Path, name: str, max_size: int) -> Pho
     except OSError as error:  # ImageError included
         raise ReconstructionError(f"{target}: cannot write the photo: "
                                   f"{getattr(error, 'strerror', None) or error}") from None
-    focal = exif_focal_px(_exif_35mm(source), *size)
-    return Photo(name, source.name, size[0], size[1], focal)
-
-
-def _exif_35mm(path: Path) -> float:
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        return 0.0
-    try:
-        return float(inp.spec().get_float_attribute("Exif:FocalLengthIn35mmFilm", 0.0))
-    finally:
-        inp.close()
+    return Photo(name, source.name, size[0], size[1], exif_focal_px(header.focal_35mm, *size))
