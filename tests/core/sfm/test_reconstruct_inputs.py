@@ -74,7 +74,7 @@ def test_photos_that_do_not_overlap_place_no_camera(tmp_path, rng):
     for i in range(5):
         noise_photo(photos / f"{i}.png", rng)
     with pytest.raises(sfm.ReconstructionError, match="no cameras could be placed"):
-        sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+        sfm.run(photos, tmp_path / "out", sfm.Options(threads=2, features="fast"))
 
 
 # The demo's photos 7-9 see little texture: an arc through them may split in two, so the tests
@@ -86,7 +86,7 @@ def test_a_truncated_photo_is_left_out_by_name(tmp_path):
     photos = demo_photos(tmp_path / "photos", STEADY[:8])
     data = (DEMO_PHOTOS / "001.jpg").read_bytes()
     (photos / "broken.jpg").write_bytes(data[: len(data) // 3])
-    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2, features="fast"))
     assert dict(report.skipped)["broken.jpg"].startswith("cannot be read")
     # An arc of 8 views: an end photo may not place (which, varies with COLMAP's threads).
     assert report.photos == 8 and len(report.registered) >= 7
@@ -101,7 +101,7 @@ def test_mixed_captures_keep_the_largest_and_name_the_rest(tmp_path, rng, shared
         shutil.copy(shared_data / "cup" / "images" / f"{number}.jpg", photos / f"cup_{number}.jpg")
     for i in range(2):
         noise_photo(photos / f"noise_{i}.png", rng)
-    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2, features="fast"))
     print(report.summary())
     assert len(report.registered) >= 16
     assert all(name in STEADY for name in report.registered)
@@ -136,6 +136,7 @@ def test_an_output_that_cannot_be_written(tmp_path):
 
 def test_bad_options_are_refused_before_any_work(tmp_path):
     for options in (sfm.Options(matching="magic"), sfm.Options(mapper="magic"),
+                    sfm.Options(features="magic"),
                     sfm.Options(frames=1), sfm.Options(max_size=10)):
         with pytest.raises(ValueError):
             sfm.run(tmp_path, tmp_path / "out", options)
@@ -145,15 +146,18 @@ def test_bad_options_are_refused_before_any_work(tmp_path):
 def test_a_cancelled_run_resumes_where_it_stopped(tmp_path):
     photos = demo_photos(tmp_path / "photos", STEADY)
     out = tmp_path / "out"
-    steps = sfm.reconstruct(photos, out, sfm.Options(threads=2))
+    steps = sfm.reconstruct(photos, out, sfm.Options(threads=2, features="fast"))
     for step in steps:
         if step.stage == "matching":
             break
     steps.close()  # cancelled in the middle of matching
     assert not (out / "sparse").exists()
-    report = sfm.run(photos, out, sfm.Options(threads=2))
+    report = sfm.run(photos, out, sfm.Options(threads=2, features="fast"))
     assert report.cached == ["photos", "features"]
     assert len(report.registered) >= 16
+    # Another kind of features: they and everything after them are made again.
+    again = sfm.run(photos, out, sfm.Options(threads=2, features="accurate"))
+    assert again.cached == ["photos"] and again.points > report.points
 
 
 def test_a_wrong_exif_focal_length_is_not_trusted(tmp_path):
@@ -175,7 +179,7 @@ def test_a_wrong_exif_focal_length_is_not_trusted(tmp_path):
         out = oiio.ImageOutput.create(str(photos / source.name))
         assert out.open(str(photos / source.name), spec) and out.write_image(pixels)
         out.close()
-    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
+    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2, features="fast"))
     print(f"priors used: {report.used_priors}, retried: {report.retried}, "
           f"placed {len(report.registered)}")
     model = pycolmap.Reconstruction(str(tmp_path / "out" / "sparse" / "0"))
