@@ -81,10 +81,11 @@ for suite in $SUITES; do
     else
         note "$suite" "reconstruct" FAIL "exit $rc: $(tail -c 300 "$io/last.log" | tr '\n' ' ')"
     fi
-    run blender -b --python $t/photos.py -- $t/photos $t/out/photos_scene
+    run blender -b --python-exit-code 1 --python $t/photos.py -- $t/photos $t/out/photos_scene
     rc=$?; line=$(grep -m1 '^photos:' "$io/last.log")
-    note "$suite" "Import Photos or Video" "$([ $rc = 0 ] && echo ok || echo FAIL)" \
-        "${line:-no result, see $io/last.log}"
+    note "$suite" "Import Photos or Video" \
+        "$([ $rc = 0 ] && [[ "$line" == "photos: imported"* ]] && echo ok || echo FAIL)" \
+        "${line:-no result: $(grep -m1 -A2 'Error' "$io/last.log" | tr '\n' ' ' | tail -c 300)}"
 
     run blender -b --factory-startup --python $t/scene.py -- $t/splats.npz $t/scene.blend
     [ -f "$io/scene.blend" ] || { note "$suite" scene FAIL "see $io/last.log"; continue; }

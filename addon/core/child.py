@@ -20,6 +20,9 @@ import sys
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1]  # the add-on's package folder
+# The package's name in this process ("addon" in a checkout, "bl_ext.user_default.<id>" in an
+# installed extension); in a child it is the folder's name.
+PACKAGE_MODULE = __name__.rsplit(".", 2)[0]
 _BOOT = ("import importlib, sys; sys.path.insert(0, sys.argv[1]); "
          "sys.exit(importlib.import_module(sys.argv[2]).main(sys.argv[3:]))")
 
@@ -28,6 +31,12 @@ def python_command(module: str, args: list[str]) -> list[str]:
     """The command that runs `<package>.<module>.main(args)` in a new Python process."""
     return [sys.executable, "-c", _BOOT, str(PACKAGE.parent), f"{PACKAGE.name}.{module}",
             *map(str, args)]
+
+
+def module_here(module: str) -> str:
+    """A module name as a child process knows it, as this process does (pickled classes)."""
+    prefix = PACKAGE.name + "."
+    return PACKAGE_MODULE + module[len(PACKAGE.name):] if module.startswith(prefix) else module
 
 
 def environment() -> dict[str, str]:

@@ -20,7 +20,7 @@ import tempfile
 from pathlib import Path
 
 from ..atomic import atomic_path
-from ..child import environment, python_command
+from ..child import environment, module_here, python_command
 from .cache import Progress
 from .errors import ColmapError, pycolmap_refusal
 from .reader import read_colmap
@@ -71,8 +71,16 @@ def read_colmap_in_a_process(path, image_folder: str = "images", *,
             tail = " ".join(stderr.split()[-40:])
             raise ColmapError(f"{path}: the COLMAP reader's process ended with status "
                               f"{child.returncode}" + (f": {tail}" if tail else ""))
-        with open(result, "rb") as f:
-            return pickle.load(f)  # written by the child just now, into our private folder
+        with open(result, "rb") as f:  # written by the child just now, into our private folder
+            return _Unpickler(f).load()
+
+
+class _Unpickler(pickle.Unpickler):
+    """The child's classes are the add-on's under the package's folder name; here the package
+    may be called otherwise (`bl_ext.user_default.gaussian_splatting` in Blender)."""
+
+    def find_class(self, module: str, name: str):
+        return super().find_class(module_here(module), name)
 
 
 def main(argv: list[str]) -> int:

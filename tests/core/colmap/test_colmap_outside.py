@@ -66,3 +66,20 @@ def test_in_this_process_when_it_may(monkeypatch, tmp_path):
                         lambda *a, **k: pytest.fail("went to a child process"))
     assert "pycolmap" in sys.modules or colmap_errors.pycolmap_refusal() is None
     assert len(colmap.read_colmap_anywhere(DEMO, "images", cache_dir=tmp_path).images) == 30
+
+
+def test_a_package_named_otherwise_in_the_child_still_unpickles(monkeypatch, tmp_path):
+    """Installed in Blender the add-on is `bl_ext.user_default.gaussian_splatting`, while the
+    child imports it by its folder's name: the scene's classes must map back. Here the child
+    runs a copy of the package named `gaussian_splatting` while this process knows `addon`."""
+    import shutil
+
+    from addon.core import child
+
+    copy = tmp_path / "extensions" / "gaussian_splatting"
+    shutil.copytree(child.PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(child, "PACKAGE", copy)
+    refuse(monkeypatch)
+    scene = colmap.read_colmap_anywhere(DEMO, "images", cache_dir=tmp_path / "cache")
+    assert type(scene) is colmap.ColmapScene and len(scene.images) == 30
+    assert type(scene.images[0].camera).__module__ == "addon.core.cameras"
