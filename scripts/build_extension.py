@@ -63,6 +63,9 @@ PYTHONS = ("3.11", "3.13", "3.14")
 # Python: OVERRIDES names the version used for it.
 BUNDLED = ("pycolmap", "OpenImageIO", "xatlas", "zstandard", "av")
 OVERRIDES = {("openimageio", "3.14"): "3.1.19.0"}  # the 3.0 line publishes no cp314 wheels
+# Wheels of use only beside another: videos are read only to reconstruct, which needs pycolmap
+# (no zip carries 34 MB of FFmpeg that nothing can use).
+ONLY_WITH = {"av": "pycolmap"}
 
 
 @dataclass(frozen=True)
@@ -171,6 +174,10 @@ def dependency_wheels(platform: Platform, pythons: tuple[str, ...], cache: Path
     found = {}
     for python in pythons:
         for package in BUNDLED:
+            needed = ONLY_WITH.get(package)
+            if needed is not None and found[needed, python].wheel is None:
+                found[package, python] = Fetched(None, f"not without {needed}")
+                continue
             version = OVERRIDES.get((normalized(package), python), pins[normalized(package)])
             found[package, python] = fetch(package, version, platform, python, cache)
     return found
@@ -219,7 +226,8 @@ def table(found: dict[tuple[str, str], Fetched], pythons: tuple[str, ...]) -> st
         cells = []
         for python in pythons:
             item = found[package, python]
-            cell = "MISSING" if item.wheel is None else item.wheel.name.split("-")[1]
+            cell = (item.wheel.name.split("-")[1] if item.wheel is not None
+                    else "left out" if item.note else "MISSING")
             cells.append(f"{cell + (' (' + item.note + ')' if item.note else ''):<40}")
         rows.append(f"    {package:<12}" + "".join(cells))
     return "\n".join(rows)
