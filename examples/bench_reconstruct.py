@@ -34,11 +34,12 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from addon.core.sfm.compare import largest_step, model_poses, pose_errors  # noqa: E402
 from addon.core.child import environment  # noqa: E402
 from addon.core.sfm.process import command  # noqa: E402
+from videos import photos_as_video  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 DEMO = ROOT / "examples" / "demo_colmap"
@@ -49,24 +50,6 @@ def demo_truth(pycolmap) -> dict:
     flip = np.diag([1.0, -1.0, -1.0])  # Blender's camera axes to OpenCV's
     return {n: (np.array(v["camera_to_world"])[:3, :3] @ flip,
                 np.array(v["camera_to_world"])[:3, 3]) for n, v in known["images"].items()}
-
-
-def make_video(frames: list[Path], path: Path, rate: int = 10) -> None:
-    import av
-
-    from addon.core.images import files as image_io
-    with av.open(str(path), "w") as container:
-        # H.264 at a phone's quality (CRF 18): an encoder's default bit rate blurs the frames
-        stream = container.add_stream("libx264", rate=rate, options={"crf": "18"})
-        first = image_io.read_pixels(frames[0])
-        stream.height, stream.width = first.shape[:2]
-        stream.pix_fmt = "yuv420p"
-        for frame in frames:
-            pixels = image_io.read_pixels(frame)[:, :, :3]
-            for packet in stream.encode(av.VideoFrame.from_ndarray(pixels, format="rgb24")):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
 
 
 def held_out_psnr(workspace: Path, downscale: float, steps: int, threads: int,
@@ -126,7 +109,7 @@ def main() -> None:
                 frames = sorted(source.iterdir())
                 source = work / "beer.mp4"
                 work.mkdir(parents=True, exist_ok=True)
-                make_video(frames, source)
+                photos_as_video(frames, source)
                 # frame_00012.jpg is the 13th frame, 0012.jpg in the reference
                 truth = {f"frame_{int(Path(n).stem):05d}.jpg": pose for n, pose in truth.items()}
         report, seconds, peak = run(source, out, {"threads": args.threads,

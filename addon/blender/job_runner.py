@@ -202,6 +202,13 @@ class JobOperator:
         return context.window_manager.invoke_props_dialog(self, width=420, title=title,
                                                           confirm_text=confirm_text)
 
+    def invoke_file_browser(self, context) -> set:
+        """`invoke` for a job that starts from the file browser (an importer): its accept runs
+        `execute` in the background."""
+        self.interactive = wants_background(context)
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
     def run_job(self, context, job: OperatorJob) -> set:
         """The one execute path: in the background when `self.interactive` and there is a
         window, else blocking."""

@@ -59,7 +59,7 @@ from ..camera_adapter import (
     set_lens,
     to_matrix,
 )
-from ..job_runner import JobOperator, OperatorJob, wants_background
+from ..job_runner import JobOperator, OperatorJob
 from . import photo_scene
 from ..registration import module_registration
 
@@ -505,9 +505,7 @@ class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
         return dependencies.poll_unavailable(cls, MODULES, FEATURE)
 
     def invoke(self, context, event):
-        self.interactive = wants_background(context)
-        context.window_manager.fileselect_add(self)
-        return {"RUNNING_MODAL"}
+        return self.invoke_file_browser(context)
 
     def execute(self, context):
         try:

@@ -138,9 +138,7 @@ class SPLAT_OT_import_photos(JobOperator, bpy.types.Operator):
         return dependencies.poll_unavailable(cls, MODULES, FEATURE)
 
     def invoke(self, context, event):
-        self.interactive = wants_background(context)
-        context.window_manager.fileselect_add(self)
-        return {"RUNNING_MODAL"}
+        return self.invoke_file_browser(context)
 
     def draw(self, context):
         layout = self.layout

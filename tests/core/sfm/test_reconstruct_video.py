@@ -7,38 +7,23 @@ from __future__ import annotations
 
 import json
 import subprocess
-from pathlib import Path
 
 import pytest
 
 from addon.core.sfm.compare import largest_step, model_poses
 from addon.core.child import environment
 from addon.core.sfm.process import command
+from videos import photos_as_video
 
-av = pytest.importorskip("av")
+pytest.importorskip("av")
 MEMORY_BOUND_MB = 1500
-
-
-def make_video(frames: list[Path], path: Path) -> None:
-    from addon.core.images import files as image_io
-
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264", rate=10, options={"crf": "18"})
-        stream.height, stream.width = 1280, 720
-        stream.pix_fmt = "yuv420p"
-        for frame in frames:
-            pixels = image_io.read_pixels(frame)[:, :, :3]
-            for packet in stream.encode(av.VideoFrame.from_ndarray(pixels, format="rgb24")):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
 
 
 def test_beers_video_is_placed_frame_by_frame_within_the_memory_bound(shared_data, tmp_path):
     import pycolmap
 
     video = tmp_path / "beer.mp4"
-    make_video(sorted((shared_data / "beer" / "images").iterdir()), video)
+    photos_as_video(sorted((shared_data / "beer" / "images").iterdir()), video)
     done = subprocess.run(command(video, tmp_path / "scene", {"threads": 2}), text=True,
                           capture_output=True, env=environment(), timeout=900)
     print(done.stderr[-2000:])

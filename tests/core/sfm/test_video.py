@@ -3,7 +3,6 @@ each time slice, upright and bounded, and clear errors for videos that cannot be
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,9 @@ from addon.core.images import files as image_io
 from addon.core.sfm import ReconstructionError
 from addon.core.sfm.sharpness import laplacian_variance
 from addon.core.sfm.video import choose_frames, sample_video, upright
+from videos import write_video
 
-av = pytest.importorskip("av")
+pytest.importorskip("av")
 
 
 def blur(image: np.ndarray, passes: int) -> np.ndarray:
@@ -22,19 +22,6 @@ def blur(image: np.ndarray, passes: int) -> np.ndarray:
         out = (np.roll(out, 1, 0) + np.roll(out, -1, 0) + np.roll(out, 1, 1)
                + np.roll(out, -1, 1) + out) / 5.0
     return out
-
-
-def write_video(path: Path, frames: list[np.ndarray], rate: int = 24) -> None:
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("mpeg4", rate=rate)
-        stream.height, stream.width = frames[0].shape[:2]
-        stream.pix_fmt = "yuv420p"
-        stream.options = {"qscale": "2"}
-        for frame in frames:
-            for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
 
 
 def panning_frames(rng: np.random.Generator, count: int, sharp_every: int,
@@ -86,7 +73,7 @@ def drain(steps):
 
 def test_a_video_gives_its_sharp_frames_at_a_bounded_size(tmp_path, rng):
     video = tmp_path / "pan.mp4"
-    write_video(video, panning_frames(rng, 40, sharp_every=5))
+    write_video(video, panning_frames(rng, 40, sharp_every=5), codec="mpeg4")
     out = tmp_path / "images"
     out.mkdir()
     photos = drain(sample_video(video, out, count=8, max_size=64))
@@ -99,7 +86,7 @@ def test_a_video_gives_its_sharp_frames_at_a_bounded_size(tmp_path, rng):
 def test_a_still_video_is_refused(tmp_path, rng):
     video = tmp_path / "still.mp4"
     frame = rng.integers(0, 256, size=(64, 64, 3), dtype=np.uint8)
-    write_video(video, [frame] * 20)
+    write_video(video, [frame] * 20, codec="mpeg4")
     with pytest.raises(ReconstructionError, match="does not move"):
         drain(sample_video(video, tmp_path, count=8, max_size=0))
 
@@ -110,7 +97,7 @@ def test_broken_videos_are_named(tmp_path, rng):
     with pytest.raises(ReconstructionError, match="garbage.mp4"):
         drain(sample_video(garbage, tmp_path, count=8, max_size=0))
     video = tmp_path / "cut.mp4"
-    write_video(video, panning_frames(rng, 30, sharp_every=1))
+    write_video(video, panning_frames(rng, 30, sharp_every=1), codec="mpeg4")
     data = video.read_bytes()
     video.write_bytes(data[: len(data) // 2])  # truncated: the frames before the cut are used
     out = tmp_path / "images"
