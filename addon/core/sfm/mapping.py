@@ -39,11 +39,9 @@ class Mapped:
         return {image.name for image in self.model.images.values() if image.has_pose}
 
 
-def set_cameras(pycolmap, database: Path, photos: list[Photo], use_priors: bool) -> bool:
-    """Start every camera from its photos' EXIF focal length (`use_priors`) or COLMAP's guess;
-    returns whether any prior was set."""
+def set_cameras(pycolmap, database: Path, photos: list[Photo], use_priors: bool) -> None:
+    """Start every camera from its photos' EXIF focal length (`use_priors`) or COLMAP's guess."""
     by_name = {p.name: p for p in photos}
-    any_prior = False
     db = pycolmap.Database.open(str(database))
     try:
         photo_of_camera: dict[int, Photo] = {}
@@ -60,11 +58,9 @@ def set_cameras(pycolmap, database: Path, photos: list[Photo], use_priors: bool)
             params[0] = focal
             camera.params = params
             camera.has_prior_focal_length = prior is not None
-            any_prior |= prior is not None
             db.update_camera(camera)
     finally:
         db.close()
-    return any_prior
 
 
 def run_mapper(pycolmap, mapper: str, database: Path, images_dir: Path, output: Path,

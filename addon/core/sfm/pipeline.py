@@ -130,6 +130,9 @@ class Report:
                  f"{'frames' if self.kind == 'video' else 'photos'} ({self.cameras} camera(s), "
                  f"{self.points:,} points, {self.matching} matching, {self.mapper} mapping) "
                  f"in {self.workspace}"]
+        if self.retried and not self.used_priors:
+            lines.append("  the photos' EXIF focal lengths did not fit them (cropped or "
+                         "exported?): the cameras were found without them")
         lines += [f"  left out {name}: {why}" for name, why in self.left_out]
         lines += [f"  skipped {name}: {why}" for name, why in self.skipped]
         return "\n".join(lines)

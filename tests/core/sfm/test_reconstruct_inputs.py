@@ -206,7 +206,6 @@ def test_too_few_placed_with_the_priors_maps_again_without_them(tmp_path, monkey
 
     def set_cameras(pycolmap, database, photos, use_priors):
         priors_seen.append(use_priors)
-        return use_priors
 
     def run_mapper(pycolmap, mapper, database, images, output, threads, on_image, cancel):
         return [fake_model(5 if priors_seen[-1] else 28)]
