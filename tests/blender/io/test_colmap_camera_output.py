@@ -168,7 +168,7 @@ def test_import_is_a_staged_job_that_talks_and_cancels_cleanly(tmp_path, rng, ca
             stopped.append(True)
             raise
 
-    monkeypatch.setattr(colmap_import.colmap, "read_colmap", slow_read)
+    monkeypatch.setattr(colmap_import.colmap, "read_colmap_anywhere", slow_read)
     steps = colmap_import.import_steps(tmp_path / "ws", align=False)
     for _ in range(1000):  # the worker reports within a few polls, however loaded the machine
         if next(steps) == ("reading", 0.5):

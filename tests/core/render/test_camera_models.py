@@ -223,7 +223,11 @@ def test_panorama_is_continuous_across_the_seam(rng, model):
     a = api.render(gaussians, camera).alpha
     b = api.render(gaussians, _yawed(camera, math.pi)).alpha
     assert np.abs(a[:, :3]).max() > 0.1 and np.abs(a[:, -3:]).max() > 0.1  # on the seam
-    assert np.abs(np.roll(b, 64, axis=1) - a).max() < 2e-3
+    diff = np.abs(np.roll(b, 64, axis=1) - a)
+    # A Gaussian whose alpha at a pixel sits at the 1/255 cut-off falls on either side of it
+    # after the turn's float rounding: over 1,000 seeds 6 scenes had one such pixel (up to
+    # 0.0035, seed 3489671140 failed CI's run at 0.0021); elsewhere the images agree within 2e-3.
+    assert (diff >= 2e-3).mean() <= 1e-3 and diff.max() < 1 / 255
 
 
 def test_a_gaussian_on_the_pole_is_drawn_all_around(rng):
