@@ -5,7 +5,8 @@ size, after a similarity alignment of the camera centres), and for captures in o
 the camera path is (`compare.largest_step`). Numbers only, never a test.
 
     .venv/bin/python examples/bench_reconstruct.py [--threads 2] [--only demo cup ...]
-                                                   [--mapper incremental|global] [--out DIR]
+        [--features accurate|fast] [--mapper incremental|global] [--out DIR] [--render-cost]
+        [--train-steps N [--seeds 0 1 ...]]
 
 Captures: `demo` (examples/demo_colmap/images, 30 renders, reference: their exact cameras),
 `cup` (77 photos, reference: the shipped COLMAP model), `beer` (71 video frames as photos,
@@ -69,6 +70,52 @@ def held_out_psnr(workspace: Path, downscale: float, steps: int, threads: int,
     return trainer.evaluate().psnr, len(dataset.test_indices)
 
 
+def render_cost(pycolmap, workspace: Path, threads: int) -> None:
+    """Gaussians trained on the demo's exact cameras, rendered through the reconstruction's
+    cameras (moved into the exact frame by the similarity of the centres, distortion left out)
+    and through the exact ones: the PSNR our camera errors cost, without training noise."""
+    from addon.core.cameras import Camera
+    from addon.core.colmap import read_colmap
+    from addon.core.images import files as image_io
+    from addon.core.render.renderer import render
+    from addon.core.train.dataset import ColmapDataset
+    from addon.core.train.trainer import Trainer, TrainConfig
+
+    scene = read_colmap(DEMO, "images", cache_dir=workspace.parent / "train-cache")
+    dataset = ColmapDataset(scene)
+    dataset.preload(threads=threads)
+    trainer = Trainer(dataset, TrainConfig(steps=2000, seed=0, threads=threads))
+    for _ in trainer.run():
+        pass
+    ours = pycolmap.Reconstruction(str(workspace / "sparse" / "0"))
+    by_name = {im.name: im for im in ours.images.values()}
+    names = [im.name for im in scene.images]
+    sim = pycolmap.estimate_sim3d(np.array([by_name[n].projection_center() for n in names]),
+                                  np.array([im.camera.centre for im in scene.images]))
+    rotation, shift = np.asarray(sim.rotation.matrix()), np.asarray(sim.translation)
+    (camera,) = ours.cameras.values()
+    focal, cx, cy = camera.params[:3]
+
+    def psnr(cam, photo) -> float:
+        rgb = np.clip(render(trainer.gaussians, cam, background=trainer.background).rgb, 0, 1)
+        return float(-10 * np.log10(np.mean((rgb - photo) ** 2)))
+
+    rows = []
+    for k, im in enumerate(scene.images):
+        photo = image_io.to_float(image_io.read_pixels(im.path))[:, :, :3]
+        m = np.asarray(by_name[im.name].cam_from_world().matrix())
+        w2c = np.eye(4)
+        w2c[:3, :3] = m[:, :3] @ rotation.T
+        w2c[:3, 3] = -m[:, :3] @ rotation.T @ shift + sim.scale * m[:, 3]
+        mine = Camera(w2c, focal, focal, cx, cy, im.camera.width, im.camera.height)
+        rows.append((k in dataset.test_indices, psnr(im.camera, photo), psnr(mine, photo)))
+    rows = np.array(rows)
+    held = rows[rows[:, 0] == 1]
+    print(f"demo render cost: all views exact {rows[:, 1].mean():.2f} dB, ours "
+          f"{rows[:, 2].mean():.2f} dB; held-out exact {held[:, 1].mean():.2f}, ours "
+          f"{held[:, 2].mean():.2f} dB", flush=True)
+
+
 def run(source: Path, out: Path, options: dict) -> tuple[dict, float, float]:
     """The verb in its own process: (report, wall seconds, its peak resident MB)."""
     started = time.perf_counter()
@@ -85,6 +132,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--mapper", default="incremental")
+    parser.add_argument("--features", default="accurate", choices=("accurate", "fast"))
+    parser.add_argument("--render-cost", action="store_true",
+                        help="demo: what our cameras cost a render of Gaussians trained 2,000 "
+                             "steps on the exact ones (PSNR through ours against through exact)")
     parser.add_argument("--only", nargs="*", default=["demo", "cup", "beer", "beer-video"])
     parser.add_argument("--out", type=Path, help="keep the workspaces here")
     parser.add_argument("--train-steps", type=int, default=None,
@@ -112,8 +163,10 @@ def main() -> None:
                 photos_as_video(frames, source)
                 # frame_00012.jpg is the 13th frame, 0012.jpg in the reference
                 truth = {f"frame_{int(Path(n).stem):05d}.jpg": pose for n, pose in truth.items()}
-        report, seconds, peak = run(source, out, {"threads": args.threads,
-                                                  "mapper": args.mapper})
+        report, seconds, peak = run(source, out, {"threads": args.threads, "mapper": args.mapper,
+                                                  "features": args.features})
+        if name == "demo" and args.render_cost:
+            render_cost(pycolmap, out, args.threads)
         found = model_poses(pycolmap.Reconstruction(str(out / "sparse" / "0")))
         errors = pose_errors(pycolmap, found, truth)
         stages = report["seconds"]
@@ -143,11 +196,12 @@ def main() -> None:
     print("|" + " --- |" * len(header))
     for row in rows:
         print("| " + " | ".join(row) + " |")
-    print(f"\n{args.threads} threads, {args.mapper} mapping, workspaces in {work}")
+    print(f"\n{args.threads} threads, {args.features} features, {args.mapper} mapping, "
+          f"workspaces in {work}")
     if trained:
         header = ("capture", "seed", "size", "held-out views", "reference PSNR",
                   "reconstruction PSNR", "difference")
-        print(f"\nTrained {args.train_steps or 'until done'} steps:\n")
+        print(f"\nTrained {f'{args.train_steps} steps' if args.train_steps else 'until done'}:\n")
         print("| " + " | ".join(header) + " |")
         print("|" + " --- |" * len(header))
         for row in trained:

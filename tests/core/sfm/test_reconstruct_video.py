@@ -1,7 +1,7 @@
 """A real phone video to cameras: beer's 71 frames (720x1280, ../shared/data/beer) made into an
 H.264 video, reconstructed from the file by the `reconstruct` verb in a process of its own (as
 Blender's operator runs it): every frame placed along a smooth path, within a stated memory
-bound (measured: 743 MB peak resident, docs/benchmarks/reconstruction.md)."""
+bound (measured: 613 MB peak resident, docs/benchmarks/reconstruction.md)."""
 
 from __future__ import annotations
 
