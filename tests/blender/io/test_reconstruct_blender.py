@@ -42,7 +42,8 @@ def test_the_menu_entry_and_the_default_output(tmp_path):
     video = tmp_path / "walk.mp4"
     video.write_bytes(b"")
     assert reconstruct.default_output(video) == tmp_path / "walk_scene"
-    assert reconstruct._menu_import in bpy.types.TOPBAR_MT_file_import._dyn_ui_initialize()
+    draws = bpy.types.TOPBAR_MT_file_import._dyn_ui_initialize()
+    assert any(getattr(draw, "__module__", "").endswith("io.reconstruct") for draw in draws)
 
 
 def test_bad_input_is_reported_and_changes_nothing(tmp_path):
