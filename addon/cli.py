@@ -270,7 +270,7 @@ def _reconstruct(args: argparse.Namespace) -> None:
     from .core import sfm
     from .core.colmap.errors import pycolmap_refusal
 
-    names = ("frames", "max_size", "features", "matching", "mapper", "threads")
+    names = ("frames", "max_size", "features", "cameras", "matching", "mapper", "threads")
     last = {"stage": None, "at": float("-inf")}
 
     def on_step(step: sfm.Step) -> None:
@@ -366,6 +366,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--features", choices=("accurate", "fast"),
                    help="accurate (default: DSP-SIFT with affine shapes, the more exact cameras) "
                         "or fast (plain SIFT, about a third of the extraction time)")
+    p.add_argument("--cameras", choices=("auto", "shared", "per-photo"),
+                   help="auto (default: a camera per photo for photos, one shared by a video's "
+                        "frames), shared, or per-photo")
     p.add_argument("--matching", choices=("auto", "exhaustive", "sequential", "retrieval"),
                    help="which photos are matched (default auto: sequential for a video, "
                         "exhaustive up to 100 photos, retrieval beyond)")

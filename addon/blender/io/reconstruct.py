@@ -116,6 +116,11 @@ class SPLAT_OT_import_photos(JobOperator, bpy.types.Operator):
         ("accurate", "Accurate", "SIFT with affine shapes and domain-size pooling: the more "
                                  "exact cameras (on the demo, half the largest rotation error)"),
         ("fast", "Fast", "Plain SIFT: about a third of the time to find features")])
+    cameras: EnumProperty(name="Cameras", default="auto", items=[
+        ("auto", "Automatic", "A camera per photo for photos (a phone's focal length moves with "
+                              "its focus), one shared by a video's frames"),
+        ("shared", "Shared", "One camera for all photos of one size and lens"),
+        ("per-photo", "Per Photo", "A camera (focal length, distortion) for each photo")])
     matching: EnumProperty(name="Matching", default="auto", items=[
         ("auto", "Automatic", "Sequential for a video, every pair up to 100 photos, "
                               "retrieval beyond"),
@@ -144,8 +149,8 @@ class SPLAT_OT_import_photos(JobOperator, bpy.types.Operator):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        for name in ("output", "frames", "max_size", "features", "matching", "mapper",
-                     "threads", "train_after"):
+        for name in ("output", "frames", "max_size", "features", "cameras", "matching",
+                     "mapper", "threads", "train_after"):
             layout.prop(self, name)
 
     def _source(self) -> Path:
@@ -164,7 +169,8 @@ class SPLAT_OT_import_photos(JobOperator, bpy.types.Operator):
         output = Path(bpy.path.abspath(self.output)) if self.output else default_output(source)
         threads = self.threads or (ui_kernel_threads() if self.interactive else 0)
         options = {"frames": self.frames, "max_size": self.max_size, "features": self.features,
-                   "matching": self.matching, "mapper": self.mapper, "threads": threads}
+                   "cameras": self.cameras, "matching": self.matching, "mapper": self.mapper,
+                   "threads": threads}
         steps = reconstruct_steps(source, output, options, {"scene": context.scene})
         train_after = self.train_after
 

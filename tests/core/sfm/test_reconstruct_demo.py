@@ -37,7 +37,7 @@ def test_every_demo_photo_is_placed_at_its_known_camera(demo_workspace):
 
     folder, report, _ = demo_workspace
     assert report.photos == 30 and len(report.registered) == 30 and not report.left_out
-    assert report.matching == "exhaustive" and report.cameras == 1
+    assert report.matching == "exhaustive" and report.cameras == 30  # a camera per photo
     errors = pose_errors(pycolmap, model_poses(pycolmap.Reconstruction(str(folder / "sparse/0"))),
                          known_poses())
     print(errors.summary())
