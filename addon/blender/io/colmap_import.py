@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from pathlib import Path
 
 import bpy
@@ -49,7 +50,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from ...core import colmap
 from ...core.cameras import camera_to_blender
 from .. import dependencies
-from ...core.jobs import StagedJob
+from ...core.jobs import WAIT_STEP, StagedJob
 from ..camera_adapter import (
     apply_recorded_output,
     marker_camera,
@@ -312,7 +313,11 @@ def import_colmap(directory: str | os.PathLike, image_folder: str = "images", *,
     report = progress or (lambda fraction, message: None)
     try:
         while True:
-            stage, fraction = next(steps)
+            step = next(steps)
+            if step is None:
+                time.sleep(WAIT_STEP)
+                continue
+            stage, fraction = step
             report((STAGES.index(stage) + fraction) / len(STAGES), stage)
     except StopIteration as done:
         report(1.0, "done")
@@ -338,7 +343,8 @@ def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
                  animated_camera: bool = False, set_scene_camera: bool = True,
                  copy_photos: bool = True, scene: bpy.types.Scene | None = None,
                  photo_colours: bool = True, mesh_light: bool = True):
-    """The import as a generator of (stage, fraction) steps (`STAGES`) for `job_runner`; its
+    """The import as a generator of (stage, fraction) steps (`STAGES`), or None while the
+    reader works (`core.jobs.StagedJob`: the caller's thread is free), for `job_runner`; its
     return value is the new collection. The Blender-free reading (model, photos, undistortion)
     runs on a worker thread meanwhile; closing the generator stops it at its next photo and
     removes whatever was built. `photo_colours` and `mesh_light`: see `photo_scene`. The other
@@ -364,8 +370,8 @@ def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
     worker.start()
     try:
         while worker.is_alive():
-            worker.join(0.05)
             yield "reading", state["fraction"]
+            yield None  # the reader works on its own thread: the caller's is free meanwhile
     finally:
         if worker.is_alive():  # closed early: stop the reader and wait for it
             state["cancel"] = True

@@ -61,10 +61,14 @@ def reconstruct_steps(source: Path, output: Path, options: dict, import_options:
     try:  # closing this generator closes the import, which removes what it built
         while True:
             try:
-                stage, fraction = next(steps)
+                step = next(steps)
             except StopIteration as done:
                 collection = done.value
                 break
+            if step is None:  # the reader works on its own thread
+                yield None
+                continue
+            stage, fraction = step
             parts = len(colmap_import.STAGES)
             yield ("importing", (colmap_import.STAGES.index(stage) + fraction) / parts,
                    "importing the scene")

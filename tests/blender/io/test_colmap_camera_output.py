@@ -10,6 +10,8 @@ tests/blender/test_cameras_blender.py); the model's points projected through tha
 
 from __future__ import annotations
 
+import time
+
 import bpy_support as bs
 from bpy_support import bpy  # the shared bpy import
 import numpy as np
@@ -152,8 +154,8 @@ def test_import_is_a_staged_job_that_talks_and_cancels_cleanly(tmp_path, rng, ca
     before = bs.scene_state()
     # Esc while building (StagedJob.cancel closes the generator at its next poll)
     steps = colmap_import.import_steps(tmp_path / "ws", align=False)
-    while next(steps)[0] != "building":
-        pass
+    while (step := next(steps)) is None or step[0] != "building":
+        time.sleep(0.001 if step is None else 0)  # None: the reader works on its thread
     assert bpy.data.collections  # half built
     steps.close()
     assert bs.scene_state() == before and not bpy.data.collections
@@ -171,8 +173,11 @@ def test_import_is_a_staged_job_that_talks_and_cancels_cleanly(tmp_path, rng, ca
     monkeypatch.setattr(colmap_import.colmap, "read_colmap_anywhere", slow_read)
     steps = colmap_import.import_steps(tmp_path / "ws", align=False)
     for _ in range(1000):  # the worker reports within a few polls, however loaded the machine
-        if next(steps) == ("reading", 0.5):
+        step = next(steps)
+        if step == ("reading", 0.5):
             break
+        if step is None:
+            time.sleep(0.01)
     else:
         pytest.fail("the reader never reported")
     steps.close()
