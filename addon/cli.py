@@ -11,11 +11,12 @@ Verbs (each has `--help`):
     convert-to-mesh in.ply|scene.blend --out mesh.blend
     convert in.ply out.spz [--forward Z --up -Y]       splat file to splat file
 
-Every verb but `convert` and `reconstruct` runs Blender's own operators (the ones the menus run, with their
-defaults: an option left out here is the operator's default), headless: long jobs print a
-line per stage and every few seconds. `convert` and `reconstruct` need no Blender at all. Exit status: 0 done,
-1 the work failed (the reason on stderr, once), 2 bad arguments (an unknown verb or option, a
-bad value, an output name whose extension the verb cannot write).
+Every verb but `convert` and `reconstruct` runs Blender's own operators (the ones the menus
+run, with their defaults: an option left out here is the operator's default), headless: long
+jobs print a line per stage and every few seconds. `convert` and `reconstruct` need no
+Blender at all. Exit status: 0 done, 1 the work failed (the reason on stderr, once), 2 bad
+arguments (an unknown verb or option, a bad value, an output name whose extension the verb
+cannot write).
 
 `python -m addon` needs this repository on Python's path: run it from the repository root, or
 anywhere after `scripts/bootstrap.sh`, which puts the repository on the venv's path.
@@ -35,6 +36,9 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from .core import axes
+from .core.sfm.mapping import MAPPERS
+from .core.sfm.pairs import METHODS as MATCHING
+from .core.sfm.pipeline import CAMERAS, FEATURES
 from .core.train.config import STRATEGY_NAMES
 
 COMMAND_ID = "gaussian_splatting"  # `blender -c gaussian_splatting ...` (the extension's id)
@@ -363,17 +367,18 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                                               "each time slice (default 200)")
     p.add_argument("--max-size", type=int, help="long side of the workspace's photos in "
                                                 "pixels (default 1600; 0: as they are)")
-    p.add_argument("--features", choices=("accurate", "fast"),
+    p.add_argument("--features", choices=FEATURES,
                    help="accurate (default: DSP-SIFT with affine shapes, the more exact cameras) "
                         "or fast (plain SIFT, about a third of the extraction time)")
-    p.add_argument("--cameras", choices=("auto", "shared", "per-photo"),
+    p.add_argument("--cameras", choices=CAMERAS,
                    help="auto (default: a camera per photo for photos, one shared by a video's "
                         "frames), shared, or per-photo")
-    p.add_argument("--matching", choices=("auto", "exhaustive", "sequential", "retrieval"),
+    p.add_argument("--matching", choices=MATCHING,
                    help="which photos are matched (default auto: sequential for a video, "
                         "exhaustive up to 100 photos, retrieval beyond)")
-    p.add_argument("--mapper", choices=("global", "incremental"),
-                   help="COLMAP's mapper (default global)")
+    p.add_argument("--mapper", choices=MAPPERS,
+                   help="COLMAP's mapper (default incremental; global is faster but folded the "
+                        "demo's ring of cameras in 2 runs of 12)")
     p.add_argument("--threads", type=int, help="0: every core (default)")
     p.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
     p.set_defaults(run=_reconstruct)
