@@ -29,7 +29,8 @@ API, with the settings its job type evaluates in the artist's Blender), and ever
   (`../shared/real-blender/bpy313.sh`; only the module, not the executable, runs here) behind
   scripts/farm/bpy_blender.py, which carries out Blender's command line: each farm frame equals
   the artist's `-a` frame (same module) and differs from it without the splats; a 5.3 worker
-  without the extension must fail its tasks with a message.
+  without the extension renders them with Blender's own renderer (the file is Blender's: its
+  tasks complete, no frame without splats).
 
 Ends with one line per job and exits non-zero on a missing frame, a difference over 1/255, or an
 injected failure that was not reported. Bounded waits everywhere; every process started here is
@@ -554,8 +555,29 @@ def run_splats53(farm, rb, wrapper, farm_dir, homes, ply_path, storage, zip_path
               + (f"; frames {without_splats} have no splats" if without_splats else "")
               + (f"; frames {missing} missing" if missing else ""))
     results.add(name, ok, f"{len(written)}/{len(FRAMES)}", f"{worst}/255", "0", detail)
-    run_bad_worker(farm, blender, homes, "noext53", blend, evaluated, storage, results,
-                   r"Engine 'SPLAT_GAUSSIANS' not available")
+    run_worker_without_extension53(farm, blender, homes, blend, evaluated, storage, hidden,
+                                   results)
+
+
+def run_worker_without_extension53(farm, blender, homes, blend, evaluated, storage, hidden,
+                                   results) -> None:
+    """A 5.3 worker without the extension: the file holds Blender's splats as Blender made them
+    and no bridge (`blender_splats.ownership`), so Blender renders them by itself (Cycles'
+    stochastic splats, not the exact image): every task completes and no frame lacks splats."""
+    farm.start_worker("noext53", blender.env(homes / "noext53"))
+    name = "on-noext53"
+    job = farm.api.submit(name, job_settings({**evaluated, "frames": "1-2"}, blend,
+                                             storage / "render", name))
+    record, tasks = farm.wait_job(job["id"], timeout=240)
+    farm.stop_worker("noext53")
+    written = frames_in(job_output(record))
+    without_splats = [f for f in (1, 2) if f not in written or f not in hidden
+                      or worst_difference(written[f], hidden[f]) <= 1]
+    ok = _render_tasks_completed(tasks) and not without_splats
+    results.add(name, ok, f"{len(written)}/2", "-", "0",
+                f"Blender's own renderer; render tasks {_statuses(tasks)}"
+                + (f"; frames {without_splats} missing or without splats" if without_splats
+                   else ""))
 
 
 def run_bad_worker(farm, blender, homes, worker, blend, evaluated, storage, results,

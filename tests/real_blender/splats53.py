@@ -27,6 +27,9 @@ folder is `--work`/user, fresh unless kept.) Each check prints `PASS name: figur
                median and 3/255 at the 99th percentile, in at most 3 times that object's time.
   edit         crop, select and clean up on Blender's import.
   drop         the file handlers a .ply/.spz drop offers, with their labels.
+  saved        a file saved with the add-on, opened in this bpy without it: Blender's import
+               as Blender made it (no add-on modifier, rays on, its display), and F12 with Cycles
+               draws the splats; back with the add-on, the session owns the cloud again.
 """
 
 from __future__ import annotations
@@ -453,6 +456,65 @@ def check_drop(bpy) -> None:
         assert any("add-on" in label for label in labels), labels
 
 
+# Run by a fresh interpreter of this bpy with an empty user folder: no add-on.
+_OPEN_WITHOUT_ADDON = """
+import json, sys
+import bpy
+import numpy as np
+path, out = sys.argv[1], sys.argv[2]
+bpy.ops.wm.open_mainfile(filepath=path)
+assert not any("gaussian_splatting" in name for name in bpy.context.preferences.addons.keys())
+(obj,) = [o for o in bpy.data.objects if o.type == "POINTCLOUD"]
+scene = bpy.context.scene
+def f12(name):
+    scene.render.filepath = out + name
+    result = bpy.ops.render.render(write_still=True)
+    image = bpy.data.images.load(scene.render.filepath)
+    pixels = np.empty(image.size[0] * image.size[1] * 4, np.float32)
+    image.pixels.foreach_get(pixels)
+    return sorted(result), pixels.reshape(-1, 4)[:, :3]
+with_splats = f12("with.png")
+obj.hide_render = True
+without = f12("without.png")
+print("RESULT " + json.dumps(dict(
+    modifiers=[m.name for m in obj.modifiers], visible_camera=obj.visible_camera,
+    visible_shadow=obj.visible_shadow, display_type=obj.display_type, id_properties=list(obj.keys()),
+    f12=with_splats[0], changed_pixels=int((np.abs(with_splats[1] - without[1]).max(1) > 2 / 255).sum()))))
+"""
+
+
+def check_saved(bpy, data: Path, work: Path) -> None:
+    import json
+    import subprocess
+
+    with check("saved: Blender's splats open as Blender's in a bpy without the add-on") as c:
+        clear(bpy)
+        theirs = blender_import(bpy, data / "playbot_125k_sh2.ply")
+        build_scene(bpy, theirs, "CYCLES")
+        ownership = ext("blender.blender_splats.ownership")
+        theirs.splat.render_by_blender = True   # handed to Blender: its values show
+        made_by_blender = (theirs.visible_camera, theirs.display_type)
+        theirs.visible_shadow = False           # a choice of the user's, kept in the file
+        theirs.splat.render_by_blender = False  # the add-on's again
+        assert ownership.RENDER_MODIFIER in theirs.modifiers and not theirs.visible_camera
+        path = work / "saved53.blend"
+        assert bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True) == {"FINISHED"}
+        assert ownership.RENDER_MODIFIER in theirs.modifiers and not theirs.visible_camera, \
+            "the add-on does not own the cloud again after saving"
+        env = dict(os.environ, BLENDER_USER_RESOURCES=str(work / "user-without-addon"))
+        run = subprocess.run([sys.executable, "-c", _OPEN_WITHOUT_ADDON, str(path),
+                              str(work / "saved53_")], env=env, capture_output=True, text=True,
+                             timeout=600)
+        line = next((x for x in run.stdout.splitlines() if x.startswith("RESULT ")), None)
+        assert line is not None, (run.stdout + run.stderr)[-1500:]
+        seen = json.loads(line[len("RESULT "):])
+        c.detail = ", ".join(f"{k} {v}" for k, v in seen.items())
+        assert seen["modifiers"] == [] and seen["id_properties"] == [], c.detail
+        assert (seen["visible_camera"], seen["display_type"]) == made_by_blender, c.detail
+        assert not seen["visible_shadow"] and seen["f12"] == ["FINISHED"], c.detail
+        assert seen["changed_pixels"] > 0.05 * WIDTH * HEIGHT, c.detail
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--zip", type=Path)
@@ -480,7 +542,8 @@ def main() -> int:
                  export=lambda: check_export(bpy, args.data, args.work),
                  f12=lambda: check_f12(bpy, args.data, args.work),
                  edit=lambda: check_edit(bpy, args.data),
-                 drop=lambda: check_drop(bpy))
+                 drop=lambda: check_drop(bpy),
+                 saved=lambda: check_saved(bpy, args.data, args.work))
     for name, step in steps.items():
         if args.only is None or name in args.only:
             step()

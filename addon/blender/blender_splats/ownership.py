@@ -21,7 +21,12 @@ the add-on is disabled. The object stays render-visible, so the render depsgraph
 still sees it.
 
 `sync_scene(scene)` runs on file load, when objects are added (depsgraph update), at render
-init and when the per-object setting changes.
+init, after a save and when the per-object setting changes.
+
+Saved files stay Blender's: before each save every object is handed back (`give_back`) and
+after it taken again, so a file saved with the add-on and opened without it shows and renders
+Blender's splats as Blender made them (before this, such a file kept the empty render modifier,
+rays off and bounds display, with the user's values in an ID property only the add-on reads).
 """
 
 from __future__ import annotations
@@ -201,8 +206,27 @@ def _on_render_init(scene, _depsgraph=None) -> None:
     sync_scene(scene)
 
 
+def _owned(obj) -> bool:
+    return SAVED in obj or DISPLAY_SAVED in obj or (obj.type == "POINTCLOUD" and
+                                                     _ours(obj) is not None)
+
+
+@persistent
+def _on_save_pre(*_args) -> None:
+    for obj in bpy.data.objects:
+        if obj.library is None and _owned(obj):
+            give_back(obj)
+
+
+@persistent
+def _on_save_post(*_args) -> None:
+    for scene in bpy.data.scenes:
+        sync_scene(scene)
+
+
 _HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_load_post),
-             ("render_init", _on_render_init))
+             ("render_init", _on_render_init), ("save_pre", _on_save_pre),
+             ("save_post", _on_save_post))
 
 
 register, _unregister = module_registration(handlers=_HANDLERS)
@@ -213,7 +237,7 @@ def unregister() -> None:
     _counts.clear()
     try:
         for obj in bpy.data.objects:
-            if SAVED in obj or DISPLAY_SAVED in obj or (obj.type == "POINTCLOUD" and _ours(obj)):
+            if _owned(obj):
                 give_back(obj)
     except AttributeError:  # restricted context (unregister during file load): leave them
         pass

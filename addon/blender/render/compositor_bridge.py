@@ -124,32 +124,30 @@ def tidy_legacy_helpers() -> None:
         attach_camera(scene)
 
 
-def _collection_has_splats(collection, seen: set) -> bool:
+def _collection_has_splats(collection, seen: set, blenders: bool) -> bool:
     if collection is None or collection.session_uid in seen:
         return False
     seen.add(collection.session_uid)
-    for obj in collection.all_objects:
-        if _object_has_splats(obj, seen):
-            return True
-    return False
+    return any(_object_has_splats(obj, seen, blenders) for obj in collection.all_objects)
 
 
-def _object_has_splats(obj, seen: set) -> bool:
-    if splat_object.is_splat_object(obj) or blender_data.is_blender_splat_object(obj):
+def _object_has_splats(obj, seen: set, blenders: bool) -> bool:
+    if splat_object.is_splat_object(obj) or (blenders and blender_data.is_blender_splat_object(obj)):
         return True
     if obj.type == "MESH" and splat_object.data_sh_degree(obj.data) is not None:
         return True
     if obj.instance_type == "COLLECTION":
-        return _collection_has_splats(obj.instance_collection, seen)
+        return _collection_has_splats(obj.instance_collection, seen, blenders)
     return False
 
 
-def has_splats(scene) -> bool:
+def has_splats(scene, *, blenders: bool = True) -> bool:
     """Whether the scene holds splat objects (flagged, or meshes with the splat attributes,
-    directly or through collection instances). Splats made only by geometry nodes on other
-    objects are not seen here: set the bridge up by hand (`ensure_bridge`) for those."""
+    directly or through collection instances); `blenders=False`: only those Blender cannot show
+    without the add-on (not its own splat point clouds). Splats made only by geometry nodes on
+    other objects are not seen here: set the bridge up by hand (`ensure_bridge`) for those."""
     seen: set = set()
-    return any(_object_has_splats(obj, seen) for obj in scene.objects)
+    return any(_object_has_splats(obj, seen, blenders) for obj in scene.objects)
 
 
 def _tree(scene, create: bool, layer_name: str | None = None):

@@ -474,6 +474,7 @@ def _on_load_post(*_args) -> None:
 
 
 _compositing_off: list[str] = []   # scenes whose Compositing is on only in the file being saved
+_unbridged: list[str] = []         # scenes saved without their bridge (Blender's own splats only)
 
 
 @persistent
@@ -485,12 +486,21 @@ def _on_save_pre(*_args) -> None:
     switched off by hand would let such a Blender skip the compositor, and with it the helper
     scene's error, and write frames without splats; it is on in the file only (save_post puts
     the session's value back: a job that renders with it off, such as Bake to Splats, goes on
-    as it was)."""
+    as it was).
+
+    A scene whose only splats are Blender's own (5.3's splat point clouds) is saved without its
+    bridge: Blender renders those by itself, so the file stays Blender's (`ownership` saves the
+    clouds as Blender made them); save_post bridges it again."""
     _compositing_off.clear()
+    _unbridged.clear()
     for scene in [s for s in bpy.data.scenes if not bridge.is_helper(s)]:
         try:
             if not (settings_of(scene).enabled and scene.render.engine != ENGINE_ID
                     and bridge.has_splats(scene)):
+                continue
+            if not bridge.has_splats(scene, blenders=False):
+                if bridge.remove_bridge(scene):
+                    _unbridged.append(scene.name)
                 continue
             if _SET_UP_AT_RENDER and bridge.bridge_node(scene) is None:
                 bridge.ensure_bridge(scene)
@@ -511,6 +521,13 @@ def _on_save_post(*_args) -> None:
         if name in bpy.data.scenes:
             bpy.data.scenes[name].render.use_compositing = False
     _compositing_off.clear()
+    for name in _unbridged:
+        if name in bpy.data.scenes:
+            try:
+                bridge.ensure_bridge(bpy.data.scenes[name])
+            except Exception:
+                traceback.print_exc()
+    _unbridged.clear()
 
 
 _HANDLERS = (

@@ -19,6 +19,7 @@ import pytest
 from addon.blender import gather, splat_object
 from addon.blender.blender_splats import any_splats, convert, data, ownership
 from addon.blender.io import operators as io_operators
+from addon.blender.render import compositor_bridge as bridge
 from addon.core import splat_io
 from addon.core.blender_splats import attributes as convention
 from addon.core.transform import transform_gaussians
@@ -195,6 +196,48 @@ def test_ownership_hides_blender_splats_from_blenders_rays(stand_in, rng, monkey
     assert obj.display_type == "TEXTURED" and ownership.SAVED not in obj
     obj.splat.render_by_blender = False
     assert not obj.visible_camera and obj.display_type == "BOUNDS"
+
+
+def test_a_saved_file_keeps_blenders_own_state_and_the_add_on_takes_it_again(
+        stand_in, rng, monkeypatch, tmp_path):
+    monkeypatch.setattr(data, "supported", lambda: True)
+    obj = _stand_in_cloud(random_gaussians(rng, 10, degree=0))
+    obj.visible_shadow = False  # the user's own choice
+    scene = bpy.context.scene
+    ownership.sync_scene(scene)
+    bridge.ensure_bridge(scene)
+    assert ownership.RENDER_MODIFIER in obj.modifiers and obj.display_type == "BOUNDS"
+    path = tmp_path / "saved.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    # in this session the add-on owns it again ...
+    assert ownership.RENDER_MODIFIER in obj.modifiers and not obj.visible_camera
+    assert obj.display_type == "BOUNDS" and ownership.SAVED in obj
+    assert bridge.bridge_node(scene) is not None
+    # ... while the file holds the object as Blender made it, and the scene without the bridge:
+    # Blender renders its own splats there (read linked: no handler touches them)
+    with bpy.data.libraries.load(str(path), link=True) as (source, target):
+        target.objects = [obj.name]
+        target.scenes = [scene.name]
+    (saved,), (saved_scene,) = target.objects, target.scenes
+    assert saved.library is not None and len(saved.modifiers) == 0
+    assert saved.visible_camera and saved.visible_diffuse and not saved.visible_shadow
+    assert saved.display_type == "TEXTURED"
+    assert ownership.SAVED not in saved and ownership.DISPLAY_SAVED not in saved
+    assert bridge.bridge_node(saved_scene) is None
+
+
+def test_a_scene_with_the_add_ons_own_splats_is_saved_with_its_bridge(
+        stand_in, rng, monkeypatch, tmp_path):
+    monkeypatch.setattr(data, "supported", lambda: True)
+    _stand_in_cloud(random_gaussians(rng, 10, degree=0))
+    splat_object.create_splat_object(random_gaussians(rng, 10, degree=0), "Ours")
+    scene = bpy.context.scene
+    bridge.ensure_bridge(scene)
+    path = tmp_path / "mixed.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    with bpy.data.libraries.load(str(path), link=True) as (source, target):
+        target.scenes = [scene.name]
+    assert bridge.bridge_node(target.scenes[0]) is not None  # a Blender without it must refuse
 
 
 def test_render_modifier_empties_the_cloud_for_blender_but_not_for_gather(stand_in, rng, monkeypatch):
