@@ -96,6 +96,12 @@ def format_duration(seconds: float | None) -> str:
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
 
 
+def how_far(p: Progress) -> str:
+    """How far a run is, said one way everywhere (status bar, sidebar, reports): "step 1,234 of
+    7,000", or "step 1,234 (until done)" for a run whose stop rule, not a count, ends it."""
+    return f"step {p.step:,} (until done)" if p.until_done else f"step {p.step:,} of {p.total:,}"
+
+
 def status_line(p: Progress, title: str = "Training") -> str:
     """The one-line status shown in Blender's status bar (and printed in background mode)."""
     if p.phase == "failed":
@@ -109,10 +115,7 @@ def status_line(p: Progress, title: str = "Training") -> str:
         return f"{title}: {p.message or p.phase}"
     if p.phase in ("compacting", "evaluating", "saving"):
         return f"{title}: {p.message or p.phase}..."
-    if p.until_done:
-        parts = [f"{title} step {p.step:,} (until done)"]
-    else:
-        parts = [f"{title} {p.step:,}/{p.total:,} ({100 * p.fraction:.0f} %)"]
+    parts = [f"{title} {how_far(p)}" + ("" if p.until_done else f" ({100 * p.fraction:.0f} %)")]
     if p.loss == p.loss:
         parts.append(f"loss {p.loss:.4f}")
     if p.psnr == p.psnr:

@@ -81,7 +81,7 @@ SENSOR_WIDTH = 36.0
 # `render` command-line verb, which does).
 
 SWITCH = "colmap_camera_output"  # Scene property: the switch above
-_rendering = {"active": False, "warned": set()}
+_rendering = {"active": False, "warned": set(), "frame": None, "output": None}
 
 
 def apply_camera_resolution(scene: bpy.types.Scene, camera_obj: bpy.types.Object | None = None) -> bool:
@@ -115,12 +115,19 @@ def _on_load_post(*_args) -> None:
     _subscribe()
 
 
+def _output(render) -> tuple:
+    return (render.resolution_x, render.resolution_y, render.resolution_percentage,
+            render.pixel_aspect_x, render.pixel_aspect_y)
+
+
 @bpy.app.handlers.persistent
 def _on_render_init(scene, *_args) -> None:
     if _switch_on(scene):
         camera = marker_camera(scene, scene.frame_current) or scene.camera
         apply_camera_resolution(scene, camera)
-    _rendering["active"], _rendering["warned"] = True, set()
+    # What this render started with: a still render renders only this frame at this size
+    _rendering.update(active=True, warned=set(), frame=scene.frame_current,
+                      output=_output(scene.render))
 
 
 @bpy.app.handlers.persistent
@@ -137,12 +144,14 @@ def _on_frame_change(scene, *_args) -> None:
     if not _rendering["active"]:
         apply_camera_resolution(scene, camera)
         return
-    wanted, render = recorded_output(camera), scene.render
-    if wanted is None or camera.name in _rendering["warned"]:
+    # Only an animation's later frames: F12 (one frame, the one the render started on) never
+    # gets the message (it did, in 4.3 and 5.2's UI, naming a camera that was not rendering)
+    wanted = recorded_output(camera)
+    if wanted is None or camera.name in _rendering["warned"] or \
+            scene.frame_current == _rendering.get("frame"):
         return
-    current = (render.resolution_x, render.resolution_y, render.resolution_percentage,
-               render.pixel_aspect_x, render.pixel_aspect_y)
-    if not np.allclose(wanted, current, rtol=1e-6, atol=0.0):  # aspects are stored float32
+    started = _rendering["output"]  # aspects are stored float32
+    if not np.allclose(wanted, started, rtol=1e-6, atol=0.0):
         _rendering["warned"].add(camera.name)
         print(f"Gaussian Splatting: frame {scene.frame_current}: camera {camera.name!r} "
               f"recorded {wanted[0]}x{wanted[1]} at {wanted[2]} % (pixel aspect {wanted[3]:g}:"

@@ -60,7 +60,7 @@ from ...core.train import colmap_source as colmap_training
 from ...core.train.colmap_source import ColmapSource, TrainRequest
 from ...core.train.dataset import MAX_WIDTH, NO_CAMERA, Points
 from ...core.gaussians import Gaussians
-from ...core.jobs import Progress, TrainingJob, compaction_note
+from ...core.jobs import Progress, TrainingJob, compaction_note, how_far
 from ...core.train.trainer import TrainConfig
 from ...core.train.config import STRATEGY_NAMES
 from .. import dependencies, job_runner, splat_object
@@ -299,7 +299,7 @@ def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = Tr
     name = f"'{obj.name}'" if obj is not None else "the splat object"
     where = f"; checkpoint {request.checkpoint}" if job.checkpoint_saved else ""
     if p.phase == "cancelled":
-        return "INFO", (f"Training stopped at step {p.step:,} of {p.total:,}: {name} has "
+        return "INFO", (f"Training stopped at {how_far(p)}: {name} has "
                         f"{p.gaussians:,} Gaussians{where} (train again with Resume to "
                         f"continue)"), obj
     quality = ""
@@ -368,7 +368,7 @@ class TrainingSettings:
     """Settings both training operators share (Train Gaussians, Bake to Splats), with one set
     of defaults: `TrainConfig`'s."""
 
-    steps: IntProperty(name="Steps", default=_DEFAULTS.steps, min=0, soft_max=30000,
+    steps: IntProperty(name="Steps (0: until done)", default=_DEFAULTS.steps, min=0, soft_max=30000,
                        description=f"A fixed number of optimisation steps; 0: until done, when "
                                    f"the held-out PSNR (with no held-out views, the training "
                                    f"views') gains less than "

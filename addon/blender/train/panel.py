@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import bpy
 
-from ...core.jobs import Progress, format_duration
+from ...core.jobs import Progress, format_duration, how_far
 from .. import job_runner
 from ..registration import module_registration
 
@@ -30,9 +30,9 @@ def _draw_job(layout, running: job_runner.OperatorJob) -> None:
         col.progress(factor=p.fraction, type="BAR", text=p.message or p.phase)
         return
     if p.until_done:
-        col.label(text=f"Step {p.step:,} (until done)")
+        col.label(text=how_far(p).capitalize())
     else:
-        col.progress(factor=p.fraction, type="BAR", text=f"Step {p.step:,} of {p.total:,}")
+        col.progress(factor=p.fraction, type="BAR", text=how_far(p).capitalize())
     col.label(text=f"{p.gaussians:,} Gaussians" + (f", {p.sizing}" if p.sizing else ""),
               icon="POINTCLOUD_DATA")
     if p.psnr == p.psnr:

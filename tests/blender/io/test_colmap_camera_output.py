@@ -187,3 +187,32 @@ def test_import_is_a_staged_job_that_talks_and_cancels_cleanly(tmp_path, rng, ca
     assert bpy.ops.splat.import_colmap(directory=str(tmp_path / "ws")) == {"FINISHED"}
     out = capfd.readouterr().out
     assert "Importing COLMAP: reading" in out and "Importing COLMAP: building" in out
+
+
+def test_a_single_frame_render_never_says_it_is_an_animation(model, capfd):
+    """F12 renders one frame at the size it set up: the animation's message must not appear,
+    whichever camera renders (a marker's, another photo's, or one of the user's own)."""
+    rec, collection, scene = model
+    for frame, (name, _) in enumerate(IMAGES[:2], start=1):
+        scene.timeline_markers.new(name, frame=frame).camera = collection.objects[name]
+    own = bpy.data.objects.new("Ortho", bpy.data.cameras.new("Ortho"))
+    own.data.type = "ORTHO"
+    scene.collection.objects.link(own)
+    capfd.readouterr()
+    for frame in (1, 2):
+        for camera in (collection.objects[IMAGES[3][0]], own):
+            scene.frame_set(frame)
+            scene.camera = camera
+            _render(scene)
+    assert "an animation renders" not in capfd.readouterr().out
+    # The handlers as Blender's UI called them (4.3, 5.2): a frame change on the frame the render
+    # started on, the scene's output not what the camera recorded: still no message
+    scene.frame_set(1)
+    colmap_import._on_render_init(scene)
+    scene.render.resolution_percentage = 50
+    colmap_import._on_frame_change(scene)
+    assert "an animation renders" not in capfd.readouterr().out
+    scene.frame_current = 2  # an animation's next frame, its camera of another size: said
+    colmap_import._on_frame_change(scene)
+    colmap_import._on_render_end()
+    assert f"frame 2: camera {IMAGES[1][0]!r} recorded 48x72" in capfd.readouterr().out

@@ -24,7 +24,7 @@ from addon.blender.train.operator import (OBJECT_KEY, source_of, train_colmap_co
 from addon.core import colmap
 from addon.core.images import files as image_io
 from addon.core.train.dataset import NO_CAMERA
-from addon.core.jobs import Progress, format_duration, status_line
+from addon.core.jobs import Progress, format_duration, how_far, status_line
 from addon.core.render.renderer import render, seen_by_any
 from addon.core.train.trainer import Trainer, TrainConfig, psnr
 from tests import bpy_support
@@ -330,7 +330,7 @@ def test_status_line() -> None:
     p = Progress(phase="training", step=1234, start_step=0, total=7000, loss=0.07123,
                  psnr=24.314, gaussians=120345, seconds_per_step=0.038, eta=221.0)
     line = status_line(p)
-    assert line == ("Training 1,234/7,000 (18 %) | loss 0.0712 | PSNR 24.31 dB | "
+    assert line == ("Training step 1,234 of 7,000 (18 %) | loss 0.0712 | PSNR 24.31 dB | "
                     "120,345 Gaussians | 38 ms/step | ETA 3:41")
     assert format_duration(3723) == "1:02:03" and format_duration(None) == "--"
     assert status_line(Progress(phase="loading", message="loading photos")) == \
@@ -344,6 +344,8 @@ def test_status_line() -> None:
                           seconds_per_step=0.038, eta=999.0)
     assert status_line(until_done) == ("Training step 1,234 (until done) | 19,246 Gaussians "
                                        "(growing) | 38 ms/step | gaining +0.84 dB/min")
+    # one way of saying how far a run is, everywhere: never "of 30,000" for a run until done
+    assert how_far(until_done) == "step 1,234 (until done)" and how_far(p) == "step 1,234 of 7,000"
 
 
 class _Layout:
