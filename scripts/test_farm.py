@@ -285,7 +285,7 @@ def main() -> int:
         farm.stop_worker("w1")
         farm.stop_worker("w2")
         run_bad_worker(farm, blender, homes, "noext", anim_blend, anim_eval, storage, results,
-                       r"Engine 'SPLAT_GAUSSIANS' not available")
+                       r"Engine 'SPLAT_GAUSSIANS' not available for scene '[^']*Gaussian Splatting extension")
         run_bad_worker(farm, blender, homes, "broken", anim_blend, anim_eval, storage, results,
                        r"splatcore")
         run_splats53(farm, rb, wrapper, farm_dir, homes, inputs["splats_ply"], storage, zip_path,

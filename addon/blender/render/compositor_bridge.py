@@ -40,7 +40,10 @@ from .. import splat_object
 from ..blender_splats import data as blender_data
 
 ENGINE_ID = "SPLAT_GAUSSIANS"          # the add-on's RenderEngine (render_hooks.SplatRenderEngine)
-HELPER_SCENE = ".Splat Composite"      # a leading dot hides the scene from Blender's scene lists
+# A leading dot hides the scene from Blender's scene lists; the extension's name in it is what a
+# Blender without the extension names in its error ("Engine 'SPLAT_GAUSSIANS' not available for
+# scene '.Splat Composite (Gaussian Splatting extension)' (an add-on may need to be installed ...").
+HELPER_SCENE = ".Splat Composite (Gaussian Splatting extension)"
 HELPER_CAMERA = ".Splat Composite Camera"
 HELPER_FLAG = "splat_composite_helper"  # ID property marking the helper scene
 BRIDGE_NODE = "Splat Composite"
@@ -110,9 +113,11 @@ def detach_cameras() -> None:
 
 def tidy_legacy_helpers() -> None:
     """Files saved by earlier versions hold a helper camera object (`.Splat Composite
-    Camera`, in the helper scene): it goes, the helper borrows a camera instead. Not while
-    rendering."""
+    Camera`, in the helper scene): it goes, the helper borrows a camera instead; their helper
+    scene takes today's name. Not while rendering."""
     for scene in [s for s in bpy.data.scenes if is_helper(s)]:
+        if scene.name != HELPER_SCENE and scene.library is None:
+            scene.name = HELPER_SCENE
         for obj in list(scene.collection.objects):
             if obj.name.startswith(HELPER_CAMERA) and obj.type == "CAMERA":
                 if scene.camera == obj:

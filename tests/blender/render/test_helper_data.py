@@ -156,12 +156,15 @@ def test_an_older_files_helper_camera_goes_on_load(rng, tmp_path):
     old = bpy.data.objects.new(bridge.HELPER_CAMERA, bpy.data.cameras.new(bridge.HELPER_CAMERA))
     helper.collection.objects.link(old)
     helper.camera = old
+    helper.name = ".Splat Composite"     # and the name earlier versions gave it
     path = str(tmp_path / "old.blend")   # saved with it, as earlier versions saved
     bpy.ops.wm.save_as_mainfile(filepath=path)
     bpy.ops.wm.open_mainfile(filepath=path)   # load_post tidies it
     helper = bridge.helper_scene(create=False)
     assert bridge.HELPER_CAMERA not in bpy.data.objects and len(helper.objects) == 0
     assert helper.camera == bpy.context.scene.camera is not None
+    # the name a Blender without the extension shows in its error names the extension
+    assert helper.name == bridge.HELPER_SCENE and "Gaussian Splatting extension" in helper.name
 
 
 def test_a_script_saved_file_carries_the_bridge(rng, tmp_path):
