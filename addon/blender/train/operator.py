@@ -318,6 +318,29 @@ def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = Tr
     return "INFO", message, obj
 
 
+def look_through_a_photo(scene, collection, views) -> object | None:
+    """After training in the UI: each 3D view in `views` (SpaceView3D) not already looking
+    through a camera looks through a photo's (the scene camera when it is one of the
+    collection's, else the first photo's). Seen from outside, a trained capture is its large
+    background splats, a milky haze with the scene small in its middle; through a photo's camera
+    it is the picture the training fit. Returns the camera, or None when nothing changed."""
+    cameras = list(_camera_objects(collection).values()) if collection is not None else []
+    views = [v for v in views if v.region_3d is not None
+             and v.region_3d.view_perspective != "CAMERA"]
+    if not cameras or not views:
+        return None
+    camera = scene.camera if scene.camera in cameras else cameras[0]
+    scene.camera = camera
+    for view in views:
+        view.region_3d.view_perspective = "CAMERA"
+    return camera
+
+
+def _scene_views(scene) -> list:
+    return [area.spaces.active for window in bpy.context.window_manager.windows
+            if window.scene == scene for area in window.screen.areas if area.type == "VIEW_3D"]
+
+
 def training_job(request: TrainRequest) -> OperatorJob:
     """The request as the job runner runs it: the job (not started), and what the main thread
     does with its snapshots and its end."""
@@ -332,7 +355,15 @@ def training_job(request: TrainRequest) -> OperatorJob:
         write_splats(name, gaussians, antialiased=request.config.antialiased, step=step)
 
     def finish(running, write):
-        return finish_training(request, running.job, write=write, before=before)
+        level, message, obj = finish_training(request, running.job, write=write, before=before)
+        scene = bpy.context.scene
+        if level != "ERROR" and running.job.progress().phase == "done" and scene is not None \
+                and not bpy.app.background:
+            camera = look_through_a_photo(scene, bpy.data.collections.get(name),
+                                          _scene_views(scene))
+            if camera is not None:
+                message += f" (the view looks through '{camera.name}')"
+        return level, message, obj
 
     return OperatorJob(f"train:{name}", "Training", request.job(), finish, apply, target)
 

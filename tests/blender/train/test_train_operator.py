@@ -395,3 +395,24 @@ def test_training_panel_shows_the_count_as_it_grows(demo) -> None:
     texts.clear()
     training_panel._draw_job(_Layout(texts), running)
     assert "Step 300 of 1,500" in texts and "5,000 Gaussians" in texts and "ETA 1:01" in texts
+
+
+def test_after_training_the_views_look_through_a_photo(demo) -> None:
+    """The end of a UI training: 3D views not looking through a camera look through a photo's
+    (the scene camera if it is a photo's), a camera view already chosen stays as it is."""
+    scene = bpy.context.scene
+
+    def view(perspective):
+        return SimpleNamespace(region_3d=SimpleNamespace(view_perspective=perspective))
+
+    free, ortho, through = view("PERSP"), view("ORTHO"), view("CAMERA")
+    scene.camera = None
+    camera = train_operator.look_through_a_photo(scene, demo.collection, [free, ortho, through])
+    assert camera is not None and camera.get("colmap_image_name") is not None
+    assert scene.camera == camera and free.region_3d.view_perspective == "CAMERA"
+    assert ortho.region_3d.view_perspective == "CAMERA"
+    scene.camera = demo.camera  # a photo's camera already: kept
+    free.region_3d.view_perspective = "PERSP"
+    assert train_operator.look_through_a_photo(scene, demo.collection, [free]) == demo.camera
+    assert train_operator.look_through_a_photo(scene, demo.collection, [through]) is None
+    assert train_operator.look_through_a_photo(scene, None, [view("PERSP")]) is None
