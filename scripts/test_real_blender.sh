@@ -18,7 +18,7 @@
 # Render Result held against the native composite), Solid and Material Preview screenshots of the viewport held
 # against the native render (tests/real_blender/viewport_figures.py); F12 and -a through an
 # orthographic, an equirectangular and a fisheye camera, and the Front/Right/Top orthographic
-# viewports; the splat object's display through import, Clean Up, undo and redo
+# viewports; a view turned as numpad 1 turns it (never the view before once it rests); the splat object's display through import, Clean Up, undo and redo
 # (scripts/test_undo_display.sh). Exits non-zero on any failure, after a summary table.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -183,6 +183,25 @@ import scene_kit; scene_kit.set_camera_kind(bpy.context.scene.camera.data, '$kin
     if [ -f "$io/ui/view.json" ] && ! $PY -c "import json, sys; e = json.load(open(sys.argv[1]))['errors']; print(*e); sys.exit(bool(e))" \
             "$io/ui/view.json"; then
         note "$suite" "viewport errors" FAIL "the draw handler raised (see above)"
+    fi
+    # A view change as numpad 1 makes it (animated), after the view rested with its full image,
+    # each viewport render 0.4 s slower (a large scene on a busy machine):
+    # no image of the view before drawn once the new view rests, and the new view's screenshot
+    # held against the native render of that view.
+    rm -rf "$io/ui_turn" && mkdir -p "$io/ui_turn"
+    timeout 400 "$RB/run.sh" "$suite" sh -c "SPLAT_TURN=FRONT SPLAT_SLOW_RENDER=0.4 xvfb-run -a -s '-screen 0 1600x900x24' \
+        blender $t/scene.blend --python $t/viewport_shot.py -- $t/ui_turn SOLID > $t/ui_turn/ui.log 2>&1"
+    if [ -f "$io/ui_turn/solid_plain.png" ]; then
+        detail=$($PY tests/real_blender/check.py viewport "$io/ui_turn/solid_splats.png" \
+            "$io/ui_turn/solid_plain.png" "$io/ui_turn/view.json" "$io/splats.npz")
+        rc=$?
+        stale=$($PY -c "import json, sys; r = json.load(open(sys.argv[1])); print(*r['errors']) if r['errors'] else None; \
+print(f\"{r['stale_draws']} stale of {r['draws_after_turn']} draws after the turn\"); sys.exit(bool(r['errors']))" "$io/ui_turn/view.json")
+        rc2=$?
+        note "$suite" "viewport turn (numpad 1)" "$([ $rc = 0 ] && [ $rc2 = 0 ] && echo ok || echo FAIL)" \
+            "$(echo "$stale" | tail -1); ${detail#*: }"
+    else
+        note "$suite" "viewport turn (numpad 1)" FAIL "no screenshot (see $io/ui_turn/ui.log)"
     fi
 
     # Import, Clean Up, Ctrl+Z, Ctrl+Shift+Z, an Edit Mode delete, Ctrl+Z: splats and no vertex

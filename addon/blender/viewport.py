@@ -8,10 +8,18 @@ soft composite is what final renders do).
 
 Progressive: when the view (or the scene) changes, a coarse image (about
 `Scene.splat_render.viewport_coarse_pixels` pixels) is requested first; once the view has
-rested for `REST_SECONDS`, the full-resolution one (`viewport_resolution`). Rendering never
-runs in the draw callback: until a new image is ready the last one is drawn, so a large scene
-never blocks the UI for a render (gathering the splats of an edited object does run on the main
-thread, as reading Blender data must: about 0.2 s per million splats).
+rested for `REST_SECONDS`, the full-resolution one (`viewport_resolution`). Coarse and full
+images render in two threads of their own, so a coarse image never waits behind a full one of
+an earlier view. Rendering never runs in the draw callback, so a large scene never blocks the
+UI for a render (gathering the splats of an edited object does run on the main thread, as
+reading Blender data must: about 0.2 s per million splats).
+
+Never a stale view: an image of another view (view or projection matrix, region size) is drawn
+only while the view moves (changed less than `REST_SECONDS` ago: an orbit, a smooth-view
+turn); once it rests, only an image of this view is drawn (coarse, then full), and nothing
+until one is ready. Before this, the previous view's picture stayed up for seconds after
+numpad 1/3/7, numpad 5 or an orbit, composed with the new view's grid and gizmo. An image of
+this view with older splats (training's updates, an edit) is drawn until the new one is ready.
 
 Switches: `Scene.splat_render.viewport` (all splats of the scene) and
 `Object.splat.show_in_viewport` (one object). Perspective and orthographic views are drawn
@@ -250,29 +258,40 @@ class _Job:
     options: dict
 
 
+def view_of(key: tuple) -> tuple:
+    """The view part of a draw key (see `draw_view`): view and projection matrices, region
+    size; not the splats or the render options."""
+    return key[:4]
+
+
 class ViewportRenderer:
-    """One worker thread rendering the latest job of each view; results are picked up by the
-    draw handler. Newer jobs replace older waiting ones; coarse jobs go first."""
+    """Two worker threads, one for coarse and one for full-resolution jobs, rendering the latest
+    job of each kind for each view; results are picked up by the draw handler. A newer job
+    replaces an older waiting one of its kind."""
 
     def __init__(self) -> None:
         self._lock = threading.Condition()
-        self._jobs: dict[int, _Job] = {}
+        self._jobs: dict[tuple[int, bool], _Job] = {}   # (region, coarse) -> the job waiting
+        self._wanted: dict[int, tuple] = {}              # region -> the view last submitted
         self._results: dict[int, ViewportImage] = {}
         self._fresh = False
-        self._thread: threading.Thread | None = None
+        self._threads: dict[bool, threading.Thread] = {}
         self._stop = False
-        self._running = False
+        self._running = 0
         self.errors: list[str] = []
 
     def submit(self, job: _Job) -> None:
         with self._lock:
-            self._jobs[job.region] = job
-            if self._thread is None or not self._thread.is_alive():
+            self._jobs[(job.region, job.coarse)] = job
+            self._wanted[job.region] = view_of(job.key)
+            thread = self._threads.get(job.coarse)
+            if thread is None or not thread.is_alive():
                 self._stop = False
-                self._thread = threading.Thread(target=self._run, name="splat-viewport",
-                                                daemon=True)
-                self._thread.start()
-            self._lock.notify()
+                thread = threading.Thread(target=self._run, args=(job.coarse,), daemon=True,
+                                          name=f"splat-viewport-{'coarse' if job.coarse else 'full'}")
+                self._threads[job.coarse] = thread
+                thread.start()
+            self._lock.notify_all()
 
     def result(self, region: int) -> ViewportImage | None:
         with self._lock:
@@ -286,11 +305,13 @@ class ViewportRenderer:
 
     def busy(self) -> bool:
         with self._lock:
-            return bool(self._jobs)
+            return bool(self._jobs) or self._running > 0
 
     def forget(self, region: int) -> None:
         with self._lock:
-            self._jobs.pop(region, None)
+            for coarse in (True, False):
+                self._jobs.pop((region, coarse), None)
+            self._wanted.pop(region, None)
             self._results.pop(region, None)
 
     def wait(self, timeout: float = 30.0) -> bool:
@@ -308,19 +329,32 @@ class ViewportRenderer:
         with self._lock:
             self._stop = True
             self._jobs.clear()
+            self._wanted.clear()
             self._results.clear()
             self._lock.notify_all()
 
-    def _run(self) -> None:
+    def _keeps(self, region: int, image: ViewportImage) -> bool:
+        """Whether a finished image replaces the region's result: one of the view last
+        submitted beats one of another view; a coarse one never replaces a full one of the
+        same key."""
+        old, wanted = self._results.get(region), self._wanted.get(region)
+        if old is None:
+            return True
+        if view_of(image.key) != wanted:
+            return view_of(old.key) != wanted
+        return view_of(old.key) != wanted or not (image.coarse and not old.coarse
+                                                  and old.key == image.key)
+
+    def _run(self, coarse: bool) -> None:
         while True:
             with self._lock:
-                while not self._jobs and not self._stop:
+                while not self._stop and not any(c == coarse for _, c in self._jobs):
                     self._lock.wait()
                 if self._stop:
                     return
-                region = min(self._jobs, key=lambda r: not self._jobs[r].coarse)
-                job = self._jobs.pop(region)
-                self._running = True
+                region, _ = next(k for k in self._jobs if k[1] == coarse)
+                job = self._jobs.pop((region, coarse))
+                self._running += 1
             try:
                 image = render_view(job.gaussians, job.camera, job.window_matrix, key=job.key,
                                     coarse=job.coarse, **job.options)
@@ -328,13 +362,10 @@ class ViewportRenderer:
                 image = None
                 self.errors.append(str(error))
             with self._lock:
-                self._running = False
-                if image is not None:
-                    old = self._results.get(region)
-                    # A coarse image never replaces a full one of the same view.
-                    if old is None or not (image.coarse and not old.coarse and old.key == image.key):
-                        self._results[region] = image
-                        self._fresh = True
+                self._running -= 1
+                if image is not None and self._keeps(region, image):
+                    self._results[region] = image
+                    self._fresh = True
                 self._lock.notify_all()
             image = job = None  # hold no image (nor its GPU textures) while waiting
 
@@ -347,7 +378,8 @@ renderer = ViewportRenderer()
 @dataclass
 class _ViewState:
     key: tuple = ()
-    changed_at: float = 0.0
+    changed_at: float = 0.0          # the key's last change (the view's or the splats')
+    view_changed_at: float = 0.0     # the view's last change
     full_requested: bool = False
     job: _Job | None = None          # the full-resolution job to send once the view rests
 
@@ -430,6 +462,8 @@ def draw_view(context) -> None:
             # Only the splats changed (training's updates, an edit): the last image stays up
             # until the full one is ready; a coarse one between would flicker and cost a redraw.
             coarse_scale = full_scale
+        if view_of(key) != view_of(state.key):
+            state.view_changed_at = time.monotonic()
         state.key, state.changed_at, state.full_requested = key, time.monotonic(), False
         state.job = _Job(region_id, key, gaussians,
                          camera_from_view(view, window, region.width, region.height, full_scale),
@@ -442,7 +476,8 @@ def draw_view(context) -> None:
             state.full_requested = True
         _ensure_timer()
     image = renderer.result(region_id)
-    if image is not None:
+    if image is not None and (view_of(image.key) == view_of(key) or
+                              time.monotonic() - state.view_changed_at < REST_SECONDS):
         draw_image(image, cache_key=region_id)
 
 
@@ -454,14 +489,16 @@ def _redraw_views() -> None:
 
 
 def _tick():
-    """Timer: ask for full resolution once a view rests; redraw when images arrive."""
+    """Timer: ask for full resolution once a view rests (and redraw then: an image of the view
+    before is not drawn after that); redraw when images arrive."""
     now = time.monotonic()
+    rested = False
     for state in _views.values():
         if not state.full_requested and state.job is not None and \
                 now - state.changed_at >= REST_SECONDS:
             renderer.submit(state.job)
-            state.full_requested = True
-    if renderer.take_fresh():
+            state.full_requested = rested = True
+    if renderer.take_fresh() or rested:
         _redraw_views()
     waiting = renderer.busy() or any(not s.full_requested for s in _views.values())
     return 0.05 if waiting else None

@@ -261,6 +261,82 @@ def test_draw_handler_is_progressive(rng):
         viewport._texture_cache.clear()
 
 
+def test_a_rested_view_never_shows_another_views_image(rng, monkeypatch):
+    """After a view change (numpad 1/3/7, numpad 5, the end of an orbit) the image of the view
+    before is drawn only while the view moves; once it rests, only this view's image, or
+    nothing until it is ready."""
+    import mathutils
+
+    bs.reset_scene()
+    splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
+    camera = bs.add_camera(width=W, height=H)
+    scene = bpy.context.scene
+    view, _ = view_matrices(camera)
+    width, height = 80, 60
+    window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
+                                                x=width, y=height))
+
+    class Region:
+        def __init__(self):
+            self.width, self.height = width, height
+
+        def as_pointer(self):
+            return 4343
+
+    def context_for(view_matrix):
+        return type("Context", (), dict(
+            scene=scene, region=Region(),
+            space_data=type("Space", (), dict(type="VIEW_3D", shading=type(
+                "S", (), dict(type="SOLID"))()))(),
+            region_data=type("RV3D", (), dict(view_matrix=mathutils.Matrix(view_matrix.tolist()),
+                                              window_matrix=mathutils.Matrix(window.tolist())))(),
+            evaluated_depsgraph_get=staticmethod(bpy.context.evaluated_depsgraph_get)))()
+
+    drawn = []
+    monkeypatch.setattr(viewport, "draw_image", lambda image, cache_key=None: drawn.append(image.key))
+    turned = view.copy()
+    turned[:3, :3] = view[:3, :3] @ np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])  # 90 degrees
+    try:
+        viewport.draw_view(context_for(view))
+        assert viewport.renderer.wait(30)
+        before = viewport.renderer.result(4343).key
+        held = []   # the new view's jobs, held back: its image is not ready
+        monkeypatch.setattr(viewport.renderer, "submit", held.append)
+        viewport.draw_view(context_for(turned))       # moving: the last image may stay up
+        assert drawn[-1] == before and held
+        viewport._views[4343].view_changed_at -= 1.0  # the view has rested
+        drawn.clear()
+        viewport.draw_view(context_for(turned))
+        assert drawn == []                            # not the view before: nothing
+        monkeypatch.undo()
+        monkeypatch.setattr(viewport, "draw_image", lambda image, cache_key=None: drawn.append(image.key))
+        for job in held:
+            viewport.renderer.submit(job)
+        assert viewport.renderer.wait(30)
+        viewport.draw_view(context_for(turned))
+        assert drawn and viewport.view_of(drawn[-1]) == viewport.view_of(viewport._views[4343].key)
+    finally:
+        viewport.renderer.forget(4343)
+        viewport._views.clear()
+        viewport._texture_cache.clear()
+
+
+def test_a_late_image_of_the_view_before_never_replaces_this_views():
+    """The full image of the view before, finished after this view's coarse one, is not kept."""
+    worker = viewport.ViewportRenderer()
+    image = lambda key, coarse: viewport.ViewportImage(key, np.zeros((1, 1, 4), np.float32),  # noqa: E731
+                                                       np.ones((1, 1), np.float32), coarse, 0.0)
+    now, before = ("v", "w", 8, 6, "splats"), ("u", "w", 8, 6, "splats")
+    worker._wanted[1] = viewport.view_of(now)
+    worker._results[1] = image(now, True)
+    assert not worker._keeps(1, image(before, False))      # late, of the view before
+    assert worker._keeps(1, image(now, False))             # this view's full image
+    worker._results[1] = image(now, False)
+    assert not worker._keeps(1, image(now, True))          # coarse never replaces full
+    worker._results[1] = image(before, False)
+    assert worker._keeps(1, image(now, True))              # this view's coarse beats it
+
+
 def test_splat_objects_show_their_bounds_not_their_vertices(rng):
     """Blender would draw one dot per splat over the add-on's image: a splat object the add-on
     draws is displayed as its bounds; with its drawing off it shows its points again; a display

@@ -4,7 +4,11 @@
 
 The 3D view is made to fill the window (no header, no side bars), looks along the scene
 camera from a little further back (or, with SPLAT_VIEW=FRONT|RIGHT|TOP, is that orthographic
-view of the origin), floor grid and axes off, nothing selected. For each shading
+view of the origin), floor grid and axes off, nothing selected. With SPLAT_TURN=FRONT|RIGHT|TOP
+the view first rests at the perspective view with its full-resolution image, then turns to that
+view as numpad 1/3/7 does (`view3d.view_axis`, smooth view on), and the shots are of the new
+view; for 4 s after the turn, the screen showing an image of another view once the view has
+rested is an error ("a stale view"). SPLAT_SLOW_RENDER=SECONDS delays every viewport render. For each shading
 (SOLID, MATERIAL), once the add-on's viewport image has arrived at full resolution, it saves
 OUT_DIR/<shading>_splats.png (splats shown), OUT_DIR/<shading>_plain.png (the add-on's drawing
 switched off) and OUT_DIR/view.json (region size, view and projection matrices), then quits.
@@ -96,11 +100,21 @@ def finish() -> None:
               open(os.path.join(OUT, "view.json"), "w"), indent=1)
 
 
+def current_view(area, region) -> tuple:
+    """The view part of the add-on's draw key for this 3D view (`viewport.view_of`)."""
+    import numpy as np
+
+    rv3d = area.spaces.active.region_3d
+    return (np.array(rv3d.view_matrix).tobytes(), np.array(rv3d.window_matrix).tobytes(),
+            region.width, region.height)
+
+
 def wait_until_rested():
     window, area, region = view3d()
     image = viewport.renderer.result(region.as_pointer())
     compiling = bpy.app.is_job_running("SHADER_COMPILATION")  # Material Preview's shaders
-    if image is None or image.coarse or viewport.renderer.busy() or compiling:
+    if image is None or image.coarse or viewport.renderer.busy() or compiling or \
+            viewport.view_of(image.key) != current_view(area, region):
         if time.monotonic() - record.setdefault("_t0", time.monotonic()) > 60:
             errors.append("no full-resolution viewport image within 60 s")
             return None
@@ -179,7 +193,78 @@ def catch_draw_errors():
 catch_draw_errors()
 
 
+def watch_stale_draws() -> None:
+    """Keep what the 3D view last showed: the view of the image last drawn and the view it was
+    drawn into (`_shown`); `stale_on_screen` polls it after the turn."""
+    real = viewport.draw_image
+    seen = {"view": None, "since": 0.0}
+    record["draws_after_turn"] = 0
+
+    def watched(image, cache_key=None):
+        view = current_view(bpy.context.area, bpy.context.region)
+        if view != seen["view"]:
+            seen["view"], seen["since"] = view, time.monotonic()
+        record["_shown"] = (viewport.view_of(image.key), view, seen["since"])
+        record["draws_after_turn"] += bool(record.get("_turned"))
+        return real(image, cache_key)
+    viewport.draw_image = watched
+
+
+def stale_on_screen(seconds: float = 4.0):
+    """A step: for `seconds` after the turn, every 50 ms, whether the screen shows an image of
+    another view (the last one drawn) while the view has rested (`viewport.REST_SECONDS` since
+    it last changed, plus 0.3 s for Blender to redraw under Xvfb on a loaded machine): the time
+    it did is an error."""
+    state = {"t0": None, "stale": 0.0, "last": None}
+
+    def step():
+        now = time.monotonic()
+        state["t0"] = state["t0"] or now
+        window, area, region = view3d()
+        shown = record.get("_shown")
+        if shown is not None and shown[1] == current_view(area, region) and \
+                shown[0] != shown[1] and now - shown[2] > viewport.REST_SECONDS + 0.3:
+            state["stale"] += 0.05
+        if now - state["t0"] < seconds:
+            return 0.05
+        record["stale_seconds"] = round(state["stale"], 2)
+        if state["stale"] > 0:
+            errors.append(f"a stale view: the view before was on screen {state['stale']:.2f} s "
+                          f"after the new view rested")
+        return None
+    return step
+
+
+def turn():
+    window, area, region = view3d()
+    bpy.context.preferences.view.smooth_view = 200   # numpad's animated turn
+    with bpy.context.temp_override(window=window, area=area, region=region):
+        bpy.ops.view3d.view_axis(type=os.environ["SPLAT_TURN"])
+    record["_turned"] = True
+    return None
+
+
 steps.extend([lambda: (set_up(), None)[1], lambda: (aim(), None)[1]])
+if os.environ.get("SPLAT_TURN"):
+    watch_stale_draws()
+    # Each viewport render takes this much longer, as a large scene on a busy machine does:
+    # the previous view's picture stayed up when a render of the new view was still waiting as
+    # the view came to rest.
+    slow = float(os.environ.get("SPLAT_SLOW_RENDER", "0"))
+    if slow:
+        real_render = viewport.render_view
+
+        def slow_render(*args, **kwargs):
+            time.sleep(slow)
+            return real_render(*args, **kwargs)
+        viewport.render_view = slow_render
+
+    def show_splats():
+        view3d()[1].spaces.active.shading.type = "SOLID"
+        bpy.context.scene.splat_render.viewport = True
+        view3d()[1].tag_redraw()
+        return None
+    steps.extend([show_splats, wait_until_rested, turn, stale_on_screen()])
 for name in SHADINGS:
     add_shading(name)
 ui_kit.run_steps(bpy, steps, finish, errors)
