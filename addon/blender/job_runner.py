@@ -49,10 +49,20 @@ from .registration import register_classes, unregister_classes
 
 TIMER_STEP = 0.25  # seconds between polls of a background job
 STAGE_BUDGET = 0.1  # seconds of main-thread work per poll for a StagedJob
-# Seconds between two updates of a job's object on screen, whatever its step interval: each
-# update redraws the 3D view several times (Workbench's anti-aliasing samples), ~0.1-0.2 s a time
-# in software OpenGL (Blender 4.3 under Xvfb), and a UI busy redrawing answers late.
+# Seconds between two updates of a job's object on screen, at least, whatever its step interval:
+# each update redraws the 3D view several times (Workbench's anti-aliasing samples, the add-on's
+# new image), ~0.15 s a time in software OpenGL (Blender 4.3 under Xvfb), and a UI busy
+# redrawing answers late.
 SHOW_INTERVAL = 3.0
+# ... and paced by what they cost: the main thread's time away after an update (the modal
+# timer's events late by more than STALL_SLACK, over COST_WINDOW seconds) is at most this share
+# of the time between updates (the walkthrough scene on a 2-core machine in Blender 4.3 under
+# Xvfb: 1.2 s of stalls an update with the splats on screen, 47 % of the time at one update
+# every 3 s; docs/benchmarks/ui_latency.md). At most MAX_SHOW_INTERVAL apart.
+UPDATE_SHARE = 0.05
+COST_WINDOW = 2.5
+STALL_SLACK = 0.02
+MAX_SHOW_INTERVAL = 60.0
 
 
 @dataclass
@@ -69,6 +79,20 @@ class OperatorJob:
     progress: Progress = field(default_factory=Progress)
     pending: tuple[int, Gaussians] | None = None
     shown_at: float = float("-inf")  # time.monotonic() of the last snapshot shown
+    show_cost: float = 0.0  # main-thread seconds the last update cost (measured since it)
+    ticked_at: float = float("-inf")  # time.monotonic() of the modal timer's last event
+
+    def next_show(self) -> float:
+        """When the next snapshot may be shown (time.monotonic())."""
+        return self.shown_at + min(MAX_SHOW_INTERVAL, max(SHOW_INTERVAL,
+                                                          self.show_cost / UPDATE_SHARE))
+
+    def count_stall(self, now: float) -> None:
+        """A modal timer event at `now`: the time the main thread was away since the last one,
+        beyond the timer's step, counts to the last update's cost while within its window."""
+        if now - self.shown_at <= COST_WINDOW + TIMER_STEP:
+            self.show_cost += max(0.0, now - self.ticked_at - TIMER_STEP - STALL_SLACK)
+        self.ticked_at = now
 
 
 RUNNING: dict[str, OperatorJob] = {}
@@ -268,12 +292,13 @@ class JobOperator:
         running.pending = None
         if snapshot is None or running.apply is None:
             return
-        if not _can_write(context, running.target()) or \
-                time.monotonic() - running.shown_at < SHOW_INTERVAL:
+        if not _can_write(context, running.target()) or time.monotonic() < running.next_show():
             running.pending = snapshot
             return
+        start = time.monotonic()
         running.apply(*snapshot)
-        running.shown_at = time.monotonic()
+        running.shown_at = running.ticked_at = time.monotonic()
+        running.show_cost = running.shown_at - start
 
     def modal(self, context, event):
         running = RUNNING.get(self._key)
@@ -287,6 +312,7 @@ class JobOperator:
             return {"RUNNING_MODAL"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
+        running.count_stall(time.monotonic())
         try:
             running.job.poll(STAGE_BUDGET)
             running.progress = running.job.progress()

@@ -416,3 +416,25 @@ def test_after_training_the_views_look_through_a_photo(demo) -> None:
     assert train_operator.look_through_a_photo(scene, demo.collection, [free]) == demo.camera
     assert train_operator.look_through_a_photo(scene, demo.collection, [through]) is None
     assert train_operator.look_through_a_photo(scene, None, [view("PERSP")]) is None
+
+
+def test_updates_are_paced_by_what_they_cost_the_main_thread() -> None:
+    """After an update the modal timer's late events add up to its cost; the next update waits
+    until that cost is at most UPDATE_SHARE of the time between them (SHOW_INTERVAL at least,
+    MAX_SHOW_INTERVAL at most)."""
+    running = job_runner.OperatorJob("train:x", "Training", None, lambda *a: None)
+    step = job_runner.TIMER_STEP
+    running.shown_at = running.ticked_at = 100.0
+    running.show_cost = 0.02                      # the object's write itself
+    assert running.next_show() == 100.0 + job_runner.SHOW_INTERVAL   # cheap: the floor
+    now = 100.0
+    for late in (0.0, 0.4, 0.3, 0.0):             # two redraws of 0.4 and 0.3 s, then idle
+        now += step + late
+        running.count_stall(now)
+    cost = 0.02 + 0.4 + 0.3 - 2 * job_runner.STALL_SLACK
+    assert running.show_cost == pytest.approx(cost)
+    assert running.next_show() == pytest.approx(100.0 + cost / job_runner.UPDATE_SHARE)
+    running.count_stall(now + job_runner.COST_WINDOW + 5.0)   # long after: not the update's
+    assert running.show_cost == pytest.approx(cost)
+    running.show_cost = 100.0
+    assert running.next_show() == 100.0 + job_runner.MAX_SHOW_INTERVAL
