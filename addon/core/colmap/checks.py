@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..formats.contained import is_contained_name  # the one judge of names inside files
+from ..formats.contained import is_contained_name, unrepresentable  # the one judge of names in files
 from .errors import ColmapError, import_pycolmap
 
 # Camera sides up to Blender's own resolution limit; COLMAP cameras are photos' sizes.
@@ -173,13 +173,19 @@ def check_text_cameras(path: Path) -> None:
 
 
 def is_inside(root: Path, path: Path) -> bool:
-    """Does `path`, links followed, lie inside `root` (links followed)?"""
-    return Path(path).resolve().is_relative_to(Path(root).resolve())
+    """Does `path`, links followed, lie inside `root` (links followed)? A path the OS cannot
+    resolve (too long in all, a link loop) does not."""
+    try:
+        return Path(path).resolve().is_relative_to(Path(root).resolve())
+    except (OSError, RuntimeError, ValueError):
+        return False
 
 
 def inside(root: Path, name: str, where: Path, what: str) -> Path:
     """`root / name`, refused (ColmapError naming `where` and `what`) unless it lies inside
     `root`: neither `..` nor a symbolic link takes it out."""
+    if unrepresentable(name) is not None:
+        raise ColmapError(f"{where}: {what}: {name[:200]!r}: {unrepresentable(name)}; refused")
     path = Path(root) / name
     if not is_contained_name(name) or not is_inside(root, path):
         raise ColmapError(f"{where}: {what}: {name!r} leads outside {root}; refused")
@@ -192,6 +198,9 @@ def image_name(image, images_file: Path) -> str:
         name = image.name
     except UnicodeDecodeError:
         raise ColmapError(f"{images_file}: image {image.image_id}: its name is not UTF-8") from None
+    problem = unrepresentable(name)
+    if problem is not None:
+        raise ColmapError(f"{images_file}: image {image.image_id} {name[:200]!r}: {problem}; refused")
     if not is_contained_name(name):
         raise ColmapError(f"{images_file}: image {image.image_id} {name!r}: the name leads outside "
                           f"the image folder; refused")

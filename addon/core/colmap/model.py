@@ -86,6 +86,15 @@ class Photo:
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr", ".webp", ".bmp")
 
 
+def _not_a_file(path: Path) -> str | None:
+    """Why `path` is no file to read ("not found", or what the OS said: a name too long for
+    it, ...), or None when it is one. Never raises: names come from a stranger's model."""
+    try:
+        return None if path.is_file() else "not found"
+    except (OSError, ValueError) as error:
+        return f"cannot be opened: {getattr(error, 'strerror', None) or error}"
+
+
 def renamed_photos(registered, image_dir: Path | None,
                    warnings: list[str] | None) -> dict[str, Path] | str | None:
     """LLFF-style folders (`images_4/image000.png`, ...) rename the photos in the sorted order
@@ -93,7 +102,7 @@ def renamed_photos(registered, image_dir: Path | None,
     in sorted order if their count is the model's (a warning appended to `warnings`), else the
     reason they cannot be matched (a str). None when some names are there (nothing renamed)."""
     if image_dir is None or not image_dir.is_dir() or any(
-            (image_dir / im.name).is_file() for im in registered):
+            _not_a_file(image_dir / im.name) is None for im in registered):
         return None
     files = sorted(p for p in image_dir.iterdir()
                    if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
@@ -122,8 +131,9 @@ def find_photos(registered, rec, image_dir: Path | None,
         src = image_dir / im.name if image_dir is not None else None
         if renamed is not None:
             src = renamed[im.name]
-        if src is None or not src.is_file():
-            missing[im.name] = "not found"
+        problem = "not found" if src is None else _not_a_file(src)
+        if problem is not None:
+            missing[im.name] = problem
             continue
         if not is_inside(image_dir, src):
             missing[im.name] = f"it is a link leading outside {image_dir}; refused"

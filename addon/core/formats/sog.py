@@ -59,7 +59,7 @@ from ..gaussians import Gaussians
 from . import webp
 from ..atomic import atomic_write
 from .codebook import palette, scalar_codebook
-from .contained import contained_file, is_contained_name, read_regular
+from .contained import contained_file, is_contained_name, read_regular, unrepresentable
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
 from .limits import check_gaussian_count
@@ -144,8 +144,8 @@ def _files(path: Path, meta: dict, key: str, count: int) -> list[str]:
         raise _fail(path, f"bad {key}.files in meta.json: expected {count} file names")
     for name in names[:count]:
         if not is_contained_name(name):
-            raise _fail(path, f"bad file name {name[:200]!r} in meta.json: must be a relative path "
-                              f"inside the SOG folder")
+            problem = unrepresentable(name) or "must be a relative path inside the SOG folder"
+            raise _fail(path, f"bad file name {name[:200]!r} in {key}.files of meta.json: {problem}")
     return names[:count]
 
 
@@ -173,7 +173,8 @@ class _Source:
 
     def _unpack(self, name: str, limit: int) -> bytes:
         if not is_contained_name(name):
-            raise _fail(self.path, f"bad member name {name[:200]!r} in the .sog bundle")
+            problem = unrepresentable(name) or "must be a relative path inside the bundle"
+            raise _fail(self.path, f"bad member name {name[:200]!r} in the .sog bundle: {problem}")
         try:
             info = self.bundle.getinfo(name)
         except KeyError:

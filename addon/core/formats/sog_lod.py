@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..gaussians import Gaussians
-from .contained import contained_file, is_contained_name, read_regular
+from .contained import contained_file, is_contained_name, read_regular, unrepresentable
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
 from .limits import check_gaussian_count
@@ -56,8 +56,8 @@ def _read_index(path: Path) -> dict[str, Any]:
         raise SplatFileError(path, "bad 'environment': expected a path")
     for name in names + ([environment] if environment is not None else []):
         if not is_contained_name(name):
-            raise SplatFileError(path, f"bad chunk path {name[:200]!r}: must be relative, inside the "
-                                       f"set's folder")
+            problem = unrepresentable(name) or "must be relative, inside the set's folder"
+            raise SplatFileError(path, f"bad chunk path {name[:200]!r}: {problem}")
     return index
 
 

@@ -212,3 +212,29 @@ def test_lying_counts_in_rigs_and_frames_fail_fast(shared_data, tmp_path, name, 
     _patch_binary(work / "sparse" / "0" / name, offset, struct.pack("<I", 2**32 - 1))
     _timed_error(rf"{name}: corrupt COLMAP binary file at byte \d+: 4294967295 {what}", work,
                  cache_dir=tmp_path / "c", copy_photos=False)
+
+
+@pytest.mark.parametrize("text", [False, True], ids=["bin", "txt"])
+def test_an_image_name_no_file_system_holds_is_a_named_error(shared_data, tmp_path, text):
+    """A 300-character image name: looking for its photo raised a raw OSError (Errno 36, file
+    name too long) from `renamed_photos`."""
+    def change(rec):
+        _first_image(rec).name = "a" * 300 + ".jpg"
+
+    work = _workspace(shared_data, tmp_path, change, text=text)
+    images = "images.txt" if text else "images.bin"
+    _timed_error(rf"{images}: image \d+ 'a+': a part of 304 bytes, more than the 255 .*; refused", work,
+                 cache_dir=tmp_path / "c")
+
+
+def test_a_photo_path_the_os_cannot_open_is_a_missing_photo(tmp_path):
+    """Every part of the name fits, the whole path does not: that photo is missing, with the
+    OS's reason (no OSError out of the search)."""
+    from types import SimpleNamespace
+
+    from addon.core.colmap.model import find_photos
+
+    (tmp_path / "images").mkdir()
+    name = "/".join(["a" * 250] * 16) + "/x.jpg"
+    found, missing = find_photos([SimpleNamespace(name=name, camera_id=1)], None, tmp_path / "images")
+    assert not found and name in missing

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from addon.core.formats.contained import contained_file, is_contained_name
+from addon.core.formats.contained import contained_file, is_contained_name, unrepresentable
 from addon.core.formats.errors import SplatFileError
 
 ESCAPING = ["../x.bin", "a/../../x.bin", "/etc/passwd", "/dev/zero", "C:/Windows/win.ini",
@@ -55,3 +55,32 @@ def test_contained_file_refuses_links_out_fifos_devices_and_folders(tmp_path: Pa
         with pytest.raises(SplatFileError, match=message) as error:
             contained_file(user, name, owner, "buffers[0].uri")
         assert str(error.value).startswith(str(owner)) and "buffers[0].uri" in str(error.value)
+
+
+# Names no file system holds (issue 33): the OS would answer with a raw OSError (Errno 36, "File
+# name too long") or ValueError ("embedded null byte"); each is refused with its own reason.
+UNREPRESENTABLE = {"a" * 300 + ".bin": "a part of 304 bytes", "sub/" + "é" * 128 + "/x.bin": "a part of 256 bytes",
+                   "a\0b.bin": "NUL character", "a\ud800.bin": "not Unicode", "x/" * 2100: "4200 characters"}
+
+
+@pytest.mark.parametrize("name", UNREPRESENTABLE)
+def test_names_no_file_system_holds_are_refused_with_the_reason(tmp_path: Path, name: str) -> None:
+    assert UNREPRESENTABLE[name] in unrepresentable(name)
+    with pytest.raises(SplatFileError, match=f"buffers.0..uri .*{UNREPRESENTABLE[name]}") as error:
+        contained_file(tmp_path, name, tmp_path / "a.gltf", "buffers[0].uri")
+    assert str(error.value).startswith(str(tmp_path / "a.gltf"))
+
+
+def test_the_longest_names_a_file_system_holds_pass() -> None:
+    assert unrepresentable("a" * 255) is None and unrepresentable("a/" * 2000) is None
+    assert unrepresentable("é" * 127) is None  # 254 bytes
+
+
+def test_a_path_too_long_in_all_is_a_named_error(tmp_path: Path) -> None:
+    """Every part fits, the whole path (folder and name) is longer than the OS opens: a named
+    error (the OS stops at the first missing folder), the name shortened in the message."""
+    name = "/".join(["a" * 250] * 16) + "/x.bin"
+    assert is_contained_name(name)
+    with pytest.raises(SplatFileError, match=r"buffers.0..uri 'a+\.\.\.'") as error:
+        contained_file(tmp_path, name, tmp_path / "a.gltf", "buffers[0].uri")
+    assert len(str(error.value)) < 600

@@ -149,3 +149,15 @@ def test_one_file_named_by_many_buffers_is_read_once(scene) -> None:
     buffers = gltf._buffers(path, document, None)
     assert len({id(b.obj) for b in buffers}) == 1
     assert len(gltf.load(path)) == 20
+
+
+@pytest.mark.parametrize("uri, reason", [("a" * 300 + ".bin", "a part of 304 bytes"), ("a%00.bin", "NUL character"),
+                                         ("a\ud800.bin", "not Unicode")])
+def test_a_buffer_uri_no_file_system_holds_is_a_named_error(scene, uri: str, reason: str) -> None:
+    """A uri the OS refuses (too long: it raised OSError Errno 36; an escaped NUL) names the
+    file, the buffer and why."""
+    path, document = scene
+    document["buffers"][0]["uri"] = uri
+    with pytest.raises(SplatFileError, match=f"buffers.0..uri .*{reason}.*; refused") as error:
+        gltf.load(write(path, document))
+    assert str(error.value).startswith(str(path))

@@ -159,3 +159,22 @@ def test_deeply_nested_meta_json_is_a_named_error(folder: Path) -> None:
     path = bundle(folder.parent / "deep.sog", {**members(folder)})
     with pytest.raises(SplatFileError, match="nests 50001 levels deep"):
         splat_io.load(path)
+
+
+@pytest.mark.parametrize("name, reason", [("x" * 300 + ".webp", "a part of 305 bytes"),
+                                          ("a\0b.webp", "NUL character")])
+def test_an_image_name_no_file_system_holds_is_a_named_error(folder: Path, name: str, reason: str) -> None:
+    """A folder SOG's image name is a file name: one the OS refuses (it raised OSError Errno 36)
+    is a SplatFileError naming meta.json, the image and why."""
+    folder.write_bytes(edited(folder.read_bytes(), lambda m: m["quats"].update(files=[name])))
+    with pytest.raises(SplatFileError, match=f"(image|quats).*{reason}") as error:
+        sog.load(folder)
+    assert str(error.value).startswith(str(folder))
+
+
+def test_a_nul_in_a_bundle_member_name_is_a_named_error(folder: Path) -> None:
+    files = members(folder)
+    files["meta.json"] = edited(files["meta.json"], lambda m: m["quats"].update(files=["q\0.webp"]))
+    path = bundle(folder.parent / "nul.sog", files)
+    with pytest.raises(SplatFileError, match="bad file name 'q.x00.webp' in quats.files of meta.json: a NUL"):
+        sog.load(path)
