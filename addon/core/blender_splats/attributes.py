@@ -28,8 +28,9 @@ Where the two disagree, this module says which one it follows:
   the object matrix, its SPZ importer bakes it into the data; either way the object's matrix
   applied to these object-space values gives the world-space Gaussians, as for our objects.
 
-Missing or mistyped required attributes raise `BlenderSplatError`; a point with a NaN or Inf in
-any value it is read from is dropped and counted (`Conversion.dropped`).
+Missing or mistyped attributes (not numbers: object, dict, structured or string arrays; or of
+another shape than (N, width) or flat) raise `BlenderSplatError` naming the attribute; a point
+with a NaN or Inf in any value it is read from is dropped and counted (`Conversion.dropped`).
 """
 
 from __future__ import annotations
@@ -112,15 +113,24 @@ class Conversion:
 
 def _checked(arrays: Mapping[str, np.ndarray], name: str, width: int, n: int | None,
              source: str) -> np.ndarray:
+    """Attribute `name` as float32 (n, width): numbers only (no object, structured, string or
+    complex arrays), flat (n * width,) or (n, width); else a BlenderSplatError naming it."""
     if name not in arrays:
         raise BlenderSplatError(f"{source}: no {name!r} attribute: not Blender splat data")
-    array = np.asarray(arrays[name], np.float32)
+    what = f"{source}: attribute {name!r}"
+    try:
+        array = np.asarray(arrays[name])
+    except (TypeError, ValueError) as e:  # ragged nested lists, objects numpy cannot hold
+        raise BlenderSplatError(f"{what} is not an array of numbers: {e}") from None
+    if array.dtype.kind not in "fiu":  # object, dict, structured (V), str (U, S), bool, complex
+        raise BlenderSplatError(f"{what} holds {array.dtype} values, expected numbers (float32)")
     if n is None:
-        n = array.size // width if width else 0
-    if array.size != n * width:
-        raise BlenderSplatError(f"{source}: attribute {name!r} holds {array.size} values, "
-                                f"expected {n} x {width}")
-    return array.reshape(n, width)
+        n = array.size // width
+    if array.shape not in ((n * width,), (n, width)):
+        raise BlenderSplatError(f"{what} has shape {array.shape}, expected ({n}, {width}) or "
+                                f"({n * width},)")
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: inf, dropped as non-finite
+        return array.astype(np.float32).reshape(n, width)
 
 
 def gaussians_from_attributes(arrays: Mapping[str, np.ndarray], *,

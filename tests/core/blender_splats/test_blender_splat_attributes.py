@@ -137,3 +137,30 @@ def test_sh_names_and_degree():
     assert ba.degree_of(frozenset(ba.sh_names(2)))[0] == 2
     with pytest.raises(ValueError):
         ba.sh_names(5)
+
+
+@pytest.mark.parametrize("name", ["position", "rotation", "radiance:base", "radiance:sh_2"])
+@pytest.mark.parametrize("kind", ["object", "dict", "structured", "str", "bytes", "complex", "ragged", "shape"])
+def test_an_attribute_of_another_dtype_or_shape_is_an_error_naming_it(rng, name, kind):
+    """Object, dict, structured and string arrays raised a raw TypeError or a bare numpy
+    ValueError naming nothing; a (N, 2, 2) array of the right size was silently reshaped."""
+    arrays = ba.attributes_from_gaussians(_random(rng, 5, 1))
+    good = arrays[name]
+    arrays[name] = {
+        "object": np.array([object()] * good.size, dtype=object),
+        "dict": np.array([{"x": 1}] * len(good), dtype=object),
+        "structured": np.zeros(len(good), dtype=[("a", "f4"), ("b", "f4", (good.shape[1] - 1,))]),
+        "str": good.astype(str),
+        "bytes": good.astype("S8"),
+        "complex": good.astype(np.complex64),
+        "ragged": [[1.0, 2.0], [3.0]],
+        "shape": good.reshape(len(good), 1, -1) if name != "rotation" else good.reshape(len(good), 2, 2),
+    }[kind]
+    with pytest.raises(ba.BlenderSplatError, match=f"cloud.ply: attribute '{name}'"):
+        ba.gaussians_from_attributes(arrays, source="cloud.ply")
+
+
+def test_integer_attributes_are_numbers(rng):
+    arrays = ba.attributes_from_gaussians(_random(rng, 5, 0))
+    arrays["position"] = np.rint(arrays["position"]).astype(np.int16)
+    assert ba.gaussians_from_attributes(arrays).gaussians.means.dtype == np.float32
