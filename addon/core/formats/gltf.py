@@ -54,7 +54,7 @@ from .contained import contained_file, read_regular
 from .errors import SplatFileError
 from .frames import rdf_to_rub
 from .json_file import malformed, parse_object
-from .limits import check_gaussian_count
+from .limits import check_expansion, check_gaussian_count
 from .quaternions import unit_quaternions
 
 __all__ = ["load", "save", "EXTENSION", "SPZ_EXTENSION", "attribute_names"]
@@ -215,10 +215,11 @@ def _split_glb(path: Path, data: bytes) -> tuple[dict, bytes | None]:
     return _parse_json(path, json_chunk), binary
 
 
-def _buffers(path: Path, document: dict, binary: memoryview | None) -> list[memoryview]:
+def _buffers(path: Path, document: dict, binary: memoryview | None) -> tuple[list[memoryview], int]:
     """Every buffer's bytes, shared where they can be: a file named by several buffers is read
     once (as much of it as the longest needs); external files are judged by
-    `contained.contained_file` (inside the glTF's folder, links followed, regular files)."""
+    `contained.contained_file` (inside the glTF's folder, links followed, regular files). And
+    how many bytes were read from external files."""
     wanted: list[tuple[int, Any]] = []
     longest: dict[Path, int] = {}
     for i, buffer in enumerate(_list(path, document, "buffers")):
@@ -255,7 +256,7 @@ def _buffers(path: Path, document: dict, binary: memoryview | None) -> list[memo
         if len(data) < length:
             raise SplatFileError(path, f"buffers[{i}] declares {length} bytes, holds {len(data)}")
         buffers.append(data[:length])
-    return buffers
+    return buffers, sum(len(data) for data in files.values())
 
 
 def _list(path: Path, document: dict, key: str) -> list:
@@ -451,6 +452,16 @@ def _declared_count(path: Path, document: dict, primitive: dict) -> int:
     return _int(path, accessor.get("count"), "POSITION count")
 
 
+def _declared_degree(primitive: dict) -> int:
+    """The SH degree a primitive's attribute names declare (0..3; nothing read)."""
+    attributes = primitive.get("attributes")
+    degree = 0
+    while degree < 3 and isinstance(attributes, dict) and \
+            f"{PREFIX}SH_DEGREE_{degree + 1}_COEF_0" in attributes:
+        degree += 1
+    return degree
+
+
 def load(path: str | os.PathLike) -> Gaussians:
     """Read every KHR_gaussian_splatting primitive of a `.glb` / `.gltf` into one `Gaussians`."""
     path = Path(path)
@@ -478,7 +489,13 @@ def _load(path: Path) -> Gaussians:
     shown = [(node, mesh, matrix, _splat_primitives(path, document, mesh)) for node, mesh, matrix in instances]
     total = sum(_declared_count(path, document, p) for *_, prims in shown for _, p in prims)
     check_gaussian_count(path, total, "Gaussians in the scene's instances")
-    buffers = _buffers(path, document, binary)
+    if not any(prims for *_, prims in shown):
+        raise SplatFileError(path, f"no {EXTENSION} primitive in the scene: not a Gaussian splat glTF")
+    degree = max(_declared_degree(p) for *_, prims in shown for _, p in prims)
+    buffers, external = _buffers(path, document, binary)
+    # Instances multiply a primitive's bytes: 166 nodes showing one 60k-Gaussian primitive of a
+    # 724 KB .glb asked for 2.5 GB (issue 33). Refused here, before anything is decoded.
+    check_expansion(path, total, degree, len(data) + external, " in the scene's instances")
     decoded: dict[tuple[int, int], Gaussians] = {}  # a mesh shown by several nodes is read once
     parts = []
     for node, mesh_index, matrix, primitives in shown:
@@ -497,9 +514,6 @@ def _load(path: Path) -> Gaussians:
                     raise SplatFileError(path, f"node {node}'s transform makes {bad} non-finite "
                                                f"(values beyond float32)")
             parts.append(rdf_to_rub(g))
-    if not parts:
-        raise SplatFileError(path, f"no {EXTENSION} primitive in the scene: not a Gaussian splat glTF")
-    degree = max(p.degree for p in parts)
     parts = [p.with_degree(degree) if p.degree != degree else p for p in parts]
     if len(parts) == 1:
         return parts[0]

@@ -62,7 +62,7 @@ from .codebook import palette, scalar_codebook
 from .contained import contained_file, is_contained_name, read_regular, unrepresentable
 from .errors import SplatFileError
 from .json_file import malformed, parse_object
-from .limits import check_gaussian_count
+from .limits import check_expansion, check_gaussian_count
 from .morton import morton_order
 from .quaternions import smallest_three
 
@@ -160,8 +160,9 @@ class _Source:
     all of them together unpack to at most `MAX_UNPACK_RATIO` times the bundle's size."""
 
     def __init__(self, path: Path, folder: Path, bundle: zipfile.ZipFile | None = None,
-                 scratch: Path | None = None, budget: int = 0) -> None:
+                 scratch: Path | None = None, budget: int = 0, size: int = 0) -> None:
         self.path, self.folder, self.bundle, self.scratch = path, folder, bundle, scratch
+        self.size = size  # a bundle's bytes
         self.meta_name = "meta.json" if bundle is not None else path.name
         self.budget = budget  # bytes a bundle may still unpack
         self.unpacked: dict[str, Path] = {}
@@ -207,6 +208,18 @@ class _Source:
                                        f"{e.strerror or e}") from None
             self.unpacked[name] = target
         return self.unpacked[name]
+
+    def file_bytes(self, meta_bytes: int, names: list[str]) -> int:
+        """What the SOG is made of, in bytes: a bundle's size, or meta.json and its images."""
+        if self.bundle is not None:
+            return self.size
+        total = meta_bytes
+        for name in set(names):
+            try:
+                total += self.image_path(name).stat().st_size
+            except OSError as e:
+                raise _fail(self.path, f"cannot read image {name}: {e.strerror or e}") from None
+        return total
 
     def read_size(self, name: str) -> tuple[int, int, int]:
         return webp.read_size(self.image_path(name), self.path, name)
@@ -312,10 +325,27 @@ def _decode_sh_rest(path: Path, meta: dict, source: _Source, count: int) -> np.n
     return centroids[labels]
 
 
+def _check_expansion(path: Path, meta: dict, source: _Source, count: int, meta_bytes: int) -> None:
+    """The Gaussians meta.json declares against the bytes of the SOG (meta.json and every image
+    it names), before any image is decoded: uniform lossless WebPs of a few hundred bytes can
+    declare 3162x3162 pixels each (issue 33's 17 KB folder asked for 10M Gaussians). Checked for
+    the SOG as a whole, not per image: an image of constant bytes (untrained rotations, one
+    SH palette entry) legitimately compresses to nearly nothing."""
+    names = _files(path, meta, "means", 2) + _files(path, meta, "quats", 1) + \
+        _files(path, meta, "scales", 1) + _files(path, meta, "sh0", 1)
+    degree = 0
+    if meta.get("shN"):
+        degree = _integer(path, _field(path, meta, "shN", "bands"), "shN.bands", 1, 3)
+        names += _files(path, meta, "shN", 2)
+    check_expansion(path, count, degree, source.file_bytes(meta_bytes, names))
+
+
 def _decode(path: Path, source: _Source) -> tuple[Gaussians, SogInfo]:
-    meta = _parse_meta(path, source.meta_bytes())
+    text = source.meta_bytes()
+    meta = _parse_meta(path, text)
     count = _integer(path, _field(path, meta, "count"), "count", 0, MAX_COUNT)
     check_gaussian_count(path, count)
+    _check_expansion(path, meta, source, count, len(text))
     means = _decode_means(path, meta, source, count)
     quats = _decode_quats(path, meta, source, count)
     log_scales = _decode_scales(path, meta, source, count)
@@ -359,7 +389,7 @@ def _with_source(path: str | os.PathLike, action: Callable[[Path, _Source], Any]
         except OSError as e:
             raise _fail(path, f"cannot make a temporary folder to unpack into: {e.strerror or e}") from None
         with scratch:
-            return action(path, _Source(path, path.parent, bundle, Path(scratch.name), budget))
+            return action(path, _Source(path, path.parent, bundle, Path(scratch.name), budget, size))
 
 
 def load(path: str | os.PathLike) -> Gaussians:

@@ -69,7 +69,7 @@ import numpy as np
 from ..gaussians import Gaussians
 from ..atomic import atomic_write
 from .errors import SplatFileError
-from .limits import check_gaussian_count
+from .limits import check_expansion, check_gaussian_count
 from .splat import decode_alpha, encode_alpha
 
 __all__ = ["load", "load_with_flag", "memory_needed", "save", "Packed", "read_packed", "unpack", "pack", "serialize",
@@ -292,6 +292,9 @@ def _read_legacy(stream: _Gunzip | bytes, compressed_size: int, path: Path) -> P
         raise SplatFileError(path, f"truncated: the header claims {n} points ({16 + total} bytes "
                                    f"with the header), the gzip stream holds {stream.declared_size}")
     check_gaussian_count(path, n, "points")  # before decompressing: the ratio bounds too little
+    # Only the 16 header bytes are inflated yet: deflate's 1032:1 and the count let a 185 KB
+    # gzip stream of zeros declare 10M points (1.95 GB, issue 33); the expansion bound does not.
+    check_expansion(path, n, sh_degree, compressed_size)
     payload = memoryview(stream)[16:16 + total] if plain else memoryview(stream.read(total))
     if len(payload) < total:
         raise SplatFileError(path, f"truncated: {len(payload)} of {total} data bytes for {n} points")
@@ -324,6 +327,7 @@ def _read_ngsp(data: bytes, path: Path) -> Packed:
     if n > len(data) * _ZSTD_MAX_RATIO // 9:
         raise SplatFileError(path, f"header claims {n} points, more than a {len(data)}-byte file can hold")
     check_gaussian_count(path, n, "points")  # before decompressing: the ratio bounds too little
+    check_expansion(path, n, sh_degree, len(data))
     sizes = _stream_sizes(n, version, sh_degree)
     names = [name for name, size in zip(_STREAMS, sizes) if size]
     if num_streams != len(names):

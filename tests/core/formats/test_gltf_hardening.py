@@ -19,6 +19,7 @@ import pytest
 from addon.core.formats import gltf, limits
 from addon.core.formats.errors import SplatFileError
 from limited import load_limited
+from scripts import fuzz_hostile
 from scenes import random_gaussians
 
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="FIFOs and /dev/zero")
@@ -146,8 +147,8 @@ def test_one_file_named_by_many_buffers_is_read_once(scene) -> None:
     path, document = scene
     document["buffers"] = document["buffers"] * 1000
     write(path, document)
-    buffers = gltf._buffers(path, document, None)
-    assert len({id(b.obj) for b in buffers}) == 1
+    buffers, read = gltf._buffers(path, document, None)
+    assert len({id(b.obj) for b in buffers}) == 1 and read == (path.parent / "a.bin").stat().st_size
     assert len(gltf.load(path)) == 20
 
 
@@ -161,3 +162,19 @@ def test_a_buffer_uri_no_file_system_holds_is_a_named_error(scene, uri: str, rea
     with pytest.raises(SplatFileError, match=f"buffers.0..uri .*{reason}.*; refused") as error:
         gltf.load(write(path, document))
     assert str(error.value).startswith(str(path))
+
+
+def test_a_primitive_shown_by_166_nodes_is_refused_by_its_expansion(tmp_path: Path) -> None:
+    """Issue 33: one 60k-Gaussian SH3 primitive shown by 166 nodes asked for 9.96M Gaussians
+    (2.5 GB), each instance copied, then all concatenated. Refused before any buffer is decoded,
+    naming the file, the declared size, the bound and how to raise it."""
+    path = tmp_path / "a.glb"
+    path.write_bytes(fuzz_hostile.glb_instances()["a.glb"])
+    start = time.process_time()
+    with pytest.raises(SplatFileError, match=r"a.glb: declares 9960000 Gaussians in the scene's instances of SH "
+                                             r"degree 3 \(2241\.7 MiB loaded\) in \d+ bytes: \d+ bytes decoded per "
+                                             r"byte read, more than the bound of 256 .*raise "
+                                             r"formats.limits.MAX_EXPANSION or set SPLAT_MAX_EXPANSION"):
+        gltf.load(path)
+    assert time.process_time() - start < 1.0
+

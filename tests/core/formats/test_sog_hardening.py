@@ -20,6 +20,7 @@ from addon.core import splat_io
 from addon.core.formats import limits, sog
 from addon.core.formats.errors import SplatFileError
 from limited import load_limited
+from scripts import fuzz_hostile
 from scenes import random_gaussians
 
 pytest.importorskip("OpenImageIO")
@@ -178,3 +179,27 @@ def test_a_nul_in_a_bundle_member_name_is_a_named_error(folder: Path) -> None:
     path = bundle(folder.parent / "nul.sog", files)
     with pytest.raises(SplatFileError, match="bad file name 'q.x00.webp' in quats.files of meta.json: a NUL"):
         sog.load(path)
+
+
+@pytest.mark.parametrize("form", ["folder", "bundle"])
+def test_a_few_kb_declaring_10m_gaussians_is_refused_by_its_expansion(tmp_path: Path, form: str) -> None:
+    """Issue 33: meta.json declaring ~10M Gaussians over uniform 3162x3162 lossless WebPs of 460
+    bytes each (a few KB in all) loaded 10M Gaussians, 1.97 GB at peak. Refused from meta.json
+    and the images' file sizes, before any image is decoded, naming the file and the bound."""
+    files = fuzz_hostile.sog_bomb(bundle=form == "bundle")
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    path = tmp_path / ("a.sog" if form == "bundle" else "meta.json")
+    assert sum(len(d) for d in files.values()) < 17_000
+    start = time.process_time()
+    with pytest.raises(SplatFileError, match=rf"declares {fuzz_hostile.COUNT} Gaussians of SH degree 0 "
+                                             rf"\(534\.0 MiB loaded\) in \d+ bytes: \d+ bytes decoded per byte "
+                                             rf"read, more than the bound of 256") as error:
+        sog.load(path)
+    assert str(error.value).startswith(str(path)) and time.process_time() - start < 1.0
+    monkeypatch = pytest.MonkeyPatch()
+    with monkeypatch.context() as m:  # the bound, not another check, refused it
+        m.setattr(limits, "MAX_EXPANSION", 10**6)
+        m.setattr(sog, "_image", lambda *a, **k: (_ for _ in ()).throw(SplatFileError(path, "decoding")))
+        with pytest.raises(SplatFileError, match="decoding"):
+            sog.load(path)

@@ -15,6 +15,7 @@ import pytest
 from addon.core.formats import limits, sog, sog_lod
 from addon.core.formats.errors import SplatFileError
 from limited import load_limited
+from scripts import fuzz_hostile
 from scenes import random_gaussians
 
 pytest.importorskip("OpenImageIO")
@@ -115,3 +116,12 @@ def test_one_chunk_named_under_many_indices_is_read_once_and_runs_checked_togeth
     index["filenames"] = ["c0/meta.json", "./c0/meta.json", "c1/../c0/meta.json"]
     index["tree"] = {"children": [{"lods": {"0": {"file": f, "offset": 200 * f, "count": 200}}} for f in range(3)]}
     assert len(sog_lod.load(write(path, index))) == 600  # disjoint runs of one chunk: fine
+
+
+def test_an_environment_chunk_declaring_10m_gaussians_is_refused_by_its_expansion(tmp_path: Path) -> None:
+    """Issue 33: a LOD set's chunks inherit the SOG reader's bound (here its environment)."""
+    for name, data in fuzz_hostile.lod_bomb().items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(data)
+    with pytest.raises(SplatFileError, match="env/meta.json: declares .* bytes decoded per byte read"):
+        sog_lod.load(tmp_path / "lod-meta.json")

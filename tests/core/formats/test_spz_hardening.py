@@ -19,6 +19,7 @@ import pytest
 from addon.core.formats import registry, spz
 from addon.core.formats.errors import SplatFileError
 from limited import load_limited
+from scripts import fuzz_hostile
 
 MAGIC = 0x5053474E
 
@@ -38,9 +39,12 @@ def gzip_bomb(path: Path, n: int, degree: int, zeros: int | None = None, noise: 
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="address-space limit")
-def test_the_6m_point_gzip_bomb_loads_or_is_refused_under_4_gib(tmp_path: Path) -> None:
+def test_the_6m_point_gzip_bomb_loads_or_is_refused_under_4_gib(tmp_path: Path, monkeypatch) -> None:
+    """With the expansion bound raised past it (formats.limits), the bomb still loads or fails
+    by name (the bound itself refuses it at once: test_spz_expansion...)."""
     path = gzip_bomb(tmp_path / "bomb.spz", 6_000_000, 3)
     assert path.stat().st_size < 400_000
+    monkeypatch.setenv("SPLAT_MAX_EXPANSION", "1000000")
     kind, text = load_limited(path, memory_gib=4.0, seconds=120)
     assert kind == "loaded" and text == "6000000" or \
         kind == "SplatFileError" and "needs about" in text and text.startswith(str(path)), (kind, text)
@@ -73,3 +77,24 @@ def test_a_header_claiming_more_than_the_gzip_trailer_is_refused_before_decompre
     finally:
         tracemalloc.stop()
     assert peak < 16 * path.stat().st_size and time.process_time() - start < 0.5
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_a_gzip_stream_declaring_10m_points_is_refused_by_its_expansion(tmp_path: Path, version: int) -> None:
+    """Issue 33: a 185 KB gzip .spz (v2) declaring 10M points loaded 10M Gaussians (1.95 GB):
+    deflate's 1032:1 and the count cap both let it through. Refused once the 16 header bytes are
+    inflated, naming the file, the declared size and the bound, in bounded time and memory."""
+    path = tmp_path / "bomb.spz"
+    path.write_bytes(fuzz_hostile.spz_gzip_bomb(10_000_000, version)["a.spz"])
+    assert path.stat().st_size < 200_000
+    tracemalloc.start()
+    start = time.process_time()
+    try:
+        with pytest.raises(SplatFileError, match=r"bomb.spz: declares 10000000 Gaussians of SH degree 0 "
+                                                 r"\(534\.1 MiB loaded\) in \d+ bytes: \d+ bytes decoded per "
+                                                 r"byte read, more than the bound of 256 .*SPLAT_MAX_EXPANSION"):
+            spz.load(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 4 * path.stat().st_size and time.process_time() - start < 0.5
