@@ -50,6 +50,7 @@ from ..gaussians import Gaussians
 from ..sh import SH_C0
 from ..transform import transform_gaussians
 from ..atomic import atomic_write
+from .assemble import Assembly
 from .contained import contained_file, read_regular
 from .errors import SplatFileError
 from .frames import rdf_to_rub
@@ -497,7 +498,7 @@ def _load(path: Path) -> Gaussians:
     # 724 KB .glb asked for 2.5 GB (issue 33). Refused here, before anything is decoded.
     check_expansion(path, total, degree, len(data) + external, " in the scene's instances")
     decoded: dict[tuple[int, int], Gaussians] = {}  # a mesh shown by several nodes is read once
-    parts = []
+    out = Assembly(total, degree)  # each instance written in place: no copies to concatenate
     for node, mesh_index, matrix, primitives in shown:
         for k, primitive in primitives:
             if (mesh_index, k) not in decoded:
@@ -513,9 +514,5 @@ def _load(path: Path) -> Gaussians:
                 if bad is not None:
                     raise SplatFileError(path, f"node {node}'s transform makes {bad} non-finite "
                                                f"(values beyond float32)")
-            parts.append(rdf_to_rub(g))
-    parts = [p.with_degree(degree) if p.degree != degree else p for p in parts]
-    if len(parts) == 1:
-        return parts[0]
-    return Gaussians(*(np.concatenate([getattr(p, k) for p in parts])
-                       for k in ("means", "log_scales", "quats", "opacity_logits", "sh")))
+            out.put(rdf_to_rub(g))
+    return out.gaussians()

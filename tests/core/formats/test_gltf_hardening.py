@@ -11,6 +11,7 @@ import json
 import os
 import sys
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +179,26 @@ def test_a_primitive_shown_by_166_nodes_is_refused_by_its_expansion(tmp_path: Pa
         gltf.load(path)
     assert time.process_time() - start < 1.0
 
+
+def test_instances_are_decoded_once_into_one_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With the bound raised (a genuine instanced scene), the primitive is decoded once and each
+    instance written into one preallocated output: the load peaks near the output's size, where
+    copies then a concatenation held it twice."""
+    path = tmp_path / "a.glb"
+    path.write_bytes(fuzz_hostile.glb_instances(nodes=166, count=1000)["a.glb"])
+    with pytest.raises(SplatFileError, match="bytes decoded per byte read"):
+        gltf.load(path)
+    monkeypatch.setattr(limits, "MAX_EXPANSION", 10_000)
+    decoded = []
+    original = gltf._primitive_gaussians
+    monkeypatch.setattr(gltf, "_primitive_gaussians", lambda *a: decoded.append(1) or original(*a))
+    tracemalloc.start()
+    try:
+        g = gltf.load(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    size = sum(a.nbytes for a in g.arrays().values())
+    assert len(g) == 166_000 and g.degree == 3 and len(decoded) == 1
+    assert peak < 1.3 * size, (peak, size)
+    np.testing.assert_allclose(g.means[165_000:], g.means[:1000] + [165.0, 0.0, 0.0], atol=1e-4)
