@@ -41,6 +41,11 @@ EXPANSION_VARIABLE = "SPLAT_MAX_EXPANSION"
 EXPANSION_SLACK = 1 << 20
 
 
+# What a sequence keeps of the frames it read (formats/sequence.py), besides the one shown: three
+# frames of a million SH3 Gaussians (708 MB) fit; frames of 10M SH3 (2.4 GB) are kept one at a time.
+SEQUENCE_CACHE_BYTES = 2 << 30
+
+
 def _from_environment(name: str, default: int) -> int:
     text = os.environ.get(name, "")
     try:

@@ -9,8 +9,10 @@ Frames are ordered by their number; numbers need not start at 0 or be contiguous
 the previous frame, as image sequences do in Blender: `file_for(frame)`).
 
 `SplatSequence.gaussians(frame)` reads a frame when it is first asked for and keeps the last
-`cache_frames` read (least recently used out), so memory stays bounded whatever the length and
-scrubbing back and forth over cached frames never reads a file again. Thread-safe.
+`cache_frames` read, and no more than `cache_bytes` of them (least recently used out; the frame
+just read always stays, whatever its size), so memory stays bounded whatever the length or the
+frames' sizes, and scrubbing back and forth over cached frames never reads a file again.
+Thread-safe.
 Counts may change from frame to frame. Blender-free: the Blender side drives it per frame.
 
 Every frame file is judged by `contained.contained_file`, as paths inside splat files are: a frame
@@ -33,6 +35,7 @@ from ..gaussians import Gaussians
 from . import registry
 from .contained import contained_file
 from .errors import SplatFileError
+from .limits import SEQUENCE_CACHE_BYTES
 
 __all__ = ["SplatSequence", "find_frames", "save_sequence"]
 
@@ -102,15 +105,19 @@ def find_frames(target: str | os.PathLike) -> dict[int, Path]:
 
 
 class SplatSequence:
-    """The frames of a sequence, read on demand, at most `cache_frames` kept in memory."""
+    """The frames of a sequence, read on demand, at most `cache_frames` and `cache_bytes` kept in
+    memory (beyond the last one read)."""
 
-    def __init__(self, target: str | os.PathLike, cache_frames: int = 3) -> None:
+    def __init__(self, target: str | os.PathLike, cache_frames: int = 3,
+                 cache_bytes: int = SEQUENCE_CACHE_BYTES) -> None:
         if cache_frames < 1:
             raise ValueError(f"cache_frames must be at least 1, got {cache_frames}")
+        if cache_bytes < 0:
+            raise ValueError(f"cache_bytes must not be negative, got {cache_bytes}")
         self.target = Path(target)
         self.files = find_frames(target)
         self.numbers = list(self.files)
-        self.cache_frames = cache_frames
+        self.cache_frames, self.cache_bytes = cache_frames, cache_bytes
         self.reads = 0  # files read so far (a cache miss each)
         self._cache: OrderedDict[int, Gaussians] = OrderedDict()
         self._lock = threading.Lock()
@@ -148,9 +155,13 @@ class SplatSequence:
             self.reads += 1
             self._cache[number] = gaussians
             self._cache.move_to_end(number)
-            while len(self._cache) > self.cache_frames:
+            while len(self._cache) > 1 and (len(self._cache) > self.cache_frames
+                                            or self._cached_bytes() > self.cache_bytes):
                 self._cache.popitem(last=False)
         return gaussians
+
+    def _cached_bytes(self) -> int:
+        return sum(a.nbytes for g in self._cache.values() for a in g.arrays().values())
 
     def cached_numbers(self) -> list[int]:
         with self._lock:

@@ -85,3 +85,20 @@ def test_errors_name_the_target(tmp_path: Path) -> None:
         save_sequence([], tmp_path / "plain.ply")
     with pytest.raises(ValueError, match="cache_frames"):
         SplatSequence(tmp_path / "a_1.ply", cache_frames=0)
+
+
+def test_the_cache_is_bounded_in_bytes_not_only_in_frames(walk: Path) -> None:
+    """Issue 33: the cache held 3 frames whatever their size (3 GB for three frames asking 1 GB
+    each). Now frames leave it once they pass `cache_bytes` too; the last one read stays."""
+    size = sum(a.nbytes for a in SplatSequence(walk / "walk_0001.ply").gaussians(1).arrays().values())
+    sequence = SplatSequence(walk / "walk_0001.ply", cache_frames=3, cache_bytes=int(2.5 * size))
+    for f in (1, 2, 3):
+        sequence.gaussians(f)
+    cached = sequence.cached_numbers()
+    assert cached[-1] == 3 and sequence._cached_bytes() <= 2.5 * size and len(cached) < 3
+    tiny = SplatSequence(walk / "walk_0001.ply", cache_bytes=0)
+    for _ in range(3):
+        tiny.gaussians(2)
+    assert tiny.cached_numbers() == [2] and tiny.reads == 1  # the frame shown stays
+    with pytest.raises(ValueError, match="cache_bytes"):
+        SplatSequence(walk / "walk_0001.ply", cache_bytes=-1)

@@ -69,3 +69,19 @@ def test_thousands_of_frames_are_found_and_looked_up_in_linear_time(frames: Path
     assert len(sequence) == 5_002 and picks[11] == 10 and picks[10_019] == 10_008 and picks[0] == 1
     print(f"5002 frames: found in {found:.2f} s, 10020 lookups in {looked_up:.3f} s (CPU)")
     assert looked_up < 0.1  # a scan per lookup took 0.47 s here (shared machine, CPU time)
+
+
+def test_a_sequence_of_small_frames_asking_for_gigabytes_is_refused_by_frame(tmp_path: Path) -> None:
+    """Issue 33: two 6 KB .sog frames each declaring 10M Gaussians asked 2.5 GB (three frames:
+    3 GB). Each frame is refused by the expansion bound, naming it."""
+    pytest.importorskip("OpenImageIO")
+    from scripts import fuzz_hostile
+
+    for name, data in fuzz_hostile.sequence_of_bombs(2).items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(data)
+    sequence = SplatSequence(tmp_path / "seq")
+    for number in (1, 2):
+        with pytest.raises(SplatFileError, match=rf"walk_000{number}.sog: declares .* bytes decoded per byte read"):
+            sequence.gaussians(number)
+    assert sequence.cached_numbers() == []
