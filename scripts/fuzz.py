@@ -11,11 +11,15 @@ is a finding, not a dead campaign. Outcomes: `loaded` (and the result is sane: f
 consistent), `refused` (SplatFileError / ColmapError naming the file), and the findings:
 `unclean` (any other exception), `insane` (loaded, but non-finite or inconsistent), `memory`,
 `hang`, `crash` (killed by a signal), `escaped` (opened a file outside the mutant's folder: its
-sibling `outside/`, /dev or /etc). Findings are saved under --out with their traceback.
-The multi-file formats' seeds and format-aware mutations are in scripts/fuzz_files.py.
+sibling `outside/`, /dev or /etc), `amplified` (loaded or refused, but the child's resident
+memory grew by more than `--rss-ratio` bytes per byte of input, beyond `--rss-slack-mb`: a
+small file that asks for gigabytes, found before it reaches the address-space limit). Findings
+are saved under --out with their traceback. The multi-file formats' seeds and format-aware
+mutations are in scripts/fuzz_files.py; the hostile seeds (issue 33's small files that asked for
+gigabytes) in scripts/fuzz_hostile.py.
 
-Seeds are small files made here (so mutants reach the data, not just the header) plus, for
-campaigns, the real files of `--corpus` folders (default ../shared/data/splats and the COLMAP
+Seeds are small files made here (so mutants reach the data, not just the header), the hostile
+seeds, plus, for campaigns, the real files of `--corpus` folders (default ../shared/data/splats and the COLMAP
 models in ../shared/data). tests/core/formats/test_fuzz.py runs a fixed-seed few hundred per reader.
 """
 
@@ -42,10 +46,17 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from scripts import fuzz_files  # noqa: E402
+from scripts import fuzz_files, fuzz_hostile  # noqa: E402
 
 GOOD = ("loaded", "refused")
-FINDINGS = ("unclean", "insane", "memory", "hang", "crash", "escaped")
+FINDINGS = ("unclean", "insane", "memory", "hang", "crash", "escaped", "amplified")
+# Peak resident growth a mutant may cause per byte of input, beyond a slack (first use of
+# OpenImageIO's plugins, pycolmap's caches). Genuine files declare at most 31 bytes of Gaussians
+# per byte (docs/benchmarks/expansion.md) and a load peaks at about 3 times what it declares:
+# under 100 a byte. Issue 33's files, their bound lifted, peaked at 794 (the .glb of 166
+# instances) to 371,000 (a SOG folder) a byte.
+RSS_RATIO = 256
+RSS_SLACK_MB = 128
 # Readers whose seeds and mutations are scripts/fuzz_files.py's (several files, JSON, zip).
 FILE_READERS = ("sog_folder", "sog_bundle", "sog_lod", "glb", "gltf", "gltf_external", "sequence")
 
@@ -152,6 +163,17 @@ def small_seeds(seed: int = 0) -> list[Seed]:
     seeds.append(Seed("colmap_txt", "model", _colmap_model(".txt", rng)))
     seeds += fuzz_files.seeds(g, _gaussians(7, 0, rng), Seed)
     return seeds
+
+
+def hostile_seeds() -> list[Seed]:
+    """Issue 33's shapes of small files that asked for gigabytes (scripts/fuzz_hostile.py): each
+    must be refused, and its mutants must not grow memory beyond `RSS_RATIO`."""
+    h = fuzz_hostile
+    return [Seed("sog_folder", "meta.json", h.sog_bomb()), Seed("sog_bundle", "a.sog", h.sog_bomb(bundle=True)),
+            Seed("sog_lod", "lod-meta.json", h.lod_bomb()), Seed("glb", "a.glb", h.glb_instances()),
+            Seed("spz2", "a.spz", h.spz_gzip_bomb()), Seed("sequence", "seq", h.sequence_of_bombs()),
+            Seed("colmap_bin", "model", h.colmap_long_name(".bin")),
+            Seed("colmap_txt", "model", h.colmap_long_name(".txt"))]
 
 
 _SPARES: list[bytes] = []
@@ -264,7 +286,10 @@ def _mutate_ply_header(data: bytes, rnd: random.Random) -> bytes:
 
 
 def _mutate_gzip_payload(data: bytes, rnd: random.Random) -> bytes:
-    """Mutate inside the gzip stream (then recompress), so the header and arrays are hit."""
+    """Mutate inside the gzip stream (then recompress), so the header and arrays are hit; a
+    stream of more than 64 MB (a hostile seed's) is mutated as bytes, not inflated here."""
+    if len(data) < 18 or struct.unpack_from("<I", data, len(data) - 4)[0] > 64 << 20:
+        return _mutate_bytes(data, rnd)
     try:
         plain = gzip.decompress(data)
     except Exception:  # noqa: BLE001 - already broken: mutate the bytes
@@ -373,7 +398,14 @@ def _guard_opens(outside: Path) -> None:
     sys.addaudithook(hook)
 
 
+def _resident() -> int:
+    """This process's resident memory now, in bytes."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * resource.getpagesize()
+
+
 def _child(reader: str, folder: Path, name: str, memory: int, seconds: int, pipe: int) -> None:
+    start = _resident()  # what the fork shares with the parent: the peak is measured above it
     signal.alarm(seconds)
     resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
@@ -395,7 +427,8 @@ def _child(reader: str, folder: Path, name: str, memory: int, seconds: int, pipe
         code, text = 3, traceback.format_exc()
     except BaseException:  # noqa: BLE001 - any other exception is a finding
         code, text = 2, traceback.format_exc()
-    os.write(pipe, text.encode("utf-8", "replace")[:8000])
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - start  # ru_maxrss: KiB
+    os.write(pipe, f"{max(peak, 0)}\n".encode() + text.encode("utf-8", "replace")[:8000])
     os._exit(code)
 
 
@@ -411,11 +444,14 @@ def _address_space() -> int:
 class Outcome:
     kind: str  # GOOD or FINDINGS
     text: str = ""
+    peak: int = 0  # the child's resident memory growth, bytes (0 when it died)
 
 
 def run_one(reader: str, files: dict[str, bytes], name: str, *, memory_mb: int = 1024,
-            seconds: int = 20) -> Outcome:
-    """Write the mutant to a fresh folder and read it in a forked child."""
+            seconds: int = 20, rss_ratio: float = RSS_RATIO, rss_slack_mb: int = RSS_SLACK_MB) -> Outcome:
+    """Write the mutant to a fresh folder and read it in a forked child; a load (or refusal)
+    whose resident memory grew beyond `rss_ratio` bytes per input byte + `rss_slack_mb` is
+    `amplified`."""
     with tempfile.TemporaryDirectory(prefix="fuzz.") as tmp:
         folder = Path(tmp) / "user"
         folder.mkdir()
@@ -442,13 +478,20 @@ def run_one(reader: str, files: dict[str, bytes], name: str, *, memory_mb: int =
             chunks.append(chunk)
         os.close(read)
         _, status = os.waitpid(pid, 0)
-        text = b"".join(chunks).decode("utf-8", "replace")
+        first, _, text = b"".join(chunks).decode("utf-8", "replace").partition("\n")
     if os.WIFSIGNALED(status):
         sig = os.WTERMSIG(status)
         return Outcome("hang" if sig == signal.SIGALRM else "crash", f"signal {sig}")
     code = os.WEXITSTATUS(status)
-    return Outcome({0: "loaded", 1: "refused", 2: "unclean", 3: "memory", 4: "insane",
-                    6: "escaped"}.get(code, "crash"), text)
+    kind = {0: "loaded", 1: "refused", 2: "unclean", 3: "memory", 4: "insane", 6: "escaped"}.get(code, "crash")
+    peak = int(first) if first.isdigit() else 0
+    size = sum(len(data) for data in files.values())
+    if kind in GOOD and peak > rss_ratio * size + (rss_slack_mb << 20):
+        text = (f"{kind}, but resident memory grew by {peak / 2**20:.0f} MiB for {size} bytes of "
+                f"input ({peak / max(size, 1):.0f} per byte, more than {rss_ratio:g} + "
+                f"{rss_slack_mb} MiB)\n{text}")
+        kind = "amplified"
+    return Outcome(kind, text, peak)
 
 
 # -- campaigns -----------------------------------------------------------------------------------
@@ -466,11 +509,11 @@ class Tally:
 
     def table(self) -> str:
         kinds = GOOD + FINDINGS
-        lines = [f"{'reader':16}" + "".join(f"{k:>9}" for k in kinds)]
+        lines = [f"{'reader':16}" + "".join(f"{k:>10}" for k in kinds)]
         for reader, per in sorted(self.counts.items()):
-            lines.append(f"{reader:16}" + "".join(f"{per.get(k, 0):>9}" for k in kinds)
-                         + f"{sum(per.values()):>9}")
-        lines[0] += f"{'mutants':>9}"
+            lines.append(f"{reader:16}" + "".join(f"{per.get(k, 0):>10}" for k in kinds)
+                         + f"{sum(per.values()):>10}")
+        lines[0] += f"{'mutants':>10}"
         return "\n".join(lines)
 
 
@@ -496,7 +539,8 @@ def preload() -> None:
 
 def campaign(seeds: list[Seed], mutants_per_seed: int | None, *, seed: int = 0,
              deadline: float | None = None, memory_mb: int = 1024, seconds: int = 20,
-             on_finding: Callable | None = None) -> Tally:
+             on_finding: Callable | None = None, rss_ratio: float = RSS_RATIO,
+             rss_slack_mb: int = RSS_SLACK_MB) -> Tally:
     """Mutants of each seed in turn (round robin), until `mutants_per_seed` each or `deadline`."""
     preload()
     rnd = random.Random(seed)
@@ -507,7 +551,8 @@ def campaign(seeds: list[Seed], mutants_per_seed: int | None, *, seed: int = 0,
             break
         for s in seeds:
             files = mutate(s, rnd)
-            outcome = run_one(s.reader, files, s.name, memory_mb=memory_mb, seconds=seconds)
+            outcome = run_one(s.reader, files, s.name, memory_mb=memory_mb, seconds=seconds,
+                              rss_ratio=rss_ratio, rss_slack_mb=rss_slack_mb)
             tally.add(s.reader, s.name, files, outcome)
             if outcome.kind in FINDINGS and on_finding is not None:
                 on_finding(s, files, outcome)
@@ -535,12 +580,17 @@ def main(argv: list[str] | None = None) -> int:
                                  ROOT.parent / "shared" / "data" / "cup",
                                  ROOT.parent / "shared" / "data" / "beer"])
     parser.add_argument("--no-small", action="store_true", help="only the corpus seeds")
+    parser.add_argument("--no-hostile", action="store_true", help="without issue 33's hostile seeds")
     parser.add_argument("--memory-mb", type=int, default=2048)
+    parser.add_argument("--rss-ratio", type=float, default=RSS_RATIO,
+                        help="resident growth per input byte beyond which a mutant is 'amplified'")
+    parser.add_argument("--rss-slack-mb", type=int, default=RSS_SLACK_MB)
     parser.add_argument("--seconds", type=int, default=30)
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "fuzz")
     args = parser.parse_args(argv)
 
     seeds = [] if args.no_small else small_seeds(args.seed)
+    seeds += [] if args.no_hostile else hostile_seeds()
     seeds += corpus_seeds([c for c in args.corpus if c.is_dir()])
     if args.readers:
         wanted = set(args.readers.split(","))
@@ -551,7 +601,7 @@ def main(argv: list[str] | None = None) -> int:
           f"findings go to {args.out}", flush=True)
     start = time.perf_counter()
     tally = campaign(seeds, mutants, seed=args.seed, deadline=deadline, memory_mb=args.memory_mb,
-                     seconds=args.seconds,
+                     seconds=args.seconds, rss_ratio=args.rss_ratio, rss_slack_mb=args.rss_slack_mb,
                      on_finding=lambda s, files, o: _save_finding(args.out, s, files, o))
     total = sum(sum(per.values()) for per in tally.counts.values())
     print(tally.table())

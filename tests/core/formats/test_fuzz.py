@@ -5,7 +5,9 @@ floats, truncations, runs deleted or repeated, header and text-number edits, mut
 the gzip stream or the v4 table of contents) each run in a forked child with a memory and a time
 limit (scripts/fuzz.py), so a crash or hang fails this test instead of killing the run. Every
 mutant must either load something sane (finite, consistent shapes) or be refused with a
-SplatFileError / ColmapError naming the file. Longer campaigns, with the real files as seeds:
+SplatFileError / ColmapError naming the file, without growing resident memory far beyond its
+size (`amplified`, issue 33); issue 33's hostile files are seeds too (scripts/fuzz_hostile.py).
+Longer campaigns, with the real files as seeds:
 `.venv/bin/python scripts/fuzz.py --minutes 30`.
 """
 
@@ -80,3 +82,29 @@ def test_a_crash_and_a_hang_are_findings_not_a_dead_run():
         assert fuzz.run_one("ply", crash.files, "a.ply", memory_mb=256).kind == "memory"
     finally:
         fuzz._load = original
+
+
+def test_issue_33s_hostile_seeds_are_refused_in_bounded_memory():
+    """The small files that asked for gigabytes (scripts/fuzz_hostile.py), seeds of every
+    campaign: each refused by name, its reader's resident memory growing by a few MB at most."""
+    pytest.importorskip("OpenImageIO")
+    fuzz.preload()
+    for seed in fuzz.hostile_seeds():
+        outcome = fuzz.run_one(seed.reader, seed.files, seed.name)
+        assert outcome.kind == "refused", (seed.reader, outcome.kind, outcome.text[-600:])
+        assert outcome.peak < 64 << 20, (seed.reader, outcome.peak)
+
+
+def test_memory_grown_beyond_the_input_is_a_finding(monkeypatch):
+    """Peak resident memory against the input's size: a gzip .spz of 37 KB declaring 2M points,
+    loaded with the expansion bound raised (it stays under the address-space limit), is
+    `amplified`; the same file within the bound is refused."""
+    from addon.core.formats import limits
+    from scripts import fuzz_hostile
+
+    files = fuzz_hostile.spz_gzip_bomb(2_000_000)
+    assert fuzz.run_one("spz2", files, "a.spz").kind == "refused"
+    monkeypatch.setattr(limits, "MAX_EXPANSION", 10**6)  # the children are forked: they inherit it
+    outcome = fuzz.run_one("spz2", files, "a.spz", memory_mb=2048, seconds=60)
+    assert outcome.kind == "amplified" and "resident memory grew by" in outcome.text, outcome
+    assert outcome.peak > 200 << 20
