@@ -16,7 +16,8 @@ memory grew by more than `--rss-ratio` bytes per byte of input, beyond `--rss-sl
 small file that asks for gigabytes, found before it reaches the address-space limit). Findings
 are saved under --out with their traceback. The multi-file formats' seeds and format-aware
 mutations are in scripts/fuzz_files.py; the hostile seeds (issue 33's small files that asked for
-gigabytes) in scripts/fuzz_hostile.py.
+gigabytes) in scripts/fuzz_hostile.py, with its mutated Blender 5.3 attribute arrays, which
+`attribute_campaign` runs in this process (`--attributes N`).
 
 Seeds are small files made here (so mutants reach the data, not just the header), the hostile
 seeds, plus, for campaigns, the real files of `--corpus` folders (default ../shared/data/splats and the COLMAP
@@ -494,6 +495,28 @@ def run_one(reader: str, files: dict[str, bytes], name: str, *, memory_mb: int =
     return Outcome(kind, text, peak)
 
 
+# -- Blender's splat attributes (arrays, not files: checked in this process) ----------------------
+
+def attribute_campaign(mutants: int, seed: int = 0) -> Tally:
+    """Mutated Blender 5.3 attribute arrays (scripts/fuzz_hostile.attribute_arrays) through
+    `gaussians_from_attributes`: `loaded` (finite, consistent), `refused` (a BlenderSplatError
+    naming the attribute) or a finding (`unclean`: any other exception; `insane`)."""
+    from addon.core.blender_splats.attributes import BlenderSplatError, gaussians_from_attributes
+    rnd, tally = random.Random(seed), Tally()
+    for _ in range(mutants):
+        arrays = fuzz_hostile.attribute_arrays(rnd)
+        try:
+            problem = _sane_gaussians(gaussians_from_attributes(arrays, source="cloud").gaussians)
+            outcome = Outcome("loaded") if problem is None else Outcome("insane", problem)
+        except BlenderSplatError as error:
+            named = "cloud: " in str(error) and ("attribute '" in str(error) or "no '" in str(error))
+            outcome = Outcome("refused") if named else Outcome("unclean", f"names nothing: {error}")
+        except Exception:  # noqa: BLE001 - any other exception is a finding
+            outcome = Outcome("unclean", traceback.format_exc())
+        tally.add("blender_attributes", "arrays", {}, outcome)
+    return tally
+
+
 # -- campaigns -----------------------------------------------------------------------------------
 
 @dataclass
@@ -581,6 +604,8 @@ def main(argv: list[str] | None = None) -> int:
                                  ROOT.parent / "shared" / "data" / "beer"])
     parser.add_argument("--no-small", action="store_true", help="only the corpus seeds")
     parser.add_argument("--no-hostile", action="store_true", help="without issue 33's hostile seeds")
+    parser.add_argument("--attributes", type=int, default=0,
+                        help="also this many mutated Blender 5.3 attribute sets (in this process)")
     parser.add_argument("--memory-mb", type=int, default=2048)
     parser.add_argument("--rss-ratio", type=float, default=RSS_RATIO,
                         help="resident growth per input byte beyond which a mutant is 'amplified'")
@@ -603,6 +628,10 @@ def main(argv: list[str] | None = None) -> int:
     tally = campaign(seeds, mutants, seed=args.seed, deadline=deadline, memory_mb=args.memory_mb,
                      seconds=args.seconds, rss_ratio=args.rss_ratio, rss_slack_mb=args.rss_slack_mb,
                      on_finding=lambda s, files, o: _save_finding(args.out, s, files, o))
+    if args.attributes:
+        extra = attribute_campaign(args.attributes, args.seed)
+        tally.counts.update(extra.counts)
+        tally.findings += extra.findings
     total = sum(sum(per.values()) for per in tally.counts.values())
     print(tally.table())
     print(f"fuzz: {total} mutants in {time.perf_counter() - start:.1f} s, "

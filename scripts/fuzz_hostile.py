@@ -9,7 +9,9 @@ from these), and the inputs the hardening tests build. Each returns {relative pa
   file made to be small would) is shown by `nodes` nodes;
 - `spz_gzip_bomb`: a gzip `.spz` (v2) declaring 10M points, its stream all zeros;
 - `sequence_of_bombs`: a folder of `frames` numbered `.sog` frames, each a `sog_bomb`;
-- `colmap_long_name`: a COLMAP model (bin or txt) with an image named by 300 characters.
+- `colmap_long_name`: a COLMAP model (bin or txt) with an image named by 300 characters;
+- `attribute_arrays`: Blender 5.3 splat attributes, one or two of them of a hostile dtype or
+  shape (arrays, not files: scripts/fuzz.py's `attribute_campaign` runs them in-process).
 """
 
 from __future__ import annotations
@@ -121,3 +123,28 @@ def colmap_long_name(fmt: str = ".bin", model: dict[str, bytes] | None = None) -
     name = ("a" * 296 + ".png").encode()
     return {file: data.replace(b"sub/001.png", name) if file.startswith("images") else data
             for file, data in model.items()}
+
+
+def attribute_arrays(rnd, n: int = 6, degree: int = 1) -> dict:
+    """Blender 5.3 splat attributes (name -> array) with one or two of them replaced by what a
+    script or a damaged file may hand over: object, dict, structured, string, complex or ragged
+    arrays, another shape, huge or non-finite numbers (the sixth shape: not a file)."""
+    from addon.core.blender_splats import attributes
+    from addon.core.gaussians import Gaussians
+    rng = np.random.default_rng(rnd.randrange(1 << 30))
+    g = Gaussians(rng.normal(0, 1, (n, 3)), rng.normal(-3, 1, (n, 3)), rng.normal(0, 1, (n, 4)),
+                  rng.normal(0, 2, n), rng.normal(0, 0.5, (n, (degree + 1) ** 2, 3)))
+    arrays: dict = dict(attributes.attributes_from_gaussians(g))
+    for name in rnd.sample(sorted(arrays), rnd.choice((1, 1, 2))):
+        good = arrays[name]
+        arrays[name] = rnd.choice([
+            lambda: np.array([object()] * good.size, dtype=object),
+            lambda: np.array([{"x": 1}] * len(good), dtype=object),
+            lambda: np.zeros(len(good), dtype=[("a", "f4"), ("b", "f4")]),
+            lambda: good.astype(str), lambda: good.astype("S4"), lambda: good.astype(np.complex64),
+            lambda: [[1.0, 2.0], [3.0]], lambda: good.reshape(-1, 1), lambda: good[:-1],
+            lambda: good.ravel(), lambda: np.full_like(good, np.nan), lambda: np.full(good.shape, 1e300),
+            lambda: good.astype(np.int64) * 2**40, lambda: good.astype(bool), lambda: np.zeros((0, 3)),
+            lambda: None, lambda: "position", lambda: good.T,
+        ])()
+    return arrays

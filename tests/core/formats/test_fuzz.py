@@ -108,3 +108,14 @@ def test_memory_grown_beyond_the_input_is_a_finding(monkeypatch):
     outcome = fuzz.run_one("spz2", files, "a.spz", memory_mb=2048, seconds=60)
     assert outcome.kind == "amplified" and "resident memory grew by" in outcome.text, outcome
     assert outcome.peak > 200 << 20
+
+
+def test_blender_attribute_arrays_load_sanely_or_are_refused_by_name():
+    """Issue 33's sixth shape: Blender 5.3 attribute arrays of object, dict, structured or
+    string dtypes (a raw TypeError or a bare numpy ValueError before), other shapes, huge and
+    non-finite numbers."""
+    tally = fuzz.attribute_campaign(400, seed=33)
+    details = [outcome.text[-600:] for *_, outcome in tally.findings]
+    assert not tally.findings, "\n\n".join(details[:5])
+    assert tally.counts["blender_attributes"].get("refused", 0) > 100
+    assert tally.counts["blender_attributes"].get("loaded", 0) > 20
