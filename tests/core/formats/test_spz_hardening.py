@@ -98,3 +98,21 @@ def test_a_gzip_stream_declaring_10m_points_is_refused_by_its_expansion(tmp_path
     finally:
         tracemalloc.stop()
     assert peak < 4 * path.stat().st_size and time.process_time() - start < 0.5
+
+
+def test_a_zstd_file_declaring_millions_of_points_is_refused_by_its_expansion(tmp_path: Path) -> None:
+    """v4: 2M points in 40 KB of zstd frames (zeros after 40 KB of noise: past Niantic's own
+    1024:1 check); refused from the header, before any frame is decompressed."""
+    zstandard = pytest.importorskip("zstandard")
+    n = 2_000_000
+    sizes = [size for size in spz._stream_sizes(n, 4, 0) if size]
+    streams = [os.urandom(40_000) + bytes(size - 40_000) for size in sizes[:1]] + [bytes(s) for s in sizes[1:]]
+    frames = [zstandard.ZstdCompressor(level=3).compress(stream) for stream in streams]
+    header = spz._NGSP_HEADER.pack(MAGIC, 4, n, 0, 12, 0, len(frames), spz._NGSP_HEADER.size, bytes(12))
+    toc = b"".join(struct.pack("<QQ", len(f), size) for f, size in zip(frames, sizes))
+    path = tmp_path / "bomb.spz"
+    path.write_bytes(header + toc + b"".join(frames))
+    assert 20_000 < path.stat().st_size < 60_000
+    with pytest.raises(SplatFileError, match=r"bomb.spz: declares 2000000 Gaussians of SH degree 0 .* more "
+                                             r"than the bound of 256"):
+        spz.load(path)
