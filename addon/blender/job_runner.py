@@ -45,6 +45,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, ProgressPrinter, StagedJob, TrainingJob, status_line
+from . import viewport
 from .registration import register_classes, unregister_classes
 
 TIMER_STEP = 0.25  # seconds between polls of a background job
@@ -54,14 +55,13 @@ STAGE_BUDGET = 0.1  # seconds of main-thread work per poll for a StagedJob
 # new image), ~0.15 s a time in software OpenGL (Blender 4.3 under Xvfb), and a UI busy
 # redrawing answers late.
 SHOW_INTERVAL = 3.0
-# ... and paced by what they cost: the main thread's time away after an update (the modal
-# timer's events late by more than STALL_SLACK, over COST_WINDOW seconds) is at most this share
-# of the time between updates (the walkthrough scene on a 2-core machine in Blender 4.3 under
-# Xvfb: 1.2 s of stalls an update with the splats on screen, 47 % of the time at one update
+# ... and paced by what they cost: the main thread's time for an update (writing the object,
+# then the 3D views' redraws over the COST_WINDOW seconds after it, `viewport.redraw_seconds`)
+# is at most this share of the time between updates (the walkthrough scene, 2 cores, Blender 4.3
+# under Xvfb: nine redraws of ~0.3 s after each update, 47 % of the time in stalls at one update
 # every 3 s; docs/benchmarks/ui_latency.md). At most MAX_SHOW_INTERVAL apart.
 UPDATE_SHARE = 0.05
-COST_WINDOW = 2.5
-STALL_SLACK = 0.02
+COST_WINDOW = 4.0
 MAX_SHOW_INTERVAL = 60.0
 
 
@@ -79,20 +79,20 @@ class OperatorJob:
     progress: Progress = field(default_factory=Progress)
     pending: tuple[int, Gaussians] | None = None
     shown_at: float = float("-inf")  # time.monotonic() of the last snapshot shown
-    show_cost: float = 0.0  # main-thread seconds the last update cost (measured since it)
-    ticked_at: float = float("-inf")  # time.monotonic() of the modal timer's last event
+    show_cost: float = 0.0  # main-thread seconds the last update cost (so far)
+    write_cost: float = 0.0  # ... of which writing the object
+    redraws_at_show: float = 0.0  # `viewport.redraw_seconds()` when it was shown
 
     def next_show(self) -> float:
         """When the next snapshot may be shown (time.monotonic())."""
         return self.shown_at + min(MAX_SHOW_INTERVAL, max(SHOW_INTERVAL,
                                                           self.show_cost / UPDATE_SHARE))
 
-    def count_stall(self, now: float) -> None:
-        """A modal timer event at `now`: the time the main thread was away since the last one,
-        beyond the timer's step, counts to the last update's cost while within its window."""
-        if now - self.shown_at <= COST_WINDOW + TIMER_STEP:
-            self.show_cost += max(0.0, now - self.ticked_at - TIMER_STEP - STALL_SLACK)
-        self.ticked_at = now
+    def count_redraws(self, now: float, redraw_seconds: float) -> None:
+        """The 3D views' redraws (`viewport.redraw_seconds()` at `now`) count to the last
+        update's cost while within its window."""
+        if now - self.shown_at <= COST_WINDOW:
+            self.show_cost = self.write_cost + redraw_seconds - self.redraws_at_show
 
 
 RUNNING: dict[str, OperatorJob] = {}
@@ -297,8 +297,9 @@ class JobOperator:
             return
         start = time.monotonic()
         running.apply(*snapshot)
-        running.shown_at = running.ticked_at = time.monotonic()
-        running.show_cost = running.shown_at - start
+        running.shown_at = time.monotonic()
+        running.show_cost = running.write_cost = running.shown_at - start
+        running.redraws_at_show = viewport.redraw_seconds()
 
     def modal(self, context, event):
         running = RUNNING.get(self._key)
@@ -312,7 +313,7 @@ class JobOperator:
             return {"RUNNING_MODAL"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        running.count_stall(time.monotonic())
+        running.count_redraws(time.monotonic(), viewport.redraw_seconds())
         try:
             running.job.poll(STAGE_BUDGET)
             running.progress = running.job.progress()

@@ -8,7 +8,8 @@ Phases of SECONDS each, in order: nothing running (Blender's own lateness); the 
 redrawn every 0.25 s (what one redraw costs here); Train Gaussians with its defaults; the same
 with the add-on's viewport drawing off; then training again with no updates of the object
 (`Update Every` 0). OUT.json holds each phase's lateness in ms (every tick), the 3D view draws
-counted (the add-on's draw handler) and the training steps done. A benchmark, never a test:
+counted (the add-on's draw handler), the training steps done, and a timeline of its stalls
+over 50 ms, draws and object updates (time.perf_counter(), what, seconds). A benchmark, never a test:
 examples/bench_ui_latency_blender.sh runs it and prints the table.
 """
 
@@ -31,6 +32,7 @@ PERIOD = 0.01
 record: dict = {"version": list(bpy.app.version), "period_ms": PERIOD * 1000, "phases": {},
                 "errors": []}
 draws = [0]
+events: list[tuple] = []  # (time.perf_counter(), what, seconds): stalls, draws, object updates
 
 
 def addon_module(name: str):
@@ -54,6 +56,8 @@ class Ticker:
         now = time.perf_counter()
         if self.late is not None:
             self.late.append((now - self.last - PERIOD) * 1000.0)
+            if now - self.last > 0.05:
+                events.append((round(self.last, 3), "stall", round(now - self.last, 3)))
         self.last = now
         return PERIOD
 
@@ -65,11 +69,12 @@ class Ticker:
             if state["end"] is None:
                 state["end"] = time.perf_counter() + SECONDS
                 self.late, draws[0] = [], 0
+                events.clear()
                 return 0.5
             if time.perf_counter() < state["end"]:
                 return 0.5
             record["phases"][name] = {"late_ms": self.late, "draws": draws[0],
-                                      **(extra() if extra else {})}
+                                      "events": list(events), **(extra() if extra else {})}
             self.late = None
             return None
         return step
@@ -85,8 +90,22 @@ def count_draws():
 
     def counted(context):
         draws[0] += 1
-        return draw_view(context)
+        start = time.perf_counter()
+        try:
+            return draw_view(context)
+        finally:
+            events.append((round(start, 3), "draw", round(time.perf_counter() - start, 3)))
     viewport.draw_view = counted  # the handler looks the function up at each call
+    operator = addon_module("train.operator")
+    write_splats = operator.write_splats
+
+    def timed_write(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return write_splats(*args, **kwargs)
+        finally:
+            events.append((round(start, 3), "update", round(time.perf_counter() - start, 3)))
+    operator.write_splats = timed_write
 
 
 def import_scene():

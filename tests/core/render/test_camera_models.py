@@ -190,15 +190,19 @@ def test_panorama_render_matches_reference(rng, kind, layers):
 @pytest.mark.parametrize("model", list(WRAPPING))
 def test_seam_and_poles_match_reference(rng, model):
     # Large Gaussians all around the camera: many straddle the seam, some cover a pole (bands).
-    gaussians = random_gaussians(rng, 300, 1, radius=3.0)
-    gaussians.log_scales += np.float32(0.8)
-    camera = panorama_camera(rng, 96, 48, model, WRAPPING[model])
-    want_proj = ref.project_scene(gaussians, camera)
+    # About 1 scene in 400 has no band: drawn again (the same generator) until it has one.
+    for _ in range(20):
+        gaussians = random_gaussians(rng, 300, 1, radius=3.0)
+        gaussians.log_scales += np.float32(0.8)
+        camera = panorama_camera(rng, 96, 48, model, WRAPPING[model])
+        want_proj = ref.project_scene(gaussians, camera)
+        band = want_proj["valid"] & (want_proj["conic"][:, 0] == 0)
+        if band.sum() >= 1:
+            break
+    assert band.sum() >= 1
     copies = want_proj["copies"]
     reach = copies["valid"] & ((copies["xy"][:, 0] < 0) | (copies["xy"][:, 0] > 96))
     assert reach.sum() > 10
-    band = want_proj["valid"] & (want_proj["conic"][:, 0] == 0)
-    assert band.sum() >= 1
     got = api.render(gaussians, camera)
     want = ref.render_scene(gaussians, camera)
     # Gaussians this large put a whole contour (a band's row) at a threshold more often: over
