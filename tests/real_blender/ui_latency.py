@@ -9,7 +9,7 @@ redrawn every 0.25 s (what one redraw costs here); Train Gaussians with its defa
 with the add-on's viewport drawing off; then training again with no updates of the object
 (`Update Every` 0). OUT.json holds each phase's lateness in ms (every tick), the 3D view draws
 counted (the add-on's draw handler) and the training steps done. A benchmark, never a test:
-examples/bench_ui_latency_blender.sh runs it and prints the table.
+benchmarks/bench_ui_latency_blender.sh runs it and prints the table.
 """
 
 from __future__ import annotations

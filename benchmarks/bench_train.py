@@ -3,7 +3,7 @@ bytes, per densification strategy, on ../shared/data/cup (images_4, 200x150), be
 88x156 after undistortion) and the embedded demo COLMAP scene (examples/demo_colmap, 120x90),
 beside what the 3DGS paper reports at 7K iterations on its benchmark scenes.
 
-    .venv/bin/python examples/bench_train.py [--scenes cup beer demo] \
+    .venv/bin/python benchmarks/bench_train.py [--scenes cup beer demo] \
         [--strategies auto mcmc default] [--steps 2000 | --until-done] [--eval-every 250] \
         [--threads 1] [--cpu-limit SECONDS] [--variant "label:key=value,..."] \
         [--plot docs/train_curves.png]

@@ -3,10 +3,10 @@ into its stages (render_train's project/sort/bin/composite, the L1+SSIM loss, th
 composite and per-Gaussian parts, Adam dense and over the visible Gaussians only, and what the
 trainer's Python adds around them).
 
-    .venv/bin/python examples/bench_train_kernels.py           # playbot 1280x720 and 50k at 200x150
-    .venv/bin/python examples/bench_train_kernels.py --quick   # the 200x150 case only
-    .venv/bin/python examples/bench_train_kernels.py --quick --cup 1500   # also cup, trained 1500 steps
-    .venv/bin/python examples/bench_train_kernels.py --levels 300   # cup after 300 steps, per
+    .venv/bin/python benchmarks/bench_train_kernels.py           # playbot 1280x720 and 50k at 200x150
+    .venv/bin/python benchmarks/bench_train_kernels.py --quick   # the 200x150 case only
+    .venv/bin/python benchmarks/bench_train_kernels.py --quick --cup 1500   # also cup, trained 1500 steps
+    .venv/bin/python benchmarks/bench_train_kernels.py --levels 300   # cup after 300 steps, per
                                                 # coarse-to-fine level, one thread (nothing else)
 
 Prints median wall-clock ms (and the best run's stages) for 1 and 2 threads, and single-thread
@@ -28,7 +28,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "examples"))
+sys.path.insert(0, str(ROOT / "benchmarks"))  # bench_render
 sys.path.insert(0, str(ROOT / "tests"))
 
 from addon.core.render import renderer as api  # noqa: E402

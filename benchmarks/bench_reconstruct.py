@@ -4,7 +4,7 @@ poses against a reference (rotation error in degrees and position error as a sha
 size, after a similarity alignment of the camera centres), and for captures in order how smooth
 the camera path is (`compare.largest_step`). Numbers only, never a test.
 
-    .venv/bin/python examples/bench_reconstruct.py [--threads 2] [--only demo cup ...]
+    .venv/bin/python benchmarks/bench_reconstruct.py [--threads 2] [--only demo cup ...]
         [--features accurate|fast] [--mapper incremental|global] [--out DIR] [--render-cost]
         [--train-steps N [--seeds 0 1 ...]]
 

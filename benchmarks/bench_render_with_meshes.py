@@ -1,7 +1,7 @@
 """What the splats add to an F12 frame (meshes in Cycles at low samples, plus splats), split into
 its parts, and the frame's peak memory.
 
-    .venv/bin/python examples/bench_render_with_meshes.py [--size 1280x720] [--samples 4]
+    .venv/bin/python benchmarks/bench_render_with_meshes.py [--size 1280x720] [--samples 4]
         [--splats FILE ...] [--random N ...] [--repeat 5]
 
 The scene is examples/render_headless.py's (a monkey and a pedestal with the splats, a sun);
@@ -30,7 +30,7 @@ held before it (Linux: /proc/self/clear_refs resets the peak), without and with 
 peak of the NumPy arrays the add-on holds during the frame (tracemalloc). Memory is measured on
 renders of its own, outside the timed ones.
 
-`f12_overhead()` returns one scene's figures as a dict (examples/bench_render.py reports them).
+`f12_overhead()` returns one scene's figures as a dict (benchmarks/bench_render.py reports them).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "examples"))
+sys.path.insert(0, str(ROOT / "examples"))  # render_headless: the scene
 
 import bpy  # noqa: E402
 

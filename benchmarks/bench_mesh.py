@@ -1,7 +1,7 @@
 """Splats to meshes, speed against error: depth error, colour PSNR, triangles, texture, time.
 
-    .venv/bin/python examples/bench_mesh.py                         # demo scene only
-    .venv/bin/python examples/bench_mesh.py --cup /tmp/cup.ply      # plus a trained cup model
+    .venv/bin/python benchmarks/bench_mesh.py                         # demo scene only
+    .venv/bin/python benchmarks/bench_mesh.py --cup /tmp/cup.ply      # plus a trained cup model
         (train one with: .venv/bin/python examples/train.py --colmap ../shared/data/cup
          --images images_4 --steps 1500 --max-gaussians 25000 --out /tmp/cup.ply)
 
@@ -211,7 +211,7 @@ def main() -> None:
         fusion = [scaled(dataset.cameras[i], args.view_size) for i in dataset.train_indices]
         held = [scaled(dataset.cameras[i], args.test_size) for i in dataset.test_indices][:3]
         rows += run_scene(bpy, "cup", splat_io.load(args.cup), fusion, held, settings, folder)
-    print("\n(command: .venv/bin/python examples/bench_mesh.py" +
+    print("\n(command: .venv/bin/python benchmarks/bench_mesh.py" +
           (f" --cup {args.cup}" if args.cup else "") + ")")
 
 
