@@ -55,21 +55,14 @@ def build_scene(rng, engine: str, *, n: int = 400, meshes: bool = True):
         plane.data.materials.append(material("Plane", (0.1, 0.35, 0.8), engine))
     camera = bs.add_camera(location=(0.0, -6.0, 0.0), rotation=(math.pi / 2, 0, 0), lens=35,
                            width=WIDTH, height=HEIGHT)
-    scene.render.engine = engine
     if engine == "CYCLES":
-        scene.cycles.device = "CPU"
-        scene.cycles.samples = 4
-        scene.cycles.use_denoising = False
-        scene.cycles.use_adaptive_sampling = False
-        scene.cycles.max_bounces = 0
+        scene_kit.flat_cycles(scene)
     else:
         scene.display.shading.color_type = "MATERIAL"
+    scene.render.engine = engine
     scene.render.threads_mode = "FIXED"
     scene.render.threads = 2
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.view_settings.exposure = 0.0
-    scene.view_settings.gamma = 1.0
+    scene_kit.standard_view(scene)
     return scene, splats, cube, plane, camera
 
 
