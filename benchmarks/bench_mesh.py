@@ -103,7 +103,7 @@ def psnr(a, b) -> float:
 
 def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, folder):
     from addon.blender import mesh_convert
-    from addon.core.mesh import surface, texture as mesh_texture
+    from addon.core.mesh import surface, texture
     from addon.core.render.renderer import render
 
     bounds = surface.splat_bounds(gaussians)
@@ -129,10 +129,10 @@ def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, fold
         v, f = mesh_convert._decimate(v, f, budget)
         t["decimate"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        uvs = mesh_texture.unwrap(v, f, tex)
+        uvs = texture.unwrap(v, f, tex)
         t["unwrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        baked = mesh_texture.project_texture(v, f, views, tex, tolerance=2 * volume.grid.voxel,
+        baked = texture.project_texture(v, f, views, tex, tolerance=2 * volume.grid.voxel,
                                              corner_uvs=uvs)
         t["texture"] = time.perf_counter() - t0
         depth_err, miss, psnrs = [], [], []

@@ -151,21 +151,21 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
     ("extra_cpu", the same way), the first render's gather ("gather_first"), the splat count,
     and the frame's peak memory (MB): "rss_plain_mb", "rss_splats_mb",
     "numpy_splats_mb" (see the module docstring)."""
-    from addon.blender.render import hooks as render_hooks
+    from addon.blender.render import hooks
     from addon.blender import splat_object
 
     scene = build(splats, random=random, size=size, samples=samples)
     count = sum(len(o.data.vertices) for o in scene.objects if splat_object.is_splat_object(o))
     _use_splats(scene, True)
     _render()  # gathers the splats: later frames find them in the cache
-    first = dict(render_hooks.last_stats)
+    first = dict(hooks.last_stats)
     plain, with_splats, stats, plain_cpu, splats_cpu = [], [], [], [], []
     for _ in range(repeat):
         _use_splats(scene, False)
         plain.append(_render(plain_cpu))
         _use_splats(scene, True)
         with_splats.append(_render(splats_cpu))
-        stats.append(dict(render_hooks.last_stats))
+        stats.append(dict(hooks.last_stats))
     median = statistics.median
     result = {
         "splats": count, "size": size, "blender": median(plain), "with_splats": median(with_splats),

@@ -56,7 +56,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from ...core.train import colmap_source as colmap_training
+from ...core.train import colmap_source
 from ...core.train.colmap_source import ColmapSource, TrainRequest
 from ...core.train.dataset import MAX_WIDTH, NO_CAMERA, Points
 from ...core.gaussians import Gaussians
@@ -176,7 +176,7 @@ def checkpoint_path(collection, explicit: str = "", *, resume: bool = False) -> 
     if resume and stored and Path(stored).is_file():
         return Path(stored)
     blend = bpy.path.abspath(bpy.data.filepath) if bpy.data.filepath else ""
-    return colmap_training.default_checkpoint(
+    return colmap_source.default_checkpoint(
         collection.name, str(collection.get("colmap_model_dir", "")), blend)
 
 
@@ -216,7 +216,7 @@ def train_request(collection, config: TrainConfig | None = None, *, image_folder
     for module in MODULES:
         dependencies.require(module, FEATURE)
     path = checkpoint_path(collection, str(checkpoint), resume=resume)
-    return colmap_training.train_request(
+    return colmap_source.train_request(
         source_of(collection), path, config, resume=resume, image_folder=image_folder,
         downscale=downscale, test_every=test_every, checkpoint_every=checkpoint_every,
         update_every=update_every, compact=compact, max_width=max_width)
