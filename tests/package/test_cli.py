@@ -135,7 +135,7 @@ def test_blender_command_is_registered_with_the_add_on():
     import bpy_support as bs
 
     bs.ensure_registered()
-    from addon.blender import cli_command
+    from addon import cli_command
 
     import bpy
     assert cli_command.is_registered() == hasattr(bpy.utils, "register_cli_command")

@@ -318,6 +318,15 @@ def finish_training(request: TrainRequest, job: TrainingJob, *, write: bool = Tr
     return "INFO", message, obj
 
 
+def request_job(request: TrainRequest,
+                on_progress: Callable[[Progress], None] | None = None) -> TrainingJob:
+    """The request as a training job (not started): the photos load on the job's thread."""
+    return TrainingJob(lambda job: request.make_trainer(job.loading), steps=request.config.steps,
+                       checkpoint=request.checkpoint, checkpoint_every=request.checkpoint_every,
+                       snapshot_every=request.update_every, compact_after=request.compact,
+                       on_progress=on_progress)
+
+
 def training_job(request: TrainRequest) -> OperatorJob:
     """The request as the job runner runs it: the job (not started), and what the main thread
     does with its snapshots and its end."""
@@ -334,7 +343,7 @@ def training_job(request: TrainRequest) -> OperatorJob:
     def finish(running, write):
         return finish_training(request, running.job, write=write, before=before)
 
-    return OperatorJob(f"train:{name}", "Training", request.job(), finish, apply, target)
+    return OperatorJob(f"train:{name}", "Training", request_job(request), finish, apply, target)
 
 
 def train_colmap_collection(collection, config: TrainConfig | None = None,
@@ -345,7 +354,7 @@ def train_colmap_collection(collection, config: TrainConfig | None = None,
     update_every, compact). Raises on bad input or a failure."""
     request = train_request(collection, config, **options)
     before = SceneBefore(collection.name)
-    job = request.job(progress)
+    job = request_job(request, progress)
     job.run()
     return finish_training(request, job, before=before)[2]
 

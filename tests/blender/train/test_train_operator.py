@@ -211,7 +211,7 @@ def test_worker_thread_cancels_with_a_consistent_state(demo) -> None:
                                                          sh_degree=1, threads=2),
                             downscale=4.0, checkpoint=str(demo.checkpoint), update_every=10,
                             checkpoint_every=0)
-    job = request.job().start()
+    job = operator.request_job(request).start()
     deadline = time.monotonic() + 30
     while job.progress().step < 25 and not job.done and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -236,7 +236,7 @@ def test_cancel_while_loading_leaves_the_checkpoint_alone(demo) -> None:
     demo.checkpoint.write_bytes(b"an earlier checkpoint")
     request = train_request(demo.collection, TrainConfig(steps=50, threads=2), downscale=4.0,
                             checkpoint=str(demo.checkpoint))
-    job = request.job()
+    job = operator.request_job(request)
     job.cancel()  # before the first batch of photos is decoded
     job.start()
     assert job.join(30) and job.error is None and job.trainer is None
@@ -380,8 +380,8 @@ def test_training_panel_shows_the_count_as_it_grows(demo) -> None:
                             checkpoint=demo.checkpoint)
     running = training_job(request)
     counts = []  # the progress a panel reads, step by step: the count grows
-    request.job(lambda p: counts.append((p.gaussians, p.sizing)) if p.phase == "training"
-                else None).run()
+    operator.request_job(request, lambda p: counts.append((p.gaussians, p.sizing))
+                         if p.phase == "training" else None).run()
     assert counts[-1][0] > counts[0][0] and {s for _, s in counts} <= {"growing", "settled"}
     running.progress = Progress(phase="training", step=1234, total=30000, until_done=True,
                                 gaussians=19246, sizing="growing", gain_per_minute=0.84)
