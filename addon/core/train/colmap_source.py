@@ -3,7 +3,7 @@ gathers on the main thread (`ColmapSource`), the dataset, the trainer set-up (`T
 and where checkpoints go. `addon/blender/train/operator.py` fills these from the collection.
 
 The camera takes one path: the training cameras are the scene's camera objects as they are now
-(read by `addon/blender/camera_adapter.camera_of` at each camera's recorded COLMAP resolution
+(read by `addon.blender.camera_adapter.camera_of` at each camera's recorded COLMAP resolution
 and handed over by image name), so the splats are trained in the Blender world and their object
 keeps an identity transform. Only the photos come from disk: the model's (undistorted) photos,
 matched to the cameras by `colmap_image_name` and the cameras scaled to their pixels. The points
