@@ -6,10 +6,12 @@ Only `register()` and `unregister()` live here, and they import the Blender laye
 
 
 def register() -> None:
-    from . import blender
+    from . import blender, cli_command
     blender.register()
+    cli_command.register()  # blender -c gaussian_splatting <verb> (addon.cli)
 
 
 def unregister() -> None:
-    from . import blender
+    from . import blender, cli_command
+    cli_command.unregister()
     blender.unregister()

@@ -132,7 +132,7 @@ def _options(args: argparse.Namespace, names: Sequence[str]) -> dict:
 
 def _splat_object(bpy, source: Path, object_name: str | None, forward: str, up: str):
     """A splat object: imported from a splat file, or named (or the only one) in a .blend."""
-    from .blender.io import operators as io_operators
+    from .blender.io import operators
     from .blender.blender_splats import any_splats
 
     if source.suffix.lower() == ".blend":
@@ -146,7 +146,7 @@ def _splat_object(bpy, source: Path, object_name: str | None, forward: str, up: 
                                f"{names})")
         return candidates[0]
     _empty_scene(bpy)
-    return io_operators.import_splats(source, forward_axis=forward, up_axis=up)
+    return operators.import_splats(source, forward_axis=forward, up_axis=up)
 
 
 def _activate(bpy, obj) -> None:
@@ -176,8 +176,8 @@ def _import_colmap(args: argparse.Namespace) -> None:
 
 def _train(args: argparse.Namespace) -> None:
     bpy = _blender()
-    from .blender.train import operator as train_operator
-    _check_available(train_operator.MODULES, train_operator.FEATURE)
+    from .blender.train import operator
+    _check_available(operator.MODULES, operator.FEATURE)
     source = Path(args.source)
     if source.suffix.lower() == ".blend":
         _open(bpy, source)
@@ -185,7 +185,7 @@ def _train(args: argparse.Namespace) -> None:
         _empty_scene(bpy)
         bpy.ops.splat.import_colmap(directory=str(source.resolve()),
                                     **_options(args, ("image_folder",)))
-    collection = train_operator.find_colmap_collection(bpy.context, args.collection or "")
+    collection = operator.find_colmap_collection(bpy.context, args.collection or "")
     if collection is None:
         raise CommandError(f"{source}: no single COLMAP scene to train (name it with "
                            f"--collection)")
@@ -195,7 +195,7 @@ def _train(args: argparse.Namespace) -> None:
     if args.image_folder is not None and source.suffix.lower() == ".blend":
         options["image_folder"] = args.image_folder
     bpy.ops.splat.train(collection=collection.name, **options)
-    obj = collection.get(train_operator.OBJECT_KEY)
+    obj = collection.get(operator.OBJECT_KEY)
     if obj is not None and bpy.data.objects.get(obj.name) != obj:
         obj = None
     out = Path(args.out)
@@ -208,8 +208,8 @@ def _train(args: argparse.Namespace) -> None:
 
 
 def _export(bpy, obj, out: Path, forward: str, up: str) -> None:
-    from .blender.io import operators as io_operators
-    for warning in io_operators.export_splats(obj, out, forward_axis=forward, up_axis=up):
+    from .blender.io import operators
+    for warning in operators.export_splats(obj, out, forward_axis=forward, up_axis=up):
         print(f"warning: {warning}", file=sys.stderr)
     print(f"wrote {out}", flush=True)
 

@@ -37,13 +37,13 @@ def main(argv: list[str]) -> None:
     import bpy
 
     import addon
-    from addon.blender.io import operators as io_operators
+    from addon.blender.io import operators
     from addon.blender import mesh_convert
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     if not hasattr(bpy.types, "SPLAT_OT_convert_to_mesh"):
         addon.register()
-    obj = io_operators.import_splats(args.ply)
+    obj = operators.import_splats(args.ply)
     bpy.context.view_layer.objects.active = obj
     stats = {}
     new = mesh_convert.convert_to_mesh(

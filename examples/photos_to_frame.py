@@ -111,10 +111,10 @@ def photo_psnr(photo: Path, frame: Path) -> float:
     """PSNR (dB) of a rendered frame's RGB against the photo of its camera, both 8-bit."""
     import numpy as np
 
-    from addon.core.images import files as image_io
+    from addon.core.images import files
 
-    ours = image_io.read_pixels(frame)[..., :3].astype(np.float64)
-    theirs = image_io.read_pixels(photo)[..., :3].astype(np.float64)
+    ours = files.read_pixels(frame)[..., :3].astype(np.float64)
+    theirs = files.read_pixels(photo)[..., :3].astype(np.float64)
     return float(10 * np.log10(255.0 ** 2 / np.mean((ours - theirs) ** 2)))
 
 
@@ -151,12 +151,12 @@ def main() -> None:
     verb("render", str(work / "final.blend"), "--camera", CAMERA, "--out", str(work / "final_"))
 
     if args.docs:
-        from addon.core.images import files as image_io
+        from addon.core.images import files
 
         docs = Path(args.docs).resolve()
         docs.mkdir(parents=True, exist_ok=True)
-        photo = image_io.read_pixels(ROOT / "examples" / "demo_colmap" / "images" / CAMERA)
-        image_io.write_pixels(docs / "walkthrough_photo.png", photo)
+        photo = files.read_pixels(ROOT / "examples" / "demo_colmap" / "images" / CAMERA)
+        files.write_pixels(docs / "walkthrough_photo.png", photo)
         frame = Path(sorted(work.glob("splats_*.png"))[-1])
         shutil.copyfile(frame, docs / "walkthrough_splats.png")
         shutil.copyfile(sorted(work.glob("final_*.png"))[-1], docs / "walkthrough_final.png")

@@ -498,7 +498,7 @@ def run_one(reader: str, files: dict[str, bytes], name: str, *, memory_mb: int =
 # -- Blender's splat attributes (arrays, not files: checked in this process) ----------------------
 
 def attribute_campaign(mutants: int, seed: int = 0) -> Tally:
-    """Mutated Blender 5.3 attribute arrays (scripts/fuzz_hostile.attribute_arrays) through
+    """Mutated Blender 5.3 attribute arrays (`attribute_arrays` in scripts/fuzz_hostile.py) through
     `gaussians_from_attributes`: `loaded` (finite, consistent), `refused` (a BlenderSplatError
     naming the attribute) or a finding (`unclean`: any other exception; `insane`)."""
     from addon.core.blender_splats.attributes import BlenderSplatError, gaussians_from_attributes

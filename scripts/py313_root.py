@@ -5,7 +5,7 @@ place to run scripts: ../shared/real-blender's `py313` root filesystem, one venv
 A process there sees only that root, so what it reads is staged under the root's /io first
 (`Py313Root.stage_dir`, hard links where possible) and paths are translated both ways
 (`inside`, `outside`). Used by scripts/test_installed_extension.py and
-examples/bench_blender_splats_cycles.py; it imports only the standard library.
+benchmarks/bench_blender_splats_cycles.py; it imports only the standard library.
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ run() {  # run <name> <sanitizer runtime> <pytest arguments...>: the tests on bu
 }
 
 NATIVE_TESTS=(tests/core/render/test_render_reference.py tests/core/train/test_backward.py tests/core/train/test_train_kernels.py
-              tests/core/formats/test_bad_input.py tests/core/render/test_hard_cases.py tests/core/render/test_threads.py)
+              tests/core/render/test_bad_arguments.py tests/core/render/test_hard_cases.py tests/core/render/test_threads.py)
 
 if [ "$which" = all ] || [ "$which" = asan ]; then
     echo "sanitize: AddressSanitizer + UndefinedBehaviorSanitizer"

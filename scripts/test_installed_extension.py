@@ -57,10 +57,15 @@ import subprocess
 import sys
 import tempfile
 import time
-import traceback
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+# Plain-bpy helpers shared with the real-Blender scripts (staged with this file into the py313
+# root): the PASS/FAIL check, the extension's modules, the render scene's pieces.
+sys.path.append(str(ROOT / "tests" / "real_blender"))
+import scene_kit  # noqa: E402
+from extension_kit import EXTENSION, check, ext, install_zip  # noqa: E402
+
 # The newest of each line on PyPI (`pip index versions bpy`): 4.2 LTS, 4.5 LTS, 5.0 (Python 3.11);
 # 5.1, 5.2, 5.3 (Python 3.13).
 BPY_VERSIONS = ("4.2.23", "4.5.15", "5.0.1", "5.1.2", "5.2.3", "5.3.0")
@@ -68,7 +73,6 @@ PY313_FROM = (5, 1)         # the first bpy line built for Python 3.13
 BLENDER_SPLATS_FROM = (5, 3)  # the first Blender with splat point clouds of its own
 STAGES = ("install", "formats", "render", "colmap", "blender_splats")
 MODULES = ("splatcore", "pycolmap", "OpenImageIO", "xatlas", "zstandard", "av")
-EXTENSION = "bl_ext.user_default.gaussian_splatting"
 
 
 # ============================================================== the driver (project venv)
@@ -218,45 +222,20 @@ def run_stage(place, stage: str, user: Path, work: Path) -> list[tuple[str, bool
     return results
 
 
-# The expected image, computed in the project venv (addon.core: render, colour; OpenImageIO from
-# requirements.txt): what the installed extension wrote must equal it, whatever that Blender's
-# own modules can do.
-
-def standard_8bit(linear_rgba):
-    """What Blender writes to an 8-bit RGBA PNG under the Standard view transform: straight
-    colour, sRGB-encoded, rounded."""
-    import numpy as np
-    from addon.core.colour import srgb_encode
-
-    linear_rgba = np.asarray(linear_rgba, np.float64)
-    alpha = linear_rgba[..., 3:]
-    straight = np.where(alpha > 0, linear_rgba[..., :3] / np.where(alpha > 0, alpha, 1), 0)
-    out = np.concatenate([srgb_encode(straight), alpha], axis=-1)
-    return np.round(np.clip(out, 0, 1) * 255).astype(np.int32)
-
-
-def read_png(path: Path):
-    import numpy as np
-    import OpenImageIO as oiio
-
-    config = oiio.ImageSpec()
-    config.attribute("oiio:UnassociatedAlpha", 1)  # the file's straight colour, as stored
-    buf = oiio.ImageBuf(str(path), 0, 0, config)
-    if buf.has_error:
-        raise OSError(f"{path}: {buf.geterror()}")
-    return np.asarray(buf.get_pixels(oiio.UINT8), np.int32)
-
+# The expected image, computed in the project venv (addon.core's native compositor;
+# tests/standard_view.py: what the Standard view writes; OpenImageIO from requirements.txt): what
+# the installed extension wrote must equal it, whatever that Blender's own modules can do.
 
 def compare_frame(frame: dict) -> str:
     """Raises AssertionError unless the written PNG is the native composite within 1/255 and
     shows both the splats and the cube in front of them; else a summary."""
     import numpy as np
 
-    from addon.core.images import exr_layers as exr
-    from addon.core.colour import display_from_linear, linear_from_display
+    sys.path.insert(0, str(ROOT / "tests"))
     from addon.core.cameras import BlenderCameraParams, camera_from_blender
     from addon.core.gaussians import Gaussians
-    from addon.core.render.renderer import render
+    from addon.core.images import exr_layers as exr
+    from standard_view import native_composite, read_png, standard_8bit
 
     channels = exr.read_channels(frame["exr"])
     mesh = exr.find_pass(channels, "ViewLayer", "Combined", "RGBA")
@@ -267,10 +246,8 @@ def compare_frame(frame: dict) -> str:
     camera = camera_from_blender(BlenderCameraParams(**params))
     with np.load(frame["splats"]) as arrays:
         gaussians = Gaussians(**{k: arrays[k] for k in arrays.files})
-    result = render(gaussians, camera, mesh_rgba=display_from_linear(mesh),
-                    mesh_depth=depth[..., 0])
-    out = linear_from_display(np.concatenate([result.rgb, result.alpha[..., None]], axis=-1))
-    expected, mesh_only = standard_8bit(out), standard_8bit(mesh)
+    expected = standard_8bit(native_composite(gaussians, camera, mesh, depth[..., 0]))
+    mesh_only = standard_8bit(mesh)
     written = read_png(Path(frame["png"]))
     error = np.abs(written - expected).max()
     splats_seen = np.abs(written[..., :3] - mesh_only[..., :3]).max()
@@ -385,39 +362,6 @@ def inside(stage: str, zip_path: Path, work: Path, data: Path) -> int:
     return 0
 
 
-class Check:
-    """`with check("name") as c:` prints PASS name (c.detail) or FAIL name: the error."""
-
-    def __init__(self, name: str):
-        self.name, self.detail = name, ""
-
-    def __enter__(self):
-        self.t0 = time.perf_counter()
-        return self
-
-    def __exit__(self, kind, error, tb):
-        seconds = f"{time.perf_counter() - self.t0:.1f} s"
-        if error is None:
-            print(f"PASS {self.name}: {self.detail + ', ' if self.detail else ''}{seconds}",
-                  flush=True)
-        else:
-            where = traceback.extract_tb(tb)[-1]
-            message = " ".join(f"{kind.__name__}: {error}".split())[:600]
-            print(f"FAIL {self.name}: {message} (at {Path(where.filename).name}:{where.lineno})",
-                  flush=True)
-            traceback.print_exception(kind, error, tb)
-        return True  # the next check still runs
-
-
-check = Check
-
-
-def ext_module(name: str):
-    import importlib
-
-    return importlib.import_module(f"{EXTENSION}.{name}")
-
-
 def clear_scene(bpy) -> None:
     # Not factory settings: they would also switch the extension off. Hidden data (a name with
     # a leading dot: the add-on's compositor helper scene and its camera, which Blender 5.1+
@@ -444,11 +388,7 @@ def stage_install(bpy, zip_path: Path) -> None:
                               capture_output=True, text=True, timeout=120)
         output = " ".join((done.stdout + done.stderr).split())
         assert done.returncode == 0 and "FATAL" not in output and "Error" not in output, output
-    with check("install the zip"):
-        result = bpy.ops.extensions.package_install_files(
-            filepath=str(zip_path), repo="user_default", enable_on_install=True)
-        assert result == {"FINISHED"}, result
-        assert EXTENSION in bpy.context.preferences.addons, "not enabled after installing"
+    install_zip(bpy, zip_path)
     for name in MODULES:
         with check(f"import {name}") as c:
             module = __import__(name)
@@ -468,7 +408,7 @@ FILES = (("playbot_125k_sh2.ply", 125_000), ("guitar.compressed.ply", 90_854),
 
 
 def splat_count(obj) -> int:
-    return ext_module("blender.splat_object").point_count(obj.data)
+    return ext("blender.splat_object").point_count(obj.data)
 
 
 def import_file(bpy, path: Path):
@@ -488,7 +428,7 @@ def stage_formats(bpy, work: Path, data: Path) -> None:
             assert splat_count(obj) == count, f"{splat_count(obj)} splats, expected {count}"
             c.detail = f"{count} splats"
             chair = obj if name.endswith(".splat") else chair
-    registry = ext_module("core.formats.registry")
+    registry = ext("core.formats.registry")
     suffixes = [f.endings[0] for f in registry.export_formats() if not f.whole_name]
     for suffix in suffixes:
         with check(f"export {suffix} and import it back") as c:
@@ -508,17 +448,12 @@ WIDTH, HEIGHT = 64, 48
 
 
 def material(bpy, name: str, colour, engine: str):
-    sys.path.insert(0, str(ROOT / "tests" / "real_blender"))  # plain bpy, no project imports
-    import scene_kit
     return scene_kit.material(bpy, name, colour, emission=engine == "CYCLES")
 
 
 def build_render_scene(bpy, data: Path, engine: str):
     """PLAYBOT, a cube in front of it, a plane behind it, a camera looking along +Y."""
     import math
-
-    sys.path.insert(0, str(ROOT / "tests" / "real_blender"))
-    import scene_kit
 
     clear_scene(bpy)
     scene = bpy.context.scene
@@ -535,33 +470,22 @@ def build_render_scene(bpy, data: Path, engine: str):
     scene_kit.camera_in_front(bpy, scene, centre, radius)
     render = scene.render
     render.resolution_x, render.resolution_y, render.resolution_percentage = WIDTH, HEIGHT, 100
-    render.engine = engine
     if engine == "CYCLES":
-        scene.cycles.device = "CPU"
-        scene.cycles.samples = 4
-        scene.cycles.use_denoising = False
-        scene.cycles.use_adaptive_sampling = False
-        scene.cycles.max_bounces = 0
+        scene_kit.flat_cycles(scene)
     else:
         scene.display.shading.color_type = "MATERIAL"
+    render.engine = engine
     render.threads_mode, render.threads = "FIXED", 2
-    view = scene.view_settings
-    view.view_transform, view.look, view.exposure, view.gamma = "Standard", "None", 0.0, 1.0
-    render.dither_intensity = 0.0
+    scene_kit.standard_view(scene)
     return scene, cube
 
 
 def output_png(bpy, scene, prefix: Path) -> None:
-    settings = scene.render.image_settings
-    if hasattr(settings, "media_type"):  # Blender 5.0
-        settings.media_type = "IMAGE"
-    settings.file_format, settings.color_mode, settings.color_depth = "PNG", "RGBA", "8"
+    scene_kit.png_8bit(scene.render.image_settings)
     scene.render.filepath = str(prefix)
 
 
 def output_multilayer_exr(bpy, scene, prefix: Path) -> None:
-    sys.path.insert(0, str(ROOT / "tests" / "real_blender"))
-    import scene_kit
     scene_kit.multilayer_exr(scene.render.image_settings)
     scene.render.filepath = str(prefix)
 
@@ -572,7 +496,7 @@ def dump_frame(bpy, scene, name: str, png: Path, exr_path: Path) -> None:
     own mesh colour and depth) of the same frame. Printed as a COMPARE line."""
     import numpy as np
 
-    gather = ext_module("blender.gather")
+    gather = ext("blender.gather")
     depsgraph = bpy.context.evaluated_depsgraph_get()
     g = gather.gather(depsgraph).gaussians
     splats = png.with_suffix(".splats.npz")
@@ -691,7 +615,7 @@ def stage_colmap(bpy, work: Path, data: Path) -> None:
 
 
 def splat_count_or_none(obj):
-    splat_object = ext_module("blender.splat_object")
+    splat_object = ext("blender.splat_object")
     return splat_object.is_splat_object(obj) and splat_object.point_count(obj.data)
 
 

@@ -267,7 +267,7 @@ def suite_with_wheel(wheel: Path, scratch: Path) -> str:
     where = run([sys.executable, "-c", "import splatcore; print(splatcore.__file__)"], env=env)
     check(where.stdout.strip().startswith(str(site)), f"linux-x64 wheel not imported: {where}")
     tests = ["tests/core/render/test_render_reference.py", "tests/core/render/test_hard_cases.py",
-             "tests/core/render/test_threads.py", "tests/core/formats/test_bad_input.py",
+             "tests/core/render/test_threads.py", "tests/core/render/test_bad_arguments.py",
              "tests/core/train/test_backward.py", "tests/core/train/test_train_kernels.py"]
     summaries = []
     # All of them at the CPU's best level; the float64-reference tests at the lower levels too.

@@ -90,11 +90,11 @@ def synthetic_workspace(root: Path, cameras: list[tuple[str, int, int, list[floa
     Cameras sit on a ring around the origin looking at it, Z up (rolled by `roll` radians);
     points fill a box at the origin; observations are the exact projections through the
     (distorted) cameras. `photo_writer(path, float_pixels)` writes each photo (default:
-    8-bit via image_io.write_pixels).
+    8-bit via files.write_pixels).
     """
     import pycolmap
 
-    from addon.core.images import files as image_io
+    from addon.core.images import files
 
     rec = pycolmap.Reconstruction()
     cams = []
@@ -126,7 +126,7 @@ def synthetic_workspace(root: Path, cameras: list[tuple[str, int, int, list[floa
         path.parent.mkdir(parents=True, exist_ok=True)
         pixels = distorted_photo(cam)
         if photo_writer is None:
-            image_io.write_pixels(path, np.round(pixels * 255).astype(np.uint8))
+            files.write_pixels(path, np.round(pixels * 255).astype(np.uint8))
         else:
             photo_writer(path, pixels)
     for i, elements in tracks.items():

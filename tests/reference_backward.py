@@ -1,5 +1,5 @@
 """Float64 references for the training kernels: gradients of the renderer by central finite
-differences of `tests/reference.render`, the 3DGS loss (L1 + SSIM) with its analytic gradient,
+differences of `render` in tests/reference.py, the 3DGS loss (L1 + SSIM) with its analytic gradient,
 and Adam. Slow and obviously correct, like tests/reference.py.
 
 Finite differences see the forward exactly as the reference defines it, so they are only

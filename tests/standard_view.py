@@ -50,5 +50,7 @@ def read_png(path) -> np.ndarray:
 
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)  # the file's straight colour, as stored
-    pixels = oiio.ImageBuf(str(path), 0, 0, config).get_pixels(oiio.UINT8)
-    return np.asarray(pixels, np.int32)
+    buf = oiio.ImageBuf(str(path), 0, 0, config)
+    if buf.has_error:
+        raise OSError(f"{path}: {buf.geterror()}")
+    return np.asarray(buf.get_pixels(oiio.UINT8), np.int32)

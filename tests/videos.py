@@ -32,6 +32,6 @@ def write_video(path: Path, frames: Iterable[np.ndarray], *, rate: int = 10,
 
 def photos_as_video(photos: list[Path], path: Path, rate: int = 10) -> None:
     """Photos (in the given order) as the frames of an H.264 video."""
-    from addon.core.images import files as image_io
+    from addon.core.images import files
 
-    write_video(path, (image_io.read_pixels(p)[:, :, :3] for p in photos), rate=rate)
+    write_video(path, (files.read_pixels(p)[:, :, :3] for p in photos), rate=rate)

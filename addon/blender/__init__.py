@@ -20,7 +20,6 @@ MODULE_NAMES: list[str] = [
     "train.operator", "train.scene_to_splats",  # training: splat.train, splat.bake_to_splats
     "train.panel",  # 3D View sidebar: start training, follow its progress
     "mesh_convert",  # splats to a textured mesh: splat.convert_to_mesh
-    "cli_command",  # blender -c gaussian_splatting <verb> (addon.cli)
     "blender_splats.convert",  # Blender 5.3's own splat point clouds: ownership, conversion
 ]
 

@@ -48,7 +48,7 @@ from ..core import native
 from ..core.axes import snap
 from ..core.gaussians import Gaussians
 from ..core.transform import transform_gaussians
-from ..core.blender_splats import attributes as blender_convention
+from ..core.blender_splats import attributes
 from . import splat_object
 from .blender_splats import data as blender_data
 from .blender_splats import ownership
@@ -269,9 +269,9 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
         if blender:
             if not include_blender_rendered and _blender_renders(evaluated, owner):
                 continue
-            source_degree, notes = blender_convention.degree_of(
+            source_degree, notes = attributes.degree_of(
                 frozenset(blender_data.attribute_names(data)))
-            degree = min(source_degree, blender_convention.RENDER_MAX_DEGREE)
+            degree = min(source_degree, attributes.RENDER_MAX_DEGREE)
             warnings.extend(f"{owner.name}: {note}" for note in notes if note not in warnings)
         else:
             degree = splat_object.data_sh_degree(data)

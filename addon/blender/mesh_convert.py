@@ -46,7 +46,7 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty
 
 from ..core.cameras import Camera
-from ..core.mesh import surface, texture as mesh_texture
+from ..core.mesh import surface, texture
 from ..core.mesh.surface import Cancelled
 from ..core.jobs import StagedJob
 from . import dependencies, gather
@@ -275,16 +275,15 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
     yield "decimate", 1.0
     yield "unwrap", 0.0
     t = time.perf_counter()
-    corner_uvs = mesh_texture.unwrap(vertices, faces, texture_size)
+    corner_uvs = texture.unwrap(vertices, faces, texture_size)
     stats["unwrap_s"] = time.perf_counter() - t
     yield "unwrap", 1.0
     yield "texture", 0.0
     t = time.perf_counter()
-    texture = mesh_texture.project_texture(vertices, faces, views, texture_size,
-                                           tolerance=2.0 * volume.grid.voxel,
-                                           corner_uvs=corner_uvs)
+    baked = texture.project_texture(vertices, faces, views, texture_size,
+                                    tolerance=2.0 * volume.grid.voxel, corner_uvs=corner_uvs)
     stats["texture_s"] = time.perf_counter() - t
-    stats["coverage"] = texture.coverage
+    stats["coverage"] = baked.coverage
     yield "texture", 1.0
 
     # Everything below creates datablocks: one step, cleaned up on failure.
@@ -293,7 +292,7 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
     try:
         mesh = _new_mesh(name, vertices, faces, corner_uvs)
         created.append(("meshes", mesh))
-        image = _image(f"{name} Texture", texture.image)
+        image = _image(f"{name} Texture", baked.image)
         created.append(("images", image))
         material = _material(f"{name} Material", image)
         created.append(("materials", material))

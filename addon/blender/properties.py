@@ -1,5 +1,5 @@
 """The add-on's stored settings: a splat object's render options (`Object.splat`) and its panel,
-and the scene's (`Scene.splat_render`, whose panel is in `render_panel`).
+and the scene's (`Scene.splat_render`, whose panel is in `render/panel.py`).
 
 `obj.splat.is_splat` marks the objects this add-on made (import, or `create_splat_object`);
 operators act on those. The options travel with the object (saved in the .blend, copied with
@@ -193,14 +193,14 @@ class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
     @staticmethod
     def draw_blender_splats(obj, layout) -> None:
         """Blender 5.3's own splat point cloud: who renders it, and the add-on's options."""
-        from ..core.blender_splats import attributes as convention
+        from ..core.blender_splats import attributes
         from .blender_splats import data
 
         settings = obj.splat
-        degree, _ = convention.degree_of(frozenset(data.attribute_names(obj.data)))
+        degree, _ = attributes.degree_of(frozenset(data.attribute_names(obj.data)))
         col = layout.column()
         col.label(text=f"Blender splats: {data.point_count(obj.data):,}, SH degree {degree}"
-                       + (" (read as 3)" if degree > convention.RENDER_MAX_DEGREE else ""))
+                       + (" (read as 3)" if degree > attributes.RENDER_MAX_DEGREE else ""))
         col.prop(settings, "render_by_blender")
         sub = col.column()
         sub.active = not settings.render_by_blender

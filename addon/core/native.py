@@ -62,6 +62,12 @@ def gaussian_args(gaussians: Gaussians) -> tuple[np.ndarray, ...]:
             gaussians.sh)
 
 
+def gaussian_arrays(gaussians: Gaussians) -> dict[str, np.ndarray]:
+    """The five parameter arrays by the names every kernel takes them by (the field names)."""
+    gaussian_args(gaussians)  # a TypeError for anything but Gaussians
+    return gaussians.arrays()
+
+
 def resolve_sh_degree(gaussians: Gaussians, degree: int | None) -> int:
     """The SH degree to evaluate: `degree` (0..3) capped at what the Gaussians hold; None: all."""
     if degree is None:
@@ -112,11 +118,23 @@ def rgb_image(name: str, value) -> np.ndarray:
     return array
 
 
+def frame_args(gaussians: Gaussians, camera: Camera, *, sh_degree: int | None, near: float,
+               antialiased: bool, threads: int) -> dict[str, Any]:
+    """The arguments project, render, render_train and compose_prepare share, by name: the
+    Gaussians, the camera and the options."""
+    viewmat, intrinsics, width, height = camera_args(camera)
+    return dict(gaussian_arrays(gaussians),
+                sh_degree=resolve_sh_degree(gaussians, sh_degree), world_to_camera=viewmat,
+                intrinsics=intrinsics, width=width, height=height, near=float(near),
+                antialiased=bool(antialiased), threads=thread_count(threads))
+
+
 # ---------------------------------------------------------------- the native entry points
 # One function per function of `splatcore`, in the order of native/src/module.c's method table.
-# Arguments are passed as the native function takes them; the Gaussians and the camera are
-# converted here (`gaussian_args`, `camera_args`), so a change of what a kernel takes of them
-# is made in this file and module.c only.
+# Every argument is passed by name: the order, the dtypes and the shapes are declared once, in
+# native/src/bindings.h (`signature` lists them), and this file holds no copy of them. The
+# Gaussians and the camera are converted here (`frame_args`), so a change of what a kernel takes
+# of them is made in this file and bindings.h only.
 
 
 def project(gaussians: Gaussians, camera: Camera, out_xy: np.ndarray, out_conic: np.ndarray,
@@ -125,11 +143,11 @@ def project(gaussians: Gaussians, camera: Camera, out_xy: np.ndarray, out_conic:
             threads: int) -> None:
     """Project every Gaussian into `camera` into the out_* float32 arrays (N, 2), (N, 3), (N,),
     (N,), (N, 3) and `out_valid` uint8 (N,) (`renderer.project`)."""
-    viewmat, intrinsics, width, height = camera_args(camera)
     splatcore().project(
-        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
-        width, height, float(near), bool(antialiased), thread_count(threads),
-        out_xy, out_conic, out_depth, out_opacity, out_rgb, out_valid)
+        **frame_args(gaussians, camera, sh_degree=sh_degree, near=near, antialiased=antialiased,
+                     threads=threads),
+        out_xy=out_xy, out_conic=out_conic, out_depth=out_depth, out_opacity=out_opacity,
+        out_rgb=out_rgb, out_valid=out_valid)
 
 
 def render(gaussians: Gaussians, camera: Camera, background: np.ndarray | None,
@@ -139,11 +157,11 @@ def render(gaussians: Gaussians, camera: Camera, background: np.ndarray | None,
     """Render into out_rgb (H, W, 3), out_alpha and out_depth (H, W), float32, over an optional
     mesh layer (mesh_rgba (H, W, 4) premultiplied, mesh_depth (H, W); both or neither) and
     background (3,) (`renderer.render`). Returns timings (ms) and counts."""
-    viewmat, intrinsics, width, height = camera_args(camera)
     return dict(splatcore().render(
-        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
-        width, height, float(near), bool(antialiased), thread_count(threads), background,
-        mesh_rgba, mesh_depth, out_rgb, out_alpha, out_depth, bool(exhaustive)))
+        **frame_args(gaussians, camera, sh_degree=sh_degree, near=near, antialiased=antialiased,
+                     threads=threads),
+        background=background, mesh_rgba=mesh_rgba, mesh_depth=mesh_depth, out_rgb=out_rgb,
+        out_alpha=out_alpha, out_depth=out_depth, exhaustive=bool(exhaustive)))
 
 
 def compose_prepare(gaussians: Gaussians, camera: Camera, *, sh_degree: int | None, near: float,
@@ -151,10 +169,9 @@ def compose_prepare(gaussians: Gaussians, camera: Camera, *, sh_degree: int | No
     """F12's composite, the Gaussians' half: projected, sorted and binned for `camera` (no mesh
     needed yet). Returns (an opaque prepared frame for `compose_srgb`, stats). Releases the
     GIL while it runs."""
-    viewmat, intrinsics, width, height = camera_args(camera)
     handle, stats = splatcore().compose_prepare(
-        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
-        width, height, float(near), bool(antialiased), thread_count(threads))
+        **frame_args(gaussians, camera, sh_degree=sh_degree, near=near, antialiased=antialiased,
+                     threads=threads))
     return handle, stats
 
 
@@ -165,8 +182,9 @@ def compose_srgb(prepared: Any, mesh_rgba: np.ndarray, mesh_depth: np.ndarray, o
     into `out` (H, W, 4, scene-linear, any strides) and `out_depth` (H, W, or None: no depth);
     tiles no Gaussian reaches keep the mesh's pixels. Returns stats (ms_colour_cpu: the
     conversions' CPU time)."""
-    return dict(splatcore().compose_srgb(prepared, mesh_rgba, mesh_depth, out, out_depth,
-                                         float(far)))
+    return dict(splatcore().compose_srgb(prepared=prepared, mesh_rgba=mesh_rgba,
+                                         mesh_depth=mesh_depth, out=out, out_depth=out_depth,
+                                         far=float(far)))
 
 
 def checksum(buffer) -> tuple[int, int, int, int]:
@@ -179,7 +197,7 @@ def sort_keys(keys: np.ndarray, out_order: np.ndarray, *, threads: int) -> int:
     """The renderer's depth sort alone: `out_order` (int32 (N,)) gets the stable ascending order
     of `keys` (float32 (N,); +inf last, -0 before +0, no NaN). Returns how many keys are not
     +inf."""
-    return splatcore().sort_keys(keys, thread_count(threads), out_order)
+    return splatcore().sort_keys(keys=keys, threads=thread_count(threads), out_order=out_order)
 
 
 def release_buffers() -> None:
@@ -196,11 +214,12 @@ def render_train(gaussians: Gaussians, camera: Camera, background: np.ndarray | 
     """The training forward: `render` without a mesh layer, bit for bit, plus per pixel the
     final transmittance (float32) and n_contrib (int32) (H, W), and per Gaussian whether it was
     drawn (uint8 (N,)), each None to skip. Returns (stats, the opaque state `backward` needs)."""
-    viewmat, intrinsics, width, height = camera_args(camera)
     return splatcore().render_train(
-        *gaussian_args(gaussians), resolve_sh_degree(gaussians, sh_degree), viewmat, intrinsics,
-        width, height, float(near), bool(antialiased), thread_count(threads), background,
-        out_rgb, out_alpha, out_depth, out_final_t, out_n_contrib, out_visible, bool(exhaustive))
+        **frame_args(gaussians, camera, sh_degree=sh_degree, near=near, antialiased=antialiased,
+                     threads=threads),
+        background=background, out_rgb=out_rgb, out_alpha=out_alpha, out_depth=out_depth,
+        out_final_t=out_final_t, out_n_contrib=out_n_contrib, out_visible=out_visible,
+        exhaustive=bool(exhaustive))
 
 
 def train_state_info(state: Any) -> dict[str, Any]:
@@ -216,16 +235,18 @@ def backward(state: Any, gaussians: Gaussians, d_rgb: np.ndarray, d_alpha: np.nd
     w.r.t. the Gaussians `render_train` drew (the same, unchanged), into the out_* arrays
     (overwritten, shaped like the Gaussians' arrays; out_xy, out_xy_abs (N, 2))."""
     return dict(splatcore().backward(
-        state, *gaussian_args(gaussians), d_rgb, d_alpha, d_depth, thread_count(threads),
-        out_means, out_log_scales, out_quats, out_opacity_logits, out_sh, out_xy, out_xy_abs))
+        state=state, **gaussian_arrays(gaussians), d_rgb=d_rgb,
+        d_alpha=d_alpha, d_depth=d_depth, threads=thread_count(threads), out_means=out_means,
+        out_log_scales=out_log_scales, out_quats=out_quats, out_opacity_logits=out_opacity_logits,
+        out_sh=out_sh, out_xy=out_xy, out_xy_abs=out_xy_abs))
 
 
 def l1_ssim(image: np.ndarray, target: np.ndarray, lambda_dssim: float,
             out_grad: np.ndarray | None, *, threads: int) -> tuple[float, float, float, float]:
     """(1 - lambda) L1 + lambda (1 - SSIM) of (H, W, 3) float32 images, dL/d(image) into
     `out_grad` unless None. Returns (loss, l1, ssim, mse of the image clamped to [0, 1])."""
-    return splatcore().l1_ssim(image, target, float(lambda_dssim), thread_count(threads),
-                               out_grad)
+    return splatcore().l1_ssim(image=image, target=target, lambda_dssim=float(lambda_dssim),
+                               threads=thread_count(threads), out_grad=out_grad)
 
 
 def adam(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_sq: np.ndarray, *,
@@ -234,9 +255,10 @@ def adam(param: np.ndarray, grad: np.ndarray, exp_avg: np.ndarray, exp_avg_sq: n
     """One Adam step in place (torch.optim.Adam's formula) on float32 arrays of one shape; rows
     (uint8 (shape[0],) or None) masks rows; the first `lead` values of a row step at `lead_lr`;
     only the first `used` values of a row are updated (negative: all)."""
-    splatcore().adam(param, grad, exp_avg, exp_avg_sq, float(lr), float(beta1), float(beta2),
-                     float(eps), int(step), thread_count(threads), rows, int(lead),
-                     float(lead_lr), int(used))
+    splatcore().adam(param=param, grad=grad, exp_avg=exp_avg, exp_avg_sq=exp_avg_sq,
+                     lr=float(lr), beta1=float(beta1), beta2=float(beta2), eps=float(eps),
+                     step=int(step), threads=thread_count(threads), rows=rows, lead=int(lead),
+                     lead_lr=float(lead_lr), used=int(used))
 
 
 def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
@@ -244,14 +266,16 @@ def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
                    threads: int) -> None:
     """3DGS-MCMC's noise on `means` in place: float32 parameters of N Gaussians, noise (N, 3)
     float64 standard normal."""
-    splatcore().position_noise(means, log_scales, quats, opacity_logits, noise, float(scale),
-                               thread_count(threads))
+    splatcore().position_noise(means=means, log_scales=log_scales, quats=quats,
+                               opacity_logits=opacity_logits, noise=noise, scale=float(scale),
+                               threads=thread_count(threads))
 
 
 def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads: int) -> None:
     """Premultiplied float32 RGBA (..., 4), C-contiguous, scene-linear -> display sRGB, or back
     with `decode`, into `out` (`rgba` itself, or a C-contiguous array of its shape)."""
-    splatcore().srgb_premultiplied(rgba, out, bool(decode), thread_count(threads))
+    splatcore().srgb_premultiplied(rgba=rgba, out=out, decode=bool(decode),
+                                   threads=thread_count(threads))
 
 
 def srgb_view(rgba: np.ndarray, out: np.ndarray, decode: bool, zero_non_finite: bool,
@@ -260,7 +284,8 @@ def srgb_view(rgba: np.ndarray, out: np.ndarray, decode: bool, zero_non_finite: 
     row-reversed buffer), through the extended sRGB transfer into `out` (`rgba` itself, or not
     overlapping it): scene-linear -> display, or back with `decode` (see `addon.core.colour`).
     With `zero_non_finite`, non-finite results (alpha too) become 0."""
-    splatcore().srgb_view(rgba, out, bool(decode), bool(zero_non_finite), thread_count(threads))
+    splatcore().srgb_view(rgba=rgba, out=out, decode=bool(decode),
+                          zero_non_finite=bool(zero_non_finite), threads=thread_count(threads))
 
 
 def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, layer: np.ndarray,
@@ -270,18 +295,22 @@ def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, la
     display sRGB) decoded where its colour bits or its alpha (by more than 1e-6) differ from
     `layer`; `mesh`'s scene-linear pixel, bit for bit, elsewhere. All float32; rgb, alpha and
     layer C-contiguous, mesh and out (H, W, 4) with any strides."""
-    if out is None:
-        splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads))
-    else:
-        splatcore().srgb_decode_changed(rgb, alpha, mesh, layer, thread_count(threads), out)
+    splatcore().srgb_decode_changed(rgb=rgb, alpha=alpha, mesh=mesh, layer=layer,
+                                    threads=thread_count(threads), out=out)
 
 
 def composite_microbench(count: int, iterations: int) -> float:
     """Seconds for the compositor's inner loop over one in-cache tile covered by `count`
     Gaussians, `iterations` times (a benchmark's probe)."""
-    return splatcore().composite_microbench(int(count), int(iterations))
+    return splatcore().composite_microbench(count=int(count), iterations=int(iterations))
 
 
 def native_cpu_count() -> int:
     """Cores the native module may use (its `threads=0`); `cpu_count` is Python's view."""
     return splatcore().cpu_count()
+
+
+def signature(name: str) -> tuple[tuple[str, str, bool], ...]:
+    """The arguments of `splatcore.<name>` in call order, as native/src/bindings.h declares
+    them: (name, what it is, whether it may be left out)."""
+    return splatcore().signature(name)

@@ -16,7 +16,7 @@
  * window's radius) in loops the compiler vectorises, compiled per instruction-set level
  * (SC_MULTIVERSION). Only the sums over the image (the loss, L1 and SSIM means) are double.
  * s1 = e11 - mu1^2 cancels in float32, but s1 + s2 + C2 >= C2 = 9e-4 bounds the relative error
- * (tests/test_train_kernels.py holds the result against the float64 reference).
+ * (tests/core/train/test_train_kernels.py holds the result against the float64 reference).
  *
  * Four passes over rows, each in parallel (every output has a fixed order of operations, so
  * results do not depend on the thread count): horizontal products, vertical products with the

@@ -69,15 +69,15 @@ static const char *type_name(char type) {
 
 static Py_ssize_t type_size(char type) { return type == 'd' ? 8 : type == 'f' || type == 'i' ? 4 : 1; }
 
-/* ---------------------------------------------------------------- argument checking as data
- * Each entry point names its array arguments in a table (arg_spec: name, dtype, shape, flags)
- * and check_args() validates them in order, so every array gets the same checks and messages:
- * the buffer protocol, writability, dtype, C-contiguity (unless STRIDED), shape, and finiteness
- * where asked. Shapes may use named sizes: the first argument with one binds it, later ones must
- * match it. Scalar arguments are parsed by PyArg_ParseTuple and checked where they are used.
- * A new array argument is a row in its entry point's table (and its object in the
- * PyArg_ParseTuple list, in the table's order); a shared group (GAUSSIAN_ARGS, CAMERA_ARGS,
- * IMAGE_ARGS) is one table that every entry point taking it passes to check_args. */
+/* ---------------------------------------------------------------- arguments as data
+ * Each entry point declares its arguments once, in one table (a signature: per argument its
+ * name, kind, and for an array its dtype, shape and flags; see bindings.h). That table is the
+ * only statement of the arguments' order: begin() parses a call by it (positional or by
+ * keyword, numbers converted), check() validates the arrays in it the same way for every entry
+ * point (the buffer protocol, writability, dtype, C-contiguity unless STRIDED, shape,
+ * finiteness where asked; a named size is bound by the first argument that has it), finish()
+ * and fail() release what a call holds; `splatcore.signature(name)` hands the table to Python,
+ * whose door (addon/core/native.py) passes every argument by name. */
 
 /* A dimension of a shape: a size (>= 0), ANY, or a named size (N Gaussians, at most
  * MAX_GAUSSIANS; K SH coefficients per colour channel, 1, 4, 9 or 16; H and W an image's rows
@@ -93,15 +93,33 @@ enum {
     STRIDED = 8,  /* any strides (otherwise C-contiguous) */
     ANY_RANK = 16, /* any shape (ndim and shape unused): later LIKE arguments must have it */
     LIKE = 32,    /* the shape of the ANY_RANK argument before it (ndim and shape unused) */
+    DEFAULTED = 64, /* may be left out: an array or object is then None, a number `fallback` */
 };
 
+/* What an argument is: an array (the table's dtype and shape) or a scalar. */
+typedef enum {
+    ARRAY,   /* buffer protocol, checked by check() */
+    INT,     /* a Python int that fits a C int */
+    LONG,    /* a Python int that fits a long long */
+    REAL,    /* a float (or int) */
+    FLAG,    /* anything, by its truth */
+    THREADS, /* an int in 0..MAX_THREADS (parse_threads) */
+    OBJECT,  /* any object (a capsule), checked by its entry point */
+} arg_kind;
+
 typedef struct {
-    const char *name; /* as messages name it */
-    char type;        /* 'f' float32, 'd' float64, 'B' uint8, 'i' int32 */
+    const char *name; /* its keyword, and how messages name it */
+    char type;        /* arrays: 'f' float32, 'd' float64, 'B' uint8, 'i' int32 */
     int ndim;
     Py_ssize_t shape[3]; /* sizes, ANY or DIM_* */
     int flags;
+    arg_kind kind;   /* ARRAY unless a scalar */
+    double fallback; /* a DEFAULTED number's value when left out */
 } arg_spec;
+
+/* A scalar argument of the tables: its name and kind (and, DEFAULTED, its value left out). */
+#define SCALAR(name, kind) {name, 0, 0, {0}, 0, kind, 0}
+#define SCALAR_OR(name, kind, fallback) {name, 0, 0, {0}, DEFAULTED, kind, fallback}
 
 /* The named sizes of one call (-1 until bound) and its ANY_RANK argument's view. */
 typedef struct {
@@ -244,52 +262,176 @@ static int all_finite_d(const double *v, int n) {
     return 1;
 }
 
-static const arg_spec GAUSSIAN_ARGS[] = {
-    {"means", 'f', 2, {DIM_N, 3}, 0},
-    {"log_scales", 'f', 2, {DIM_N, 3}, 0},
-    {"quats", 'f', 2, {DIM_N, 4}, 0},
-    {"opacity_logits", 'f', 1, {DIM_N}, 0},
-    {"sh", 'f', 3, {DIM_N, DIM_K, 3}, 0},
-};
-
-static const arg_spec CAMERA_ARGS[] = {
-    {"world_to_camera", 'd', 2, {4, 4}, 0},
-    {"intrinsics", 'd', 1, {ANY}, 0}, /* (4,) or (8 + SC_MODEL_PARAMS,): parse_common */
-};
-
 /* The size a call bound to a named dimension. */
 #define SIZE(d, dim) ((d)->size[-2 - (dim)])
 
-/* Parse the five Gaussian arrays objs[0..4] (shapes consistent, K in 1, 4, 9, 16). */
-static int parse_gaussians(buffers *b, arg_dims *d, PyObject *const *objs, sc_gaussians *g) {
-    const Py_buffer *v[COUNT(GAUSSIAN_ARGS)];
-    if (check_args(b, d, GAUSSIAN_ARGS, COUNT(GAUSSIAN_ARGS), objs, v) != 0) return -1;
-    g->means = data(v[0]), g->log_scales = data(v[1]), g->quats = data(v[2]);
-    g->opacity_logits = data(v[3]), g->sh = data(v[4]);
-    g->count = SIZE(d, DIM_N);
-    g->sh_coeffs = (int)SIZE(d, DIM_K);
+#include "bindings.h"
+
+enum { MAX_PARAMS = 32 };
+
+/* An entry point: its name and its table (bindings.h). */
+typedef struct {
+    const char *name;
+    const arg_spec *params;
+    int count;
+} signature;
+
+/* One call of an entry point: its arguments by the table's index (objects as given, NULL when
+ * left out; numbers converted), the views check() took, and the buffers to release. */
+typedef struct {
+    const signature *sig;
+    PyObject *objs[MAX_PARAMS];
+    long long ints[MAX_PARAMS];
+    double reals[MAX_PARAMS];
+    const Py_buffer *views[MAX_PARAMS];
+    buffers b;
+    arg_dims d;
+} call;
+
+/* The table index of `name`; a name no table has is a bug in this file: fatal. */
+static int index_of(const signature *sig, const char *name) {
+    for (int i = 0; i < sig->count; ++i)
+        if (strcmp(sig->params[i].name, name) == 0) return i;
+    Py_FatalError("splatcore: an entry point uses an argument its table lacks");
+    return -1;
+}
+
+/* One scalar argument, converted as its kind says. */
+static int convert(call *c, int i, PyObject *obj) {
+    const arg_spec *s = &c->sig->params[i];
+    switch (s->kind) {
+    case INT:
+    case LONG: {
+        const long long value = PyLong_AsLongLong(obj);
+        if (value == -1 && PyErr_Occurred()) return -1;
+        if (s->kind == INT && (value < -2147483647LL - 1 || value > 2147483647LL)) {
+            PyErr_Format(PyExc_OverflowError, "%s does not fit a C int, got %lld", s->name, value);
+            return -1;
+        }
+        c->ints[i] = value;
+        return 0;
+    }
+    case REAL:
+        c->reals[i] = PyFloat_AsDouble(obj);
+        return c->reals[i] == -1.0 && PyErr_Occurred() ? -1 : 0;
+    case FLAG: {
+        const int truth = PyObject_IsTrue(obj);
+        c->ints[i] = truth;
+        return truth < 0 ? -1 : 0;
+    }
+    case THREADS: {
+        int threads = 0;
+        if (!parse_threads(obj, &threads)) return -1;
+        c->ints[i] = threads;
+        return 0;
+    }
+    default:
+        return 0;
+    }
+}
+
+/* Parse a call by its table: positional arguments in the table's order, the rest by keyword;
+ * every argument not DEFAULTED is required. Numbers are converted here; arrays wait for
+ * check(). On failure the exception is set and nothing is held. */
+static int begin(call *c, const signature *sig, PyObject *args, PyObject *kwargs) {
+    c->sig = sig;
+    c->b.count = 0;
+    c->d = (arg_dims)ARG_DIMS_INIT;
+    const Py_ssize_t given = PyTuple_Size(args);
+    if (given < 0) return -1;
+    if (given > sig->count) {
+        PyErr_Format(PyExc_TypeError, "%s() takes at most %d arguments (%zd given)", sig->name,
+                     sig->count, given);
+        return -1;
+    }
+    Py_ssize_t by_keyword = kwargs ? PyDict_Size(kwargs) : 0;
+    for (int i = 0; i < sig->count; ++i) {
+        const arg_spec *s = &sig->params[i];
+        PyObject *obj = i < given ? PyTuple_GetItem(args, i) : NULL;
+        PyObject *named = kwargs ? PyDict_GetItemString(kwargs, s->name) : NULL;
+        if (obj && named) {
+            PyErr_Format(PyExc_TypeError, "%s() got multiple values for argument '%s'", sig->name,
+                         s->name);
+            return -1;
+        }
+        if (named) obj = named, --by_keyword;
+        c->objs[i] = obj;
+        c->views[i] = NULL;
+        c->ints[i] = (long long)s->fallback;
+        c->reals[i] = s->fallback;
+        if (!obj && !(s->flags & DEFAULTED)) {
+            PyErr_Format(PyExc_TypeError, "%s() missing required argument '%s' (pos %d)",
+                         sig->name, s->name, i + 1);
+            return -1;
+        }
+        if (obj && convert(c, i, obj) != 0) return -1;
+    }
+    if (by_keyword > 0) {
+        PyErr_Format(PyExc_TypeError, "%s() got an unexpected keyword argument (its arguments: "
+                     "splatcore.signature('%s'))", sig->name, sig->name);
+        return -1;
+    }
     return 0;
 }
 
-/* Parse the arguments project(), render() and render_train() share: Gaussians, camera, options;
- * `d` gets N, K, H and W. */
-static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_degree, int width,
-                        int height, double near, int antialiased, int threads, sc_gaussians *g,
-                        sc_camera *cam, sc_options *opt) {
-    if (parse_gaussians(b, d, objs, g) != 0) return -1;
+/* Check the arrays from `first` to `last` (names, inclusive) in the table's order; each view
+ * is held until finish() or fail(). A left-out or None OPTIONAL array has no view. */
+static int check(call *c, const char *first, const char *last) {
+    const int from = index_of(c->sig, first), to = index_of(c->sig, last);
+    for (int i = from; i <= to; ++i) {
+        const arg_spec *s = &c->sig->params[i];
+        if (s->kind != ARRAY) continue;
+        PyObject *obj = c->objs[i] ? c->objs[i] : Py_None;
+        if (check_args(&c->b, &c->d, s, 1, &obj, &c->views[i]) != 0) return -1;
+    }
+    return 0;
+}
+
+/* A call's end: what it holds released, `result` (NULL: the exception set) returned. */
+static PyObject *finish(call *c, PyObject *result) {
+    release_all(&c->b);
+    return result;
+}
+
+static PyObject *fail(call *c) { return finish(c, NULL); }
+
+/* A call's arguments by name: an array's view or data (NULL for None), a number, an object
+ * (NULL when left out). */
+static const Py_buffer *view_of(const call *c, const char *name) { return c->views[index_of(c->sig, name)]; }
+static void *data_of(const call *c, const char *name) { return data(view_of(c, name)); }
+static long long int_of(const call *c, const char *name) { return c->ints[index_of(c->sig, name)]; }
+static double real_of(const call *c, const char *name) { return c->reals[index_of(c->sig, name)]; }
+static PyObject *object_of(const call *c, const char *name) { return c->objs[index_of(c->sig, name)]; }
+
+/* The Gaussians' five arrays of a call (checked; shapes consistent, K in 1, 4, 9, 16). */
+static int parse_gaussians(call *c, sc_gaussians *g) {
+    if (check(c, "means", "sh") != 0) return -1;
+    g->means = data_of(c, "means"), g->log_scales = data_of(c, "log_scales");
+    g->quats = data_of(c, "quats"), g->opacity_logits = data_of(c, "opacity_logits");
+    g->sh = data_of(c, "sh");
+    g->count = SIZE(&c->d, DIM_N);
+    g->sh_coeffs = (int)SIZE(&c->d, DIM_K);
+    return 0;
+}
+
+/* The arguments project(), render(), render_train() and compose_prepare() share (FRAME_PARAMS):
+ * Gaussians, camera, options; the call's H and W are bound to the image size. */
+static int parse_common(call *c, sc_gaussians *g, sc_camera *cam, sc_options *opt) {
+    if (parse_gaussians(c, g) != 0) return -1;
+    const int sh_degree = (int)int_of(c, "sh_degree"), width = (int)int_of(c, "width"),
+              height = (int)int_of(c, "height"), threads = (int)int_of(c, "threads");
+    const double near = real_of(c, "near");
     const int data_degree = g->sh_coeffs == 1 ? 0 : g->sh_coeffs == 4 ? 1 : g->sh_coeffs == 9 ? 2 : 3;
     if (sh_degree < 0 || sh_degree > data_degree) {
         PyErr_Format(PyExc_ValueError, "sh_degree must be in 0..%d for this data, got %d",
                      data_degree, sh_degree);
         return -1;
     }
-
-    const Py_buffer *v[COUNT(CAMERA_ARGS)];
-    if (check_args(b, d, CAMERA_ARGS, COUNT(CAMERA_ARGS), objs + 5, v) != 0) return -1;
-    const double *viewmat = data(v[0]), *intr = data(v[1]);
+    if (check(c, "world_to_camera", "intrinsics") != 0) return -1;
+    const double *viewmat = data_of(c, "world_to_camera"), *intr = data_of(c, "intrinsics");
     /* intrinsics: fx fy cx cy (a pinhole), or those, the model, far, aperture, focus and
      * SC_MODEL_PARAMS (sc_camera). */
-    const Py_ssize_t n_intr = v[1]->shape[0], n_long = 8 + SC_MODEL_PARAMS;
+    const Py_ssize_t n_intr = view_of(c, "intrinsics")->shape[0], n_long = 8 + SC_MODEL_PARAMS;
     if (n_intr != 4 && n_intr != n_long) {
         PyErr_Format(PyExc_ValueError, "intrinsics must have shape (4,) or (%zd,), got (%zd,)",
                      n_long, n_intr);
@@ -317,10 +459,10 @@ static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_d
     /* A rigid transform: orthonormal rotation, last row 0 0 0 1. */
     double worst = fabs(viewmat[12]) + fabs(viewmat[13]) + fabs(viewmat[14]) + fabs(viewmat[15] - 1);
     for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c) {
+        for (int k = 0; k < 3; ++k) {
             double dot = 0;
-            for (int k = 0; k < 3; ++k) dot += viewmat[4 * r + k] * viewmat[4 * c + k];
-            worst = fmax(worst, fabs(dot - (r == c)));
+            for (int j = 0; j < 3; ++j) dot += viewmat[4 * r + j] * viewmat[4 * k + j];
+            worst = fmax(worst, fabs(dot - (r == k)));
         }
     if (worst > 1e-4) {
         value_error("world_to_camera must be rigid (orthonormal rotation, last row 0 0 0 1); "
@@ -343,22 +485,24 @@ static int parse_common(buffers *b, arg_dims *d, PyObject *const *objs, int sh_d
         value_error("near must be finite and >= 0, got %g", near);
         return -1;
     }
-    if (threads < 0) {
-        PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
-        return -1;
-    }
     memcpy(cam->world_to_camera, viewmat, sizeof cam->world_to_camera);
     cam->fx = intr[0], cam->fy = intr[1], cam->cx = intr[2], cam->cy = intr[3];
     cam->width = width, cam->height = height;
     cam->model = (int)model, cam->far = far, cam->aperture = aperture, cam->focus = focus;
     for (int k = 0; k < SC_MODEL_PARAMS; ++k) cam->params[k] = pinhole_only ? 0.0 : intr[8 + k];
-    SIZE(d, DIM_H) = height, SIZE(d, DIM_W) = width;
+    SIZE(&c->d, DIM_H) = height, SIZE(&c->d, DIM_W) = width;
     opt->sh_degree = sh_degree;
     opt->near = near;
-    opt->antialiased = antialiased;
+    opt->antialiased = (int)int_of(c, "antialiased");
     opt->threads = threads ? threads : sc_cpu_count();
     opt->exhaustive = 0;
     return 0;
+}
+
+/* A call's `threads` as the kernels take it (0: every core). */
+static int threads_of(const call *c) {
+    const int threads = (int)int_of(c, "threads");
+    return threads ? threads : sc_cpu_count();
 }
 
 static int row_finite(const float *v, int64_t n) {
@@ -390,63 +534,6 @@ static PyObject *raise_status(sc_status status, const sc_gaussians *g, const sc_
                             "too many Gaussian/tile overlaps to render this image; "
                             "use a smaller image or fewer, smaller Gaussians");
     return PyErr_NoMemory();
-}
-
-static const arg_spec PROJECT_OUTS[] = {
-    {"out_xy", 'f', 2, {DIM_N, 2}, WRITABLE},
-    {"out_conic", 'f', 2, {DIM_N, 3}, WRITABLE},
-    {"out_depth", 'f', 1, {DIM_N}, WRITABLE},
-    {"out_opacity", 'f', 1, {DIM_N}, WRITABLE},
-    {"out_rgb", 'f', 2, {DIM_N, 3}, WRITABLE},
-    {"out_valid", 'B', 1, {DIM_N}, WRITABLE},
-};
-
-static PyObject *py_project(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *objs[7], *outs[6];
-    int sh_degree, width, height, antialiased, threads;
-    double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOO:project", &objs[0], &objs[1], &objs[2],
-                          &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
-                          &near, &antialiased, parse_threads, &threads, &outs[0], &outs[1], &outs[2], &outs[3],
-                          &outs[4], &outs[5]))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    sc_gaussians g;
-    sc_camera cam;
-    sc_options opt;
-    const Py_buffer *v[COUNT(PROJECT_OUTS)];
-    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
-                     &opt) != 0 ||
-        check_args(&b, &d, PROJECT_OUTS, COUNT(PROJECT_OUTS), outs, v) != 0) {
-        release_all(&b);
-        return NULL;
-    }
-    const Py_ssize_t n = (Py_ssize_t)g.count;
-    float *xy = data(v[0]), *conic = data(v[1]), *depth = data(v[2]), *opacity = data(v[3]),
-          *rgb = data(v[4]);
-    uint8_t *valid = data(v[5]);
-    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL, 0};
-    sc_stats stats = {0};
-    sc_status status = SC_ERR_MEMORY;
-    if (proj.splats) {
-        Py_BEGIN_ALLOW_THREADS
-        status = sc_project(&g, &cam, &opt, &proj, &stats);
-        for (Py_ssize_t i = 0; status == SC_OK && i < n; ++i) {
-            const sc_splat *s = &proj.splats[i];
-            xy[2 * i] = s->x, xy[2 * i + 1] = s->y;
-            conic[3 * i] = s->ca, conic[3 * i + 1] = s->cb, conic[3 * i + 2] = s->cc;
-            depth[i] = s->depth;
-            opacity[i] = s->opacity;
-            rgb[3 * i] = s->r, rgb[3 * i + 1] = s->g, rgb[3 * i + 2] = s->b;
-        }
-        Py_END_ALLOW_THREADS
-    }
-    free(proj.splats);
-    PyObject *result = status == SC_OK ? Py_NewRef(Py_None) : raise_status(status, &g, &stats);
-    release_all(&b);
-    return result;
 }
 
 static int set_number(PyObject *dict, const char *key, PyObject *value) {
@@ -510,73 +597,126 @@ static int check_finite_array(const float *v, int64_t n, const char *name) {
     return 0;
 }
 
-/* The optional background (3) and the three images render() and render_train() write. */
-static const arg_spec IMAGE_ARGS[] = {
-    {"background", 'f', 1, {3}, OPTIONAL | FINITE},
-    {"out_rgb", 'f', 3, {DIM_H, DIM_W, 3}, WRITABLE},
-    {"out_alpha", 'f', 2, {DIM_H, DIM_W}, WRITABLE},
-    {"out_depth", 'f', 2, {DIM_H, DIM_W}, WRITABLE},
+
+static PyObject *py_project(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_render(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_compose_prepare(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_compose_srgb(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_sort_keys(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_render_train(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_backward(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_l1_ssim(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_adam(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_position_noise(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_composite_microbench(PyObject *self, PyObject *args, PyObject *kwargs);
+
+/* Every entry point with its table (METH_NOARGS ones have none), for begin() and for
+ * `splatcore.signature`. */
+#define ENTRY(name, table) {name, table, COUNT(table)}
+static const signature SIGNATURES[] = {
+    ENTRY("project", PROJECT),
+    ENTRY("render", RENDER),
+    ENTRY("compose_prepare", COMPOSE_PREPARE),
+    ENTRY("compose_srgb", COMPOSE_SRGB),
+    ENTRY("checksum", CHECKSUM),
+    ENTRY("sort_keys", SORT_KEYS),
+    ENTRY("render_train", RENDER_TRAIN),
+    ENTRY("train_state_info", TRAIN_STATE_INFO),
+    ENTRY("backward", BACKWARD),
+    ENTRY("l1_ssim", L1_SSIM),
+    ENTRY("adam", ADAM),
+    ENTRY("position_noise", POSITION_NOISE),
+    ENTRY("srgb_premultiplied", SRGB_PREMULTIPLIED),
+    ENTRY("srgb_view", SRGB_VIEW),
+    ENTRY("srgb_decode_changed", SRGB_DECODE_CHANGED),
+    ENTRY("composite_microbench", COMPOSITE_MICROBENCH),
 };
 
-/* objs: background, out_rgb, out_alpha, out_depth. */
-static int parse_image(buffers *b, arg_dims *d, PyObject *const *objs, sc_image *image) {
-    const Py_buffer *v[COUNT(IMAGE_ARGS)];
-    if (check_args(b, d, IMAGE_ARGS, COUNT(IMAGE_ARGS), objs, v) != 0) return -1;
-    image->background = data(v[0]);
-    image->rgb = data(v[1]), image->alpha = data(v[2]), image->depth = data(v[3]);
+static const signature *signature_of(const char *name) {
+    for (int i = 0; i < COUNT(SIGNATURES); ++i)
+        if (strcmp(SIGNATURES[i].name, name) == 0) return &SIGNATURES[i];
+    Py_FatalError("splatcore: an entry point without a table");
+    return NULL;
+}
+
+/* An entry point's opening: its call parsed by its table, or NULL returned. */
+#define BEGIN(c, name)                                                              \
+    (void)self;                                                                     \
+    call c;                                                                         \
+    if (begin(&c, signature_of(name), args, kwargs) != 0) return NULL
+
+/* ---------------------------------------------------------------- rendering */
+
+static PyObject *py_project(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "project");
+    sc_gaussians g;
+    sc_camera cam;
+    sc_options opt;
+    if (parse_common(&c, &g, &cam, &opt) != 0 || check(&c, "out_xy", "out_valid") != 0)
+        return fail(&c);
+    const Py_ssize_t n = (Py_ssize_t)g.count;
+    float *xy = data_of(&c, "out_xy"), *conic = data_of(&c, "out_conic"),
+          *depth = data_of(&c, "out_depth"), *opacity = data_of(&c, "out_opacity"),
+          *rgb = data_of(&c, "out_rgb");
+    uint8_t *valid = data_of(&c, "out_valid");
+    sc_projection proj = {malloc(sizeof(sc_splat) * (size_t)(n ? n : 1)), valid, NULL, 0};
+    sc_stats stats = {0};
+    sc_status status = SC_ERR_MEMORY;
+    if (proj.splats) {
+        Py_BEGIN_ALLOW_THREADS
+        status = sc_project(&g, &cam, &opt, &proj, &stats);
+        for (Py_ssize_t i = 0; status == SC_OK && i < n; ++i) {
+            const sc_splat *s = &proj.splats[i];
+            xy[2 * i] = s->x, xy[2 * i + 1] = s->y;
+            conic[3 * i] = s->ca, conic[3 * i + 1] = s->cb, conic[3 * i + 2] = s->cc;
+            depth[i] = s->depth;
+            opacity[i] = s->opacity;
+            rgb[3 * i] = s->r, rgb[3 * i + 1] = s->g, rgb[3 * i + 2] = s->b;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    free(proj.splats);
+    return finish(&c, status == SC_OK ? Py_NewRef(Py_None) : raise_status(status, &g, &stats));
+}
+
+/* The background and the three images of render() and render_train() (BACKGROUND_PARAM,
+ * IMAGE_PARAMS). */
+static int parse_image(call *c, sc_image *image) {
+    if (check(c, "background", "background") != 0 || check(c, "out_rgb", "out_depth") != 0)
+        return -1;
+    image->background = data_of(c, "background");
+    image->rgb = data_of(c, "out_rgb"), image->alpha = data_of(c, "out_alpha");
+    image->depth = data_of(c, "out_depth");
     return 0;
 }
 
-/* render()'s mesh layer: both or neither (checked before). */
-static const arg_spec MESH_ARGS[] = {
-    {"mesh_rgba", 'f', 3, {DIM_H, DIM_W, 4}, OPTIONAL},
-    {"mesh_depth", 'f', 2, {DIM_H, DIM_W}, OPTIONAL},
-};
-
-static PyObject *py_render(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *objs[7], *image_objs[4], *mesh_objs[2];
-    int sh_degree, width, height, antialiased, threads, exhaustive = 0;
-    double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOO|p:render", &objs[0], &objs[1], &objs[2],
-                          &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
-                          &near, &antialiased, parse_threads, &threads, &image_objs[0],
-                          &mesh_objs[0], &mesh_objs[1], &image_objs[1], &image_objs[2],
-                          &image_objs[3], &exhaustive))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
+static PyObject *py_render(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "render");
     sc_gaussians g;
     sc_camera cam;
     sc_options opt;
     sc_image image = {0};
-    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
-                     &opt) != 0)
-        goto fail;
-    if (parse_image(&b, &d, image_objs, &image) != 0) goto fail;
-    opt.exhaustive = exhaustive;
-    if ((mesh_objs[0] == Py_None) != (mesh_objs[1] == Py_None)) {
+    if (parse_common(&c, &g, &cam, &opt) != 0 || parse_image(&c, &image) != 0) return fail(&c);
+    opt.exhaustive = (int)int_of(&c, "exhaustive");
+    const PyObject *mesh_rgba = object_of(&c, "mesh_rgba"), *mesh_depth = object_of(&c, "mesh_depth");
+    if ((mesh_rgba == Py_None) != (mesh_depth == Py_None)) {
         PyErr_SetString(PyExc_ValueError, "mesh_rgba and mesh_depth must be given together");
-        goto fail;
+        return fail(&c);
     }
-    const Py_buffer *mesh[COUNT(MESH_ARGS)];
-    if (check_args(&b, &d, MESH_ARGS, COUNT(MESH_ARGS), mesh_objs, mesh) != 0) goto fail;
-    image.mesh_rgba = data(mesh[0]), image.mesh_depth = data(mesh[1]);
+    if (check(&c, "mesh_rgba", "mesh_depth") != 0) return fail(&c);
+    image.mesh_rgba = data_of(&c, "mesh_rgba"), image.mesh_depth = data_of(&c, "mesh_depth");
     if (image.mesh_rgba &&
-        check_mesh(image.mesh_rgba, image.mesh_depth, (int64_t)width * height) != 0)
-        goto fail;
-
+        check_mesh(image.mesh_rgba, image.mesh_depth, (int64_t)cam.width * cam.height) != 0)
+        return fail(&c);
     sc_stats stats = {0};
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
     status = sc_render(&g, &cam, &opt, &image, &stats);
     Py_END_ALLOW_THREADS
-    PyObject *result = status == SC_OK ? stats_dict(&stats) : raise_status(status, &g, &stats);
-    release_all(&b);
-    return result;
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, status == SC_OK ? stats_dict(&stats) : raise_status(status, &g, &stats));
 }
 
 /* ---------------------------------------------------------------- training */
@@ -602,55 +742,30 @@ static sc_train_state *get_state(PyObject *obj) {
     return PyCapsule_GetPointer(obj, STATE_NAME);
 }
 
-/* render_train()'s optional per-pixel and per-Gaussian outputs. */
-static const arg_spec TRAIN_OUTS[] = {
-    {"out_final_t", 'f', 2, {DIM_H, DIM_W}, WRITABLE | OPTIONAL},
-    {"out_n_contrib", 'i', 2, {DIM_H, DIM_W}, WRITABLE | OPTIONAL},
-    {"out_visible", 'B', 1, {DIM_N}, WRITABLE | OPTIONAL},
-};
-
-static PyObject *py_render_train(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *objs[7], *image_objs[4], *outs[3];
-    int sh_degree, width, height, antialiased, threads, exhaustive = 0;
-    double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&OOOOOOO|p:render_train", &objs[0], &objs[1],
-                          &objs[2], &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width,
-                          &height, &near, &antialiased, parse_threads, &threads, &image_objs[0],
-                          &image_objs[1], &image_objs[2], &image_objs[3], &outs[0], &outs[1],
-                          &outs[2], &exhaustive))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
+static PyObject *py_render_train(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "render_train");
     sc_gaussians g;
     sc_camera cam;
     sc_options opt;
     sc_image image = {0};
-    const Py_buffer *v[COUNT(TRAIN_OUTS)];
-    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
-                     &opt) != 0)
-        goto fail;
-    opt.exhaustive = exhaustive;
+    if (parse_common(&c, &g, &cam, &opt) != 0) return fail(&c);
+    opt.exhaustive = (int)int_of(&c, "exhaustive");
     if (cam.model != SC_PINHOLE || cam.aperture > 0) {
         PyErr_SetString(PyExc_ValueError, "training renders through pinhole cameras only (no "
                                           "depth of field)");
-        goto fail;
+        return fail(&c);
     }
-    if (parse_image(&b, &d, image_objs, &image) != 0 ||
-        check_args(&b, &d, TRAIN_OUTS, COUNT(TRAIN_OUTS), outs, v) != 0)
-        goto fail;
-    float *out_t = data(v[0]);
-    int32_t *out_n = data(v[1]);
-    uint8_t *out_visible = data(v[2]);
+    if (parse_image(&c, &image) != 0 || check(&c, "out_final_t", "out_visible") != 0)
+        return fail(&c);
+    float *out_t = data_of(&c, "out_final_t");
+    int32_t *out_n = data_of(&c, "out_n_contrib");
+    uint8_t *out_visible = data_of(&c, "out_visible");
 
     sc_train_state *state = calloc(1, sizeof *state);
-    if (!state) {
-        PyErr_NoMemory();
-        goto fail;
-    }
+    if (!state) return PyErr_NoMemory(), fail(&c);
     sc_stats stats = {0};
     sc_status status;
-    const size_t pixels = (size_t)width * (size_t)height;
+    const size_t pixels = (size_t)cam.width * (size_t)cam.height;
     Py_BEGIN_ALLOW_THREADS
     status = sc_render_train(&g, &cam, &opt, &image, state, &stats);
     if (status == SC_OK && out_t) memcpy(out_t, state->final_t, sizeof(float) * pixels);
@@ -664,9 +779,9 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
         sc_train_state_free(state);
         free(state);
         raise_status(status, &g, &stats);
-        goto fail;
+        return fail(&c);
     }
-    release_all(&b);
+    finish(&c, NULL);
     PyObject *capsule = PyCapsule_New(state, STATE_NAME, state_destructor);
     if (!capsule) {
         sc_train_state_free(state);
@@ -682,9 +797,6 @@ static PyObject *py_render_train(PyObject *self, PyObject *args) {
     Py_DECREF(stats_obj);
     Py_DECREF(capsule);
     return result;
-fail:
-    release_all(&b);
-    return NULL;
 }
 
 static PyObject *py_train_state_info(PyObject *self, PyObject *arg) {
@@ -700,150 +812,79 @@ static PyObject *py_train_state_info(PyObject *self, PyObject *arg) {
                          st->has_background ? Py_True : Py_False);
 }
 
-/* backward()'s loss gradients (in) and the Gaussians' gradients (out). */
-static const arg_spec BACKWARD_ARGS[] = {
-    {"d_rgb", 'f', 3, {DIM_H, DIM_W, 3}, FINITE},
-    {"d_alpha", 'f', 2, {DIM_H, DIM_W}, OPTIONAL | FINITE},
-    {"d_depth", 'f', 2, {DIM_H, DIM_W}, OPTIONAL | FINITE},
-    {"out_means", 'f', 2, {DIM_N, 3}, WRITABLE},
-    {"out_log_scales", 'f', 2, {DIM_N, 3}, WRITABLE},
-    {"out_quats", 'f', 2, {DIM_N, 4}, WRITABLE},
-    {"out_opacity_logits", 'f', 1, {DIM_N}, WRITABLE},
-    {"out_sh", 'f', 3, {DIM_N, DIM_K, 3}, WRITABLE},
-    {"out_xy", 'f', 2, {DIM_N, 2}, WRITABLE},
-    {"out_xy_abs", 'f', 2, {DIM_N, 2}, WRITABLE},
-};
-
-static PyObject *py_backward(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *state_obj, *objs[5], *rest[COUNT(BACKWARD_ARGS)];
-    int threads;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOO&OOOOOOO:backward", &state_obj, &objs[0], &objs[1],
-                          &objs[2], &objs[3], &objs[4], &rest[0], &rest[1], &rest[2],
-                          parse_threads, &threads, &rest[3], &rest[4], &rest[5], &rest[6],
-                          &rest[7], &rest[8], &rest[9]))
-        return NULL;
-    const sc_train_state *state = get_state(state_obj);
+static PyObject *py_backward(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "backward");
+    const sc_train_state *state = get_state(object_of(&c, "state"));
     if (!state) return NULL;
-    if (threads < 0) {
-        PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
-        return NULL;
-    }
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
     sc_gaussians g;
-    if (parse_gaussians(&b, &d, objs, &g) != 0) goto fail;
+    if (parse_gaussians(&c, &g) != 0) return fail(&c);
     if (g.count != state->count || g.sh_coeffs != state->sh_coeffs) {
         PyErr_Format(PyExc_ValueError,
                      "the Gaussians (N=%lld, K=%d) are not those render_train drew (N=%lld, K=%d)",
                      (long long)g.count, g.sh_coeffs, (long long)state->count, state->sh_coeffs);
-        goto fail;
+        return fail(&c);
     }
-    SIZE(&d, DIM_H) = state->camera.height, SIZE(&d, DIM_W) = state->camera.width;
-    const Py_buffer *v[COUNT(BACKWARD_ARGS)];
-    if (check_args(&b, &d, BACKWARD_ARGS, COUNT(BACKWARD_ARGS), rest, v) != 0) goto fail;
-    const float *d_rgb = data(v[0]), *d_alpha = data(v[1]), *d_depth = data(v[2]);
-    sc_gaussian_grads out = {data(v[3]), data(v[4]), data(v[5]), data(v[6]), data(v[7]),
-                             data(v[8]), data(v[9])};
-
+    SIZE(&c.d, DIM_H) = state->camera.height, SIZE(&c.d, DIM_W) = state->camera.width;
+    if (check(&c, "d_rgb", "out_xy_abs") != 0) return fail(&c);
+    const float *d_rgb = data_of(&c, "d_rgb"), *d_alpha = data_of(&c, "d_alpha"),
+                *d_depth = data_of(&c, "d_depth");
+    sc_gaussian_grads out = {data_of(&c, "out_means"), data_of(&c, "out_log_scales"),
+                             data_of(&c, "out_quats"), data_of(&c, "out_opacity_logits"),
+                             data_of(&c, "out_sh"), data_of(&c, "out_xy"),
+                             data_of(&c, "out_xy_abs")};
+    const int threads = threads_of(&c);
     sc_backward_stats stats = {0};
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
-    status = sc_backward(state, &g, d_rgb, d_alpha, d_depth, threads ? threads : sc_cpu_count(),
-                         &out, &stats);
+    status = sc_backward(state, &g, d_rgb, d_alpha, d_depth, threads, &out, &stats);
     Py_END_ALLOW_THREADS
     if (status != SC_OK) {
         sc_stats s = {.error_index = stats.error_index};
         raise_status(status, &g, &s);
-        goto fail;
+        return fail(&c);
     }
-    release_all(&b);
-    return Py_BuildValue("{s:d,s:d,s:d,s:L,s:L}", "ms_composite", stats.ms_composite,
-                         "ms_project", stats.ms_project, "ms_total", stats.ms_total,
-                         "evaluations", (long long)stats.evaluations, "flushed",
-                         (long long)stats.flushed);
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, Py_BuildValue("{s:d,s:d,s:d,s:L,s:L}", "ms_composite", stats.ms_composite,
+                                    "ms_project", stats.ms_project, "ms_total", stats.ms_total,
+                                    "evaluations", (long long)stats.evaluations, "flushed",
+                                    (long long)stats.flushed));
 }
 
-static const arg_spec L1_SSIM_ARGS[] = {
-    {"image", 'f', 3, {DIM_H, DIM_W, 3}, FINITE},
-    {"target", 'f', 3, {DIM_H, DIM_W, 3}, FINITE},
-    {"out_grad", 'f', 3, {DIM_H, DIM_W, 3}, WRITABLE | OPTIONAL},
-};
-
-static PyObject *py_l1_ssim(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *image_obj, *target_obj, *grad_obj;
-    double lambda;
-    int threads;
-    if (!PyArg_ParseTuple(args, "OOdO&O:l1_ssim", &image_obj, &target_obj, &lambda, parse_threads, &threads,
-                          &grad_obj))
-        return NULL;
-    if (!(lambda >= 0.0 && lambda <= 1.0)) {
-        value_error("lambda_dssim must be in [0, 1], got %g", lambda);
-        return NULL;
-    }
-    if (threads < 0) {
-        PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
-        return NULL;
-    }
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    PyObject *objs[] = {image_obj, target_obj, grad_obj};
-    const Py_buffer *v[COUNT(L1_SSIM_ARGS)];
-    if (check_args(&b, &d, L1_SSIM_ARGS, 1, objs, v) != 0) goto fail;
-    const Py_ssize_t height = SIZE(&d, DIM_H), width = SIZE(&d, DIM_W);
+static PyObject *py_l1_ssim(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "l1_ssim");
+    const double lambda = real_of(&c, "lambda_dssim");
+    if (!(lambda >= 0.0 && lambda <= 1.0))
+        return value_error("lambda_dssim must be in [0, 1], got %g", lambda), NULL;
+    if (check(&c, "image", "image") != 0) return fail(&c);
+    const Py_ssize_t height = SIZE(&c.d, DIM_H), width = SIZE(&c.d, DIM_W);
     if (height < 1 || width < 1 || height > MAX_SIDE || width > MAX_SIDE ||
         (long long)width * height > MAX_PIXELS) {
         PyErr_Format(PyExc_ValueError,
                      "image size %zdx%zd is invalid: sides must be 1..%d and at most %lld pixels",
                      width, height, (int)MAX_SIDE, MAX_PIXELS);
-        goto fail;
+        return fail(&c);
     }
-    if (check_args(&b, &d, L1_SSIM_ARGS + 1, COUNT(L1_SSIM_ARGS) - 1, objs + 1, v + 1) != 0)
-        goto fail;
-    const float *image = data(v[0]), *target = data(v[1]);
-    float *grad = data(v[2]);
+    if (check(&c, "target", "out_grad") != 0) return fail(&c);
+    const float *image = data_of(&c, "image"), *target = data_of(&c, "target");
+    float *grad = data_of(&c, "out_grad");
+    const int threads = threads_of(&c);
     double loss = 0, l1 = 0, ssim = 0, mse = 0;
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
-    status = sc_l1_ssim(image, target, (int)width, (int)height, lambda,
-                        threads ? threads : sc_cpu_count(), grad, &loss, &l1, &ssim, &mse);
+    status = sc_l1_ssim(image, target, (int)width, (int)height, lambda, threads, grad, &loss, &l1,
+                        &ssim, &mse);
     Py_END_ALLOW_THREADS
-    release_all(&b);
-    if (status != SC_OK) return PyErr_NoMemory();
-    return Py_BuildValue("(dddd)", loss, l1, ssim, mse);
-fail:
-    release_all(&b);
-    return NULL;
+    if (status != SC_OK) return PyErr_NoMemory(), fail(&c);
+    return finish(&c, Py_BuildValue("(dddd)", loss, l1, ssim, mse));
 }
 
-/* adam()'s arrays: param of any shape, its gradient and moments of the same, the row mask. Every
- * value of grad is checked, those the update skips too: one flat pass is faster than a pass per
- * row. */
-static const arg_spec ADAM_ARGS[] = {
-    {"param", 'f', 0, {0}, ANY_RANK | WRITABLE},
-    {"grad", 'f', 0, {0}, LIKE | FINITE},
-    {"exp_avg", 'f', 0, {0}, LIKE | WRITABLE},
-    {"exp_avg_sq", 'f', 0, {0}, LIKE | WRITABLE},
-    {"rows", 'B', 1, {DIM_ROWS}, OPTIONAL},
-};
-
-static PyObject *py_adam(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *objs[4], *mask_obj = Py_None;
-    sc_adam_options o;
-    long long step, lead = 0, used = -1;
-    double lead_lr = NAN;
-    int threads;
-    if (!PyArg_ParseTuple(args, "OOOOddddLO&|OLdL:adam", &objs[0], &objs[1], &objs[2], &objs[3],
-                          &o.lr, &o.beta1, &o.beta2, &o.eps, &step, parse_threads, &threads,
-                          &mask_obj, &lead, &lead_lr, &used))
-        return NULL;
-    o.step = step;
-    if (isnan(lead_lr)) lead_lr = o.lr;
+static PyObject *py_adam(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "adam");
+    sc_adam_options o = {.lr = real_of(&c, "lr"), .beta1 = real_of(&c, "beta1"),
+                         .beta2 = real_of(&c, "beta2"), .eps = real_of(&c, "eps"),
+                         .step = int_of(&c, "step")};
+    const double lead_lr = isnan(real_of(&c, "lead_lr")) ? o.lr : real_of(&c, "lead_lr");
+    long long used = int_of(&c, "used");
+    const long long lead = int_of(&c, "lead");
     if (!isfinite(o.lr) || o.lr < 0) return value_error("lr must be finite and >= 0, got %g", o.lr), NULL;
     if (!isfinite(lead_lr) || lead_lr < 0)
         return value_error("lead_lr must be finite and >= 0, got %g", lead_lr), NULL;
@@ -851,126 +892,80 @@ static PyObject *py_adam(PyObject *self, PyObject *args) {
         return value_error("beta1 and beta2 must be in [0, 1), got %g, %g", o.beta1, o.beta2), NULL;
     if (!(o.eps > 0) || !isfinite(o.eps))
         return value_error("eps must be finite and > 0, got %g", o.eps), NULL;
-    if (step < 1) return PyErr_Format(PyExc_ValueError, "step must be >= 1 (the first update is 1), got %lld", step);
-    if (threads < 0)
-        return PyErr_Format(PyExc_ValueError, "threads must be >= 0 (0 = all cores), got %d", threads);
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    const Py_buffer *views[COUNT(ADAM_ARGS)];
-    if (check_args(&b, &d, ADAM_ARGS, 4, objs, views) != 0) goto fail;
-    const Py_buffer *like = views[0];
+    if (o.step < 1)
+        return PyErr_Format(PyExc_ValueError, "step must be >= 1 (the first update is 1), got %lld",
+                            (long long)o.step);
+    if (check(&c, "param", "exp_avg_sq") != 0) return fail(&c);
+    const Py_buffer *like = view_of(&c, "param");
     const int64_t n = (int64_t)(like->len / 4);
     /* Rows along the first axis (a 0-d array is one row). */
     const int64_t rows = like->ndim > 0 ? (int64_t)like->shape[0] : 1;
     const int64_t width = rows > 0 ? n / rows : 0;
-    SIZE(&d, DIM_ROWS) = (Py_ssize_t)rows;
-    if (check_args(&b, &d, ADAM_ARGS + 4, 1, &mask_obj, views + 4) != 0) goto fail;
-    float *param = data(views[0]), *m = data(views[2]), *v = data(views[3]);
-    const float *grad = data(views[1]);
-    const uint8_t *mask = data(views[4]);
+    SIZE(&c.d, DIM_ROWS) = (Py_ssize_t)rows;
+    if (check(&c, "rows", "rows") != 0) return fail(&c);
+    float *param = data_of(&c, "param"), *m = data_of(&c, "exp_avg"), *v = data_of(&c, "exp_avg_sq");
+    const float *grad = data_of(&c, "grad");
+    const uint8_t *mask = data_of(&c, "rows");
     if (used < 0) used = width;
     if (used > width) {
         PyErr_Format(PyExc_ValueError, "used must be in 0..%lld (the values in a row), got %lld",
                      (long long)width, used);
-        goto fail;
+        return fail(&c);
     }
     if (lead < 0 || lead > used) {
         PyErr_Format(PyExc_ValueError, "lead must be in 0..%lld (the values in a row updated), "
                      "got %lld", (long long)used, lead);
-        goto fail;
+        return fail(&c);
     }
+    const int threads = threads_of(&c);
     Py_BEGIN_ALLOW_THREADS
-    sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, used, &o,
-                 threads ? threads : sc_cpu_count());
+    sc_adam_rows(param, grad, m, v, rows, width, mask, lead, lead_lr, used, &o, threads);
     Py_END_ALLOW_THREADS
-    release_all(&b);
-    Py_RETURN_NONE;
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, Py_NewRef(Py_None));
 }
 
-/* position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads): see
- * sc_position_noise. float32 parameters (means writable) of N rows, noise (N, 3) float64. */
-static const arg_spec POSITION_NOISE_ARGS[] = {
-    {"means", 'f', 2, {DIM_N, 3}, WRITABLE},
-    {"log_scales", 'f', 2, {DIM_N, 3}, 0},
-    {"quats", 'f', 2, {DIM_N, 4}, 0},
-    {"opacity_logits", 'f', 1, {DIM_N}, 0},
-    {"noise", 'd', 2, {DIM_N, 3}, 0},
-};
-
-static PyObject *py_position_noise(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *objs[5];
-    double scale;
-    int threads;
-    if (!PyArg_ParseTuple(args, "OOOOOdO&:position_noise", &objs[0], &objs[1], &objs[2],
-                          &objs[3], &objs[4], &scale, parse_threads, &threads))
-        return NULL;
+static PyObject *py_position_noise(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "position_noise");
+    const double scale = real_of(&c, "scale");
     if (!isfinite(scale)) return value_error("scale must be finite, got %g", scale), NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    const Py_buffer *v[COUNT(POSITION_NOISE_ARGS)];
-    if (check_args(&b, &d, POSITION_NOISE_ARGS, COUNT(POSITION_NOISE_ARGS), objs, v) != 0)
-        goto fail;
-    const Py_ssize_t n = SIZE(&d, DIM_N);
-    float *means = data(v[0]);
-    const float *log_scales = data(v[1]), *quats = data(v[2]), *logits = data(v[3]);
-    const double *noise = data(v[4]);
+    if (check(&c, "means", "noise") != 0) return fail(&c);
+    const Py_ssize_t n = SIZE(&c.d, DIM_N);
+    float *means = data_of(&c, "means");
+    const float *log_scales = data_of(&c, "log_scales"), *quats = data_of(&c, "quats"),
+                *logits = data_of(&c, "opacity_logits");
+    const double *noise = data_of(&c, "noise");
+    const int threads = threads_of(&c);
     Py_BEGIN_ALLOW_THREADS
-    sc_position_noise(means, log_scales, quats, logits, noise, n, scale,
-                      threads ? threads : sc_cpu_count());
+    sc_position_noise(means, log_scales, quats, logits, noise, n, scale, threads);
     Py_END_ALLOW_THREADS
-    release_all(&b);
-    Py_RETURN_NONE;
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, Py_NewRef(Py_None));
 }
 
-/* srgb_premultiplied(src, dst, decode, threads): see sc_srgb_premultiplied. Both float32,
- * C-contiguous, of one shape (..., 4); dst writable and either src itself or not overlapping it. */
-static const arg_spec SRGB_PREMULTIPLIED_ARGS[] = {
-    {"rgba", 'f', 0, {0}, ANY_RANK},
-    {"out", 'f', 0, {0}, LIKE | WRITABLE},
-};
+/* ---------------------------------------------------------------- colour */
 
-static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *src_obj, *dst_obj;
-    int decode, threads;
-    if (!PyArg_ParseTuple(args, "OOpO&:srgb_premultiplied", &src_obj, &dst_obj, &decode,
-                          parse_threads, &threads))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims dims = ARG_DIMS_INIT;
-    PyObject *objs[] = {src_obj, dst_obj};
-    const Py_buffer *v[COUNT(SRGB_PREMULTIPLIED_ARGS)];
-    if (check_args(&b, &dims, SRGB_PREMULTIPLIED_ARGS, 1, objs, v) != 0) goto fail;
-    const Py_buffer *like = v[0];
+static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "srgb_premultiplied");
+    if (check(&c, "rgba", "rgba") != 0) return fail(&c);
+    const Py_buffer *like = view_of(&c, "rgba");
     const int64_t n = (int64_t)(like->len / 4);
     if (like->ndim < 1 || like->shape[like->ndim - 1] != 4) {
         PyErr_Format(PyExc_ValueError, "rgba must have shape (..., 4), got %d dimensions ending in %zd",
                      like->ndim, like->ndim ? like->shape[like->ndim - 1] : (Py_ssize_t)0);
-        goto fail;
+        return fail(&c);
     }
-    if (check_args(&b, &dims, SRGB_PREMULTIPLIED_ARGS + 1, 1, objs + 1, v + 1) != 0) goto fail;
-    const float *src = data(v[0]);
-    float *dst = data(v[1]);
+    if (check(&c, "out", "out") != 0) return fail(&c);
+    const float *src = data_of(&c, "rgba");
+    float *dst = data_of(&c, "out");
     const char *a = (const char *)src, *d = (const char *)dst;
     if (a != d && a < d + 4 * n && d < a + 4 * n) {
         PyErr_SetString(PyExc_ValueError, "out must be rgba itself or not overlap it");
-        goto fail;
+        return fail(&c);
     }
+    const int decode = (int)int_of(&c, "decode"), threads = threads_of(&c);
     Py_BEGIN_ALLOW_THREADS
-    sc_srgb_premultiplied(src, dst, n / 4, decode, threads ? threads : sc_cpu_count());
+    sc_srgb_premultiplied(src, dst, n / 4, decode, threads);
     Py_END_ALLOW_THREADS
-    release_all(&b);
-    Py_RETURN_NONE;
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, Py_NewRef(Py_None));
 }
 
 /* A checked (H, W, 4) float32 view with any strides as an sc_rgba_view. */
@@ -1011,87 +1006,64 @@ static int same_view(const Py_buffer *a, const Py_buffer *b) {
     return 1;
 }
 
-/* srgb_view(rgba, out, decode, zero_non_finite, threads): see sc_srgb_view. (H, W, 4) float32
- * arrays of one shape with any strides; out writable, rgba itself or not overlapping it. */
-static const arg_spec SRGB_VIEW_ARGS[] = {
-    {"rgba", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED},
-    {"out", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED | WRITABLE},
-};
-
-static PyObject *py_srgb_view(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *src_obj, *dst_obj;
-    int decode, zero_non_finite, threads;
-    if (!PyArg_ParseTuple(args, "OOppO&:srgb_view", &src_obj, &dst_obj, &decode, &zero_non_finite,
-                          parse_threads, &threads))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    PyObject *objs[] = {src_obj, dst_obj};
-    const Py_buffer *v[COUNT(SRGB_VIEW_ARGS)];
-    if (check_args(&b, &d, SRGB_VIEW_ARGS, COUNT(SRGB_VIEW_ARGS), objs, v) != 0) goto fail;
-    const sc_rgba_view src = rgba_view(v[0]), dst = rgba_view(v[1]);
-    if (!same_view(&b.views[0], &b.views[1]) && overlap(&b.views[0], &b.views[1])) {
+static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "srgb_view");
+    if (check(&c, "rgba", "out") != 0) return fail(&c);
+    const Py_buffer *src_view = view_of(&c, "rgba"), *dst_view = view_of(&c, "out");
+    if (!same_view(src_view, dst_view) && overlap(src_view, dst_view)) {
         PyErr_SetString(PyExc_ValueError, "out must be rgba itself or not overlap it");
-        goto fail;
+        return fail(&c);
     }
+    const sc_rgba_view src = rgba_view(src_view), dst = rgba_view(dst_view);
+    const int decode = (int)int_of(&c, "decode"), zero = (int)int_of(&c, "zero_non_finite");
+    const int threads = threads_of(&c);
     Py_BEGIN_ALLOW_THREADS
-    sc_srgb_view(&src, &dst, decode, zero_non_finite, threads ? threads : sc_cpu_count());
+    sc_srgb_view(&src, &dst, decode, zero, threads);
     Py_END_ALLOW_THREADS
-    release_all(&b);
-    Py_RETURN_NONE;
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, Py_NewRef(Py_None));
 }
 
-/* srgb_decode_changed(rgb, alpha, mesh, layer, threads, out=layer): see sc_srgb_decode_changed.
- * float32 (H, W, 3), (H, W), (H, W, 4), (H, W, 4) C-contiguous but mesh (any strides); out
- * (H, W, 4) writable, any strides, layer itself or not overlapping it, overlapping none of the
- * others. */
-static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *objs[4], *out_obj = Py_None;
-    int threads;
-    if (!PyArg_ParseTuple(args, "OOOOO&|O:srgb_decode_changed", &objs[0], &objs[1], &objs[2],
-                          &objs[3], parse_threads, &threads, &out_obj))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    const int in_place = out_obj == Py_None;
-    /* In place, layer is checked twice: C-contiguous (read), then as a writable view. */
-    const arg_spec specs[] = {
-        {"rgb", 'f', 3, {DIM_H, DIM_W, 3}, 0},
-        {"alpha", 'f', 2, {DIM_H, DIM_W}, 0},
-        {"mesh", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED},
-        {"layer", 'f', 3, {DIM_H, DIM_W, 4}, in_place ? WRITABLE : 0},
-        {in_place ? "layer" : "out", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED | WRITABLE},
-    };
-    PyObject *const all[] = {objs[0], objs[1], objs[2], objs[3], in_place ? objs[3] : out_obj};
-    const Py_buffer *v[COUNT(specs)];
-    if (check_args(&b, &d, specs, COUNT(specs), all, v) != 0) goto fail;
-    const float *rgb = data(v[0]), *alpha = data(v[1]), *layer = data(v[3]);
-    const sc_rgba_view mesh = rgba_view(v[2]), out = rgba_view(v[4]);
-    const Py_buffer *out_view = &b.views[4];
+static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "srgb_decode_changed");
+    const int out_at = index_of(c.sig, "out"), layer_at = index_of(c.sig, "layer");
+    const int in_place = c.objs[out_at] == NULL || c.objs[out_at] == Py_None;
+    if (check(&c, "rgb", "mesh") != 0) return fail(&c);
+    if (in_place) {
+        /* layer is checked twice: C-contiguous and writable (read), then as the output view. */
+        arg_spec layer = c.sig->params[layer_at], out = c.sig->params[out_at];
+        layer.flags |= WRITABLE;
+        out.name = "layer";
+        out.flags &= ~(OPTIONAL | DEFAULTED);
+        PyObject *obj = c.objs[layer_at];
+        if (check_args(&c.b, &c.d, &layer, 1, &obj, &c.views[layer_at]) != 0 ||
+            check_args(&c.b, &c.d, &out, 1, &obj, &c.views[out_at]) != 0)
+            return fail(&c);
+    } else if (check(&c, "layer", "out") != 0) {
+        return fail(&c);
+    }
+    const Py_buffer *out_view = c.views[out_at];
+    const char *const inputs[] = {"rgb", "alpha", "mesh"};
     for (int i = 0; i < 3; ++i)
-        if (overlap(out_view, &b.views[i])) {
+        if (overlap(out_view, view_of(&c, inputs[i]))) {
             PyErr_Format(PyExc_ValueError, "%s must not overlap rgb, alpha or mesh",
                          in_place ? "layer" : "out");
-            goto fail;
+            return fail(&c);
         }
-    if (!same_view(out_view, &b.views[3]) && overlap(out_view, &b.views[3])) {
+    if (!same_view(out_view, c.views[layer_at]) && overlap(out_view, c.views[layer_at])) {
         PyErr_SetString(PyExc_ValueError, "out must be layer itself or not overlap it");
-        goto fail;
+        return fail(&c);
     }
+    const float *rgb = data_of(&c, "rgb"), *alpha = data_of(&c, "alpha");
+    const float *layer = data(c.views[layer_at]);
+    const sc_rgba_view mesh = rgba_view(view_of(&c, "mesh")), out = rgba_view(out_view);
+    const int threads = threads_of(&c);
     Py_BEGIN_ALLOW_THREADS
-    sc_srgb_decode_changed(rgb, alpha, &mesh, layer, &out, threads ? threads : sc_cpu_count());
+    sc_srgb_decode_changed(rgb, alpha, &mesh, layer, &out, threads);
     Py_END_ALLOW_THREADS
-    release_all(&b);
-    Py_RETURN_NONE;
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, Py_NewRef(Py_None));
 }
+
+/* ---------------------------------------------------------------- F12's composite */
 
 static const char PREPARED_NAME[] = "splatcore.Prepared";
 
@@ -1104,41 +1076,23 @@ static void prepared_destructor(PyObject *capsule) {
     sc_prepared_free(p);
 }
 
-/* compose_prepare(means, ..., sh_degree, world_to_camera, intrinsics, width, height, near,
- * antialiased, threads[, exhaustive]) -> (prepared, stats): see sc_compose_prepare. The
- * Gaussians' arrays are not kept (the prepared frame holds its own copies). */
-static PyObject *py_compose_prepare(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *objs[7];
-    int sh_degree, width, height, antialiased, threads, exhaustive = 0;
-    double near;
-    if (!PyArg_ParseTuple(args, "OOOOOiOOiidpO&|p:compose_prepare", &objs[0], &objs[1], &objs[2],
-                          &objs[3], &objs[4], &sh_degree, &objs[5], &objs[6], &width, &height,
-                          &near, &antialiased, parse_threads, &threads, &exhaustive))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
+/* compose_prepare -> (prepared, stats): see sc_compose_prepare. The Gaussians' arrays are not
+ * kept (the prepared frame holds its own copies). */
+static PyObject *py_compose_prepare(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "compose_prepare");
     sc_gaussians g;
     sc_camera cam;
     sc_options opt;
-    if (parse_common(&b, &d, objs, sh_degree, width, height, near, antialiased, threads, &g, &cam,
-                     &opt) != 0) {
-        release_all(&b);
-        return NULL;
-    }
-    opt.exhaustive = exhaustive;
+    if (parse_common(&c, &g, &cam, &opt) != 0) return fail(&c);
+    opt.exhaustive = (int)int_of(&c, "exhaustive");
     sc_stats stats = {0};
     sc_prepared *prepared = NULL;
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
     status = sc_compose_prepare(&g, &cam, &opt, &prepared, &stats);
     Py_END_ALLOW_THREADS
-    if (status != SC_OK) {
-        PyObject *error = raise_status(status, &g, &stats);
-        release_all(&b);
-        return error;
-    }
-    release_all(&b);
+    if (status != SC_OK) return finish(&c, raise_status(status, &g, &stats));
+    finish(&c, NULL);
     PyObject *capsule = PyCapsule_New(prepared, PREPARED_NAME, prepared_destructor);
     if (!capsule) {
         sc_prepared_free(prepared);
@@ -1152,24 +1106,10 @@ static PyObject *py_compose_prepare(PyObject *self, PyObject *args) {
     return Py_BuildValue("(NN)", capsule, dict);
 }
 
-/* compose_srgb(prepared, mesh, mesh_depth, out, out_depth, far) -> stats: see sc_compose_srgb.
- * mesh (H, W, 4) and mesh_depth (H, W) float32, any strides, of the prepared camera's size; out
- * (H, W, 4) writable, any strides, overlapping none of the others; out_depth (H, W) float32
- * C-contiguous, writable, overlapping neither mesh nor mesh_depth, or None (no depth). */
-static const arg_spec COMPOSE_SRGB_ARGS[] = {
-    {"mesh_rgba", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED},
-    {"mesh_depth", 'f', 2, {DIM_H, DIM_W}, STRIDED},
-    {"out", 'f', 3, {DIM_H, DIM_W, 4}, STRIDED | WRITABLE},
-    {"out_depth", 'f', 2, {DIM_H, DIM_W}, WRITABLE | OPTIONAL},
-};
-
-static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *capsule, *mesh_obj, *depth_obj, *out_obj, *out_depth_obj;
-    double far;
-    if (!PyArg_ParseTuple(args, "OOOOOd:compose_srgb", &capsule, &mesh_obj, &depth_obj, &out_obj,
-                          &out_depth_obj, &far))
-        return NULL;
+/* compose_srgb -> stats: see sc_compose_srgb (the arrays: COMPOSE_SRGB in bindings.h). */
+static PyObject *py_compose_srgb(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "compose_srgb");
+    PyObject *capsule = object_of(&c, "prepared");
     if (!PyCapsule_IsValid(capsule, PREPARED_NAME)) {
         PyErr_SetString(PyExc_TypeError, "prepared must be what compose_prepare returned");
         return NULL;
@@ -1177,27 +1117,24 @@ static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
     const sc_prepared *prepared = PyCapsule_GetPointer(capsule, PREPARED_NAME);
     int width, height;
     sc_prepared_size(prepared, &width, &height);
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    SIZE(&d, DIM_H) = height, SIZE(&d, DIM_W) = width;
-    PyObject *objs[] = {mesh_obj, depth_obj, out_obj, out_depth_obj};
-    const Py_buffer *v[COUNT(COMPOSE_SRGB_ARGS)];
-    if (check_args(&b, &d, COMPOSE_SRGB_ARGS, COUNT(COMPOSE_SRGB_ARGS), objs, v) != 0) goto fail;
-    const sc_rgba_view mesh = rgba_view(v[0]), out = rgba_view(v[2]);
-    const sc_plane_view mesh_depth = plane_view(v[1]);
-    float *out_depth = data(v[3]);
-    for (int i = 0; i < b.count; ++i)
-        for (int k = i + 1; k < b.count; ++k)
+    SIZE(&c.d, DIM_H) = height, SIZE(&c.d, DIM_W) = width;
+    if (check(&c, "mesh_rgba", "out_depth") != 0) return fail(&c);
+    const sc_rgba_view mesh = rgba_view(view_of(&c, "mesh_rgba")), out = rgba_view(view_of(&c, "out"));
+    const sc_plane_view mesh_depth = plane_view(view_of(&c, "mesh_depth"));
+    float *out_depth = data_of(&c, "out_depth");
+    for (int i = 0; i < c.b.count; ++i)
+        for (int k = i + 1; k < c.b.count; ++k)
             if (i != 0 || k != 1) /* the two inputs may share a buffer */
-                if (overlap(&b.views[i], &b.views[k])) {
+                if (overlap(&c.b.views[i], &c.b.views[k])) {
                     PyErr_SetString(PyExc_ValueError,
                                     "out and out_depth must overlap neither each other nor the "
                                     "mesh layers");
-                    goto fail;
+                    return fail(&c);
                 }
+    const double far = real_of(&c, "far");
     if (!isfinite(far)) {
         PyErr_SetString(PyExc_ValueError, "far must be finite");
-        goto fail;
+        return fail(&c);
     }
     sc_stats stats = {0};
     double colour_ms = 0.0;
@@ -1209,11 +1146,7 @@ static PyObject *py_compose_srgb(PyObject *self, PyObject *args) {
     PyObject *result = status == SC_OK ? stats_dict(&stats) : raise_status(status, NULL, &stats);
     if (result && set_number(result, "ms_colour_cpu", PyFloat_FromDouble(colour_ms)) != 0)
         Py_CLEAR(result);
-    release_all(&b);
-    return result;
-fail:
-    release_all(&b);
-    return NULL;
+    return finish(&c, result);
 }
 
 /* checksum(buffer) -> (lane0, lane1, lane2, lane3): see sc_checksum. Any C-contiguous buffer. */
@@ -1234,10 +1167,9 @@ static PyObject *py_checksum(PyObject *self, PyObject *arg) {
                          (unsigned long long)lanes[2], (unsigned long long)lanes[3]);
 }
 
-static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
-    (void)self;
-    int count, iterations;
-    if (!PyArg_ParseTuple(args, "ii:composite_microbench", &count, &iterations)) return NULL;
+static PyObject *py_composite_microbench(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "composite_microbench");
+    const int count = (int)int_of(&c, "count"), iterations = (int)int_of(&c, "iterations");
     if (count < 1 || count > 4096 || iterations < 1) {
         PyErr_SetString(PyExc_ValueError, "count must be 1..4096 and iterations >= 1");
         return NULL;
@@ -1249,51 +1181,31 @@ static PyObject *py_composite_microbench(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(seconds);
 }
 
-/* sort_keys(keys, threads, out_order) -> count of keys not +inf: see sc_sort_keys. keys float32 (N,),
- * out_order int32 (N,) writable. */
-static const arg_spec SORT_KEYS_ARGS[] = {
-    {"keys", 'f', 1, {DIM_ROWS}, 0},
-    {"out_order", 'i', 1, {DIM_ROWS}, WRITABLE},
-};
-
-static PyObject *py_sort_keys(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *keys_obj, *order_obj;
-    int threads;
-    if (!PyArg_ParseTuple(args, "OO&O:sort_keys", &keys_obj, parse_threads, &threads, &order_obj))
-        return NULL;
-    buffers b = {.count = 0};
-    arg_dims d = ARG_DIMS_INIT;
-    PyObject *objs[] = {keys_obj, order_obj};
-    const Py_buffer *v[COUNT(SORT_KEYS_ARGS)];
-    if (check_args(&b, &d, SORT_KEYS_ARGS, 1, objs, v) != 0) goto fail;
-    const Py_ssize_t n = SIZE(&d, DIM_ROWS);
+/* sort_keys -> count of keys not +inf: see sc_sort_keys. */
+static PyObject *py_sort_keys(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "sort_keys");
+    if (check(&c, "keys", "keys") != 0) return fail(&c);
+    const Py_ssize_t n = SIZE(&c.d, DIM_ROWS);
     if (n > MAX_GAUSSIANS) {
         PyErr_Format(PyExc_ValueError, "at most %lld keys, got %zd", MAX_GAUSSIANS, n);
-        goto fail;
+        return fail(&c);
     }
-    if (check_args(&b, &d, SORT_KEYS_ARGS + 1, 1, objs + 1, v + 1) != 0) goto fail;
-    const float *keys = data(v[0]);
-    int32_t *order = data(v[1]);
+    if (check(&c, "out_order", "out_order") != 0) return fail(&c);
+    const float *keys = data_of(&c, "keys");
+    int32_t *order = data_of(&c, "out_order");
+    const int threads = threads_of(&c);
     sc_stats stats = {0};
     int64_t finite = 0;
     sc_status status;
     Py_BEGIN_ALLOW_THREADS
-    status = sc_sort_keys(keys, n, threads ? threads : sc_cpu_count(), order, &finite, &stats);
+    status = sc_sort_keys(keys, n, threads, order, &finite, &stats);
     Py_END_ALLOW_THREADS
     if (status == SC_ERR_NONFINITE) {
         PyErr_Format(PyExc_ValueError, "key %lld is NaN", (long long)stats.error_index);
-        goto fail;
+        return fail(&c);
     }
-    if (status != SC_OK) {
-        PyErr_NoMemory();
-        goto fail;
-    }
-    release_all(&b);
-    return PyLong_FromLongLong(finite);
-fail:
-    release_all(&b);
-    return NULL;
+    if (status != SC_OK) return PyErr_NoMemory(), fail(&c);
+    return finish(&c, PyLong_FromLongLong(finite));
 }
 
 static PyObject *py_release_buffers(PyObject *self, PyObject *args) {
@@ -1307,87 +1219,119 @@ static PyObject *py_cpu_count(PyObject *self, PyObject *args) {
     return PyLong_FromLong(sc_cpu_count());
 }
 
+/* What an argument is, in words: "float32 array (N, 3)", "int", "threads", ... */
+static PyObject *describe(const arg_spec *s) {
+    static const char *const kinds[] = {"array", "int", "int", "float", "bool", "threads", "object"};
+    if (s->kind != ARRAY) return PyUnicode_FromString(kinds[s->kind]);
+    char shape[64] = "";
+    if (s->flags & (ANY_RANK | LIKE)) {
+        snprintf(shape, sizeof shape, "%s", s->flags & LIKE ? "(like the array before)" : "(any)");
+    } else {
+        for (int k = 0; k < s->ndim; ++k) {
+            const size_t at = strlen(shape);
+            const Py_ssize_t want = s->shape[k];
+            if (want >= 0) snprintf(shape + at, sizeof shape - at, "%s%zd", k ? ", " : "(", want);
+            else if (want == ANY) snprintf(shape + at, sizeof shape - at, "%s*", k ? ", " : "(");
+            else snprintf(shape + at, sizeof shape - at, "%s%c", k ? ", " : "(", DIM_LETTER[-2 - want]);
+        }
+        strncat(shape, s->ndim == 1 ? ",)" : ")", sizeof shape - strlen(shape) - 1);
+    }
+    return PyUnicode_FromFormat("%s array %s%s%s", type_name(s->type), shape,
+                                s->flags & WRITABLE ? ", written" : "",
+                                s->flags & OPTIONAL ? ", or None" : "");
+}
+
+/* signature(name) -> ((argument, what it is, may be left out), ...) in call order. */
+static PyObject *py_signature(PyObject *self, PyObject *arg) {
+    (void)self;
+    const char *name = PyUnicode_AsUTF8AndSize(arg, NULL);
+    if (!name) return NULL;
+    for (int i = 0; i < COUNT(SIGNATURES); ++i) {
+        if (strcmp(SIGNATURES[i].name, name) != 0) continue;
+        const signature *sig = &SIGNATURES[i];
+        PyObject *result = PyTuple_New(sig->count);
+        for (int k = 0; result && k < sig->count; ++k) {
+            const arg_spec *s = &sig->params[k];
+            PyObject *item = Py_BuildValue("(sNO)", s->name, describe(s),
+                                           s->flags & DEFAULTED ? Py_True : Py_False);
+            if (!item || PyTuple_SetItem(result, k, item) != 0) Py_CLEAR(result);
+        }
+        return result;
+    }
+    return PyErr_Format(PyExc_ValueError, "splatcore has no entry point %R", arg);
+}
+
+/* The methods: METH_VARARGS | METH_KEYWORDS ones take their arguments by their table. */
+#define WITH_KEYWORDS(function) (PyCFunction)(void (*)(void))(function), METH_VARARGS | METH_KEYWORDS
+
+/* Each docstring says what the entry point does; its arguments are its table's
+ * (`splatcore.signature(name)`, bindings.h), by position or by name. */
 static PyMethodDef methods[] = {
-    {"project", py_project, METH_VARARGS,
-     "project(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
-     "intrinsics, width, height, near, antialiased, threads, out_xy, out_conic, out_depth, "
-     "out_opacity, out_rgb, out_valid)\n\nProject every Gaussian; fills the out_* arrays."},
-    {"render", py_render, METH_VARARGS,
-     "render(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
-     "intrinsics, width, height, near, antialiased, threads, background, mesh_rgba, mesh_depth, "
-     "out_rgb, out_alpha, out_depth[, exhaustive]) -> stats\n\nRender into the out_* arrays; "
-     "returns timings (ms) and counts. exhaustive: evaluate each Gaussian over its tiles' whole "
-     "bounding spans (the same image, for tests)."},
-    {"compose_prepare", py_compose_prepare, METH_VARARGS,
-     "compose_prepare(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
-     "intrinsics, width, height, near, antialiased, threads[, exhaustive]) -> (prepared, stats)"
-     "\n\nF12's composite, the Gaussians' half (sc_compose_prepare): projected, sorted and "
-     "binned for the camera; no mesh needed yet."},
-    {"compose_srgb", py_compose_srgb, METH_VARARGS,
-     "compose_srgb(prepared, mesh_rgba, mesh_depth, out, out_depth, far) -> stats\n\n"
-     "F12's composite (sc_compose_srgb): the prepared Gaussians over a scene-linear mesh render, "
-     "composed in display sRGB, into out (scene-linear) and out_depth (None: no depth); tiles "
-     "no Gaussian reaches keep the mesh's pixels."},
+    {"project", WITH_KEYWORDS(py_project),
+     "project(...) -> None\n\nProject every Gaussian; fills the out_* arrays."},
+    {"render", WITH_KEYWORDS(py_render),
+     "render(...) -> stats\n\nRender into the out_* arrays over the optional mesh layer and "
+     "background; returns timings (ms) and counts. exhaustive: evaluate each Gaussian over its "
+     "tiles' whole bounding spans (the same image, for tests)."},
+    {"compose_prepare", WITH_KEYWORDS(py_compose_prepare),
+     "compose_prepare(...) -> (prepared, stats)\n\nF12's composite, the Gaussians' half "
+     "(sc_compose_prepare): projected, sorted and binned for the camera; no mesh needed yet."},
+    {"compose_srgb", WITH_KEYWORDS(py_compose_srgb),
+     "compose_srgb(...) -> stats\n\nF12's composite (sc_compose_srgb): the prepared Gaussians "
+     "over a scene-linear mesh render, composed in display sRGB, into out (scene-linear) and "
+     "out_depth (None: no depth); tiles no Gaussian reaches keep the mesh's pixels."},
     {"checksum", py_checksum, METH_O,
      "checksum(buffer) -> tuple of four ints\n\nA 256-bit checksum of a C-contiguous buffer's "
      "bytes (sc_checksum): any change within 193 consecutive bits changes it."},
-    {"sort_keys", py_sort_keys, METH_VARARGS,
-     "sort_keys(keys, threads, out_order) -> int\n\nThe renderer's depth sort on its own (for "
-     "tests): out_order (int32, N) gets the stable ascending order of keys (float32, N; +inf "
-     "last, -0 before +0, no NaN); returns how many keys are not +inf."},
+    {"sort_keys", WITH_KEYWORDS(py_sort_keys),
+     "sort_keys(...) -> int\n\nThe renderer's depth sort on its own (for tests): out_order gets "
+     "the stable ascending order of keys (+inf last, -0 before +0, no NaN); returns how many "
+     "keys are not +inf."},
     {"release_buffers", py_release_buffers, METH_NOARGS,
      "release_buffers()\n\nFree the working buffers renders keep for the next frame."},
-    {"render_train", py_render_train, METH_VARARGS,
-     "render_train(means, log_scales, quats, opacity_logits, sh, sh_degree, world_to_camera, "
-     "intrinsics, width, height, near, antialiased, threads, background, out_rgb, out_alpha, "
-     "out_depth, out_final_t, out_n_contrib, out_visible[, exhaustive]) -> (stats, state)\n\n"
-     "The training forward: render (no mesh layer) into the out_* arrays, bit-identical to "
-     "render(); out_final_t (float32) and out_n_contrib (int32), (H, W) or None, get the "
-     "per-pixel final transmittance and n_contrib; out_visible (uint8, (N,) or None) 1 for each "
-     "Gaussian drawn (its footprint reaches a pixel). `state` is an opaque handle holding what "
-     "backward() needs. exhaustive: this forward and its backward run their slow twins (each "
-     "Gaussian over its tiles' whole spans; the projection backward one Gaussian at a time)."},
+    {"render_train", WITH_KEYWORDS(py_render_train),
+     "render_train(...) -> (stats, state)\n\nThe training forward: render (no mesh layer) into "
+     "the out_* arrays, bit-identical to render(); out_final_t and out_n_contrib get the "
+     "per-pixel final transmittance and n_contrib; out_visible 1 for each Gaussian drawn (its "
+     "footprint reaches a pixel). `state` is an opaque handle holding what backward() needs. "
+     "exhaustive: this forward and its backward run their slow twins (each Gaussian over its "
+     "tiles' whole spans; the projection backward one Gaussian at a time)."},
     {"train_state_info", py_train_state_info, METH_O,
      "train_state_info(state) -> dict: the image size, Gaussian count, options and counts of a "
      "training state."},
-    {"backward", py_backward, METH_VARARGS,
-     "backward(state, means, log_scales, quats, opacity_logits, sh, d_rgb, d_alpha, d_depth, "
-     "threads, out_means, out_log_scales, out_quats, out_opacity_logits, out_sh, out_xy, "
-     "out_xy_abs) -> stats\n\nGradients of a loss with dL/d(rgb) (H, W, 3), dL/d(alpha) and "
-     "dL/d(depth) (H, W) or None, w.r.t. the Gaussians render_train drew (the same arrays, "
-     "unchanged), into the out_* arrays (overwritten)."},
-    {"l1_ssim", py_l1_ssim, METH_VARARGS,
-     "l1_ssim(image, target, lambda_dssim, threads, out_grad) -> (loss, l1, ssim, mse)\n\n"
-     "(1 - lambda) L1 + lambda (1 - SSIM) of (H, W, 3) float32 images; dL/d(image) into "
-     "out_grad when it is not None; mse: of the image clamped to [0, 1] (PSNR's)."},
-    {"adam", py_adam, METH_VARARGS,
-     "adam(param, grad, exp_avg, exp_avg_sq, lr, beta1, beta2, eps, step, threads, rows=None, "
-     "lead=0, lead_lr=lr, used=-1)\n\n"
-     "One Adam step in place (torch.optim.Adam's formula); float32 arrays of one shape. rows: "
-     "uint8 (shape[0],) or None: rows where it is 0 are left as they are (moments too). The "
-     "first `lead` values of each row (along the first axis) step at lead_lr; only the first "
-     "`used` values of each row are updated (negative: all)."},
-    {"position_noise", py_position_noise, METH_VARARGS,
-     "position_noise(means, log_scales, quats, opacity_logits, noise, scale, threads)\n\n"
-     "3DGS-MCMC's noise on the means in place (sc_position_noise): float32 parameters of N "
-     "Gaussians (means writable), noise (N, 3) float64 standard normal."},
-    {"srgb_premultiplied", py_srgb_premultiplied, METH_VARARGS,
-     "srgb_premultiplied(rgba, out, decode, threads)\n\n"
-     "Premultiplied float32 RGBA (..., 4) scene-linear -> display sRGB (decode False) or back "
-     "(True), into out (rgba itself, or a C-contiguous float32 array of its shape)."},
-    {"srgb_view", py_srgb_view, METH_VARARGS,
-     "srgb_view(rgba, out, decode, zero_non_finite, threads)\n\n"
-     "srgb_premultiplied for (H, W, 4) float32 arrays with any strides; with zero_non_finite, "
-     "non-finite results become 0."},
-    {"srgb_decode_changed", py_srgb_decode_changed, METH_VARARGS,
-     "srgb_decode_changed(rgb, alpha, mesh, layer, threads, out=layer)\n\n"
-     "compose's way back: out (H, W, 4; by default layer, the display layer) gets the "
-     "scene-linear result: the composite (rgb, alpha) decoded where it differs from layer, "
-     "mesh's pixel (any strides) elsewhere."},
-    {"composite_microbench", py_composite_microbench, METH_VARARGS,
-     "composite_microbench(count, iterations) -> seconds for the compositor's inner loop over "
-     "one in-cache tile covered by `count` Gaussians."},
+    {"backward", WITH_KEYWORDS(py_backward),
+     "backward(...) -> stats\n\nGradients of a loss with dL/d(rgb), dL/d(alpha) and dL/d(depth) "
+     "(None: no such term) w.r.t. the Gaussians render_train drew (the same arrays, unchanged), "
+     "into the out_* arrays (overwritten)."},
+    {"l1_ssim", WITH_KEYWORDS(py_l1_ssim),
+     "l1_ssim(...) -> (loss, l1, ssim, mse)\n\n(1 - lambda) L1 + lambda (1 - SSIM) of two "
+     "images; dL/d(image) into out_grad when it is not None; mse: of the image clamped to "
+     "[0, 1] (PSNR's)."},
+    {"adam", WITH_KEYWORDS(py_adam),
+     "adam(...) -> None\n\nOne Adam step in place (torch.optim.Adam's formula). rows: rows "
+     "where it is 0 are left as they are (moments too). The first `lead` values of each row "
+     "(along the first axis) step at lead_lr; only the first `used` values of each row are "
+     "updated (negative: all)."},
+    {"position_noise", WITH_KEYWORDS(py_position_noise),
+     "position_noise(...) -> None\n\n3DGS-MCMC's noise on the means in place "
+     "(sc_position_noise), noise standard normal."},
+    {"srgb_premultiplied", WITH_KEYWORDS(py_srgb_premultiplied),
+     "srgb_premultiplied(...) -> None\n\nPremultiplied RGBA (..., 4) scene-linear -> display "
+     "sRGB (decode False) or back (True), into out (rgba itself, or an array of its shape)."},
+    {"srgb_view", WITH_KEYWORDS(py_srgb_view),
+     "srgb_view(...) -> None\n\nsrgb_premultiplied for (H, W, 4) arrays with any strides; "
+     "with zero_non_finite, non-finite results become 0."},
+    {"srgb_decode_changed", WITH_KEYWORDS(py_srgb_decode_changed),
+     "srgb_decode_changed(...) -> None\n\ncompose's way back: out (left out: layer, the display "
+     "layer) gets the scene-linear result: the composite (rgb, alpha) decoded where it differs "
+     "from layer, mesh's pixel elsewhere."},
+    {"composite_microbench", WITH_KEYWORDS(py_composite_microbench),
+     "composite_microbench(...) -> seconds for the compositor's inner loop over one in-cache "
+     "tile covered by `count` Gaussians, `iterations` times."},
     {"cpu_count", py_cpu_count, METH_NOARGS, "Cores this process may use."},
+    {"signature", py_signature, METH_O,
+     "signature(name) -> ((argument, what it is, may be left out), ...)\n\nThe arguments of "
+     "entry point `name` in call order, from the one table module.c parses them by."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from addon.blender import gather, splat_object
-from addon.blender.io import operators as io_operators
+from addon.blender.io import operators
 from addon.core import splat_io
 from addon.core.gaussians import Gaussians
 from addon.core.render.renderer import render
@@ -218,7 +218,7 @@ def test_bad_files_report_an_error_and_leave_the_scene_unchanged(rng, tmp_path, 
     assert bs.scene_state() == before
     assert bpy.context.active_object.name == "existing"
     with pytest.raises(splat_io.SplatFileError):
-        io_operators.import_splats(path)
+        operators.import_splats(path)
     assert bs.scene_state() == before
 
 

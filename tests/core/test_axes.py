@@ -1,4 +1,4 @@
-"""Forward / Up axis options of splat import and export (core.axes, io_operators)."""
+"""Forward / Up axis options of splat import and export (core.axes, blender.io.operators)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from bpy_extras.io_utils import axis_conversion
 
-from addon.blender.io import operators as io_operators
+from addon.blender.io import operators
 from addon.core import axes, splat_io
 from addon.core.formats import registry
 from scenes import random_gaussians
@@ -52,7 +52,7 @@ def _ground_normal(means: np.ndarray) -> np.ndarray:
 
 
 def test_playbot_stands_upright_with_default_axes(shared_data):
-    obj = io_operators.import_splats(shared_data / "splats" / "playbot_125k_sh2.ply")
+    obj = operators.import_splats(shared_data / "splats" / "playbot_125k_sh2.ply")
     world = np.array(obj.matrix_world, np.float64)
     means = bs.mesh_gaussians(obj).means.astype(np.float64) @ world[:3, :3].T + world[:3, 3]
     angle = np.degrees(np.arccos(np.clip(_ground_normal(means)[2], -1.0, 1.0)))
@@ -83,9 +83,9 @@ def test_export_axes_rotate_positions_and_sh(rng, tmp_path):
     g = random_gaussians(rng, 50, 3)
     source = tmp_path / "in.ply"
     splat_io.save(g, source)
-    obj = io_operators.import_splats(source, forward_axis="Y", up_axis="Z")  # identity
+    obj = operators.import_splats(source, forward_axis="Y", up_axis="Z")  # identity
     out = tmp_path / "out.ply"
-    io_operators.export_splats(obj, out, forward_axis="Z", up_axis="-Y")
+    operators.export_splats(obj, out, forward_axis="Z", up_axis="-Y")
     back = splat_io.load(out)
     m = axes.axis_matrix("Z", "-Y")  # file -> Blender
     assert np.allclose(back.means @ m.T, g.means, atol=1e-5)

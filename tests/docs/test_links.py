@@ -1,5 +1,6 @@
 """The README and docs/: every relative link resolves (the file, and the heading an anchor
-names); the README stays a short page for users (at most 250 lines, naming no issue or commit)."""
+names); the README stays a short page for users (at most 250 lines, naming no issue or commit).
+What the pages name in code spans (paths, modules) is checked by test_names.py."""
 
 from __future__ import annotations
 
@@ -69,63 +70,3 @@ def test_readme_is_short_and_names_no_issue_or_commit():
         for word in re.findall(r"\b[0-9a-f]{7,40}\b", line):
             assert not (re.search(r"\d", word) and re.search(r"[a-f]", word)), \
                 f"README.md:{number} names a commit ({word})"
-
-
-CODE_PATH = re.compile(r"`((?:addon|scripts|examples|tests|native)/[\w./*-]+)`")
-USER_PAGES = [ROOT / "README.md", *sorted((ROOT / "docs" / "guide").glob("*.md"))]
-
-
-def missing_code_paths(page: Path) -> list[str]:
-    """Repository paths a page names in code spans (`addon/core/sh.py`, `native/src/*.c`) that do
-    not exist: a file moved or renamed since the page was written."""
-    text = page.read_text(encoding="utf-8")
-    return [name for name in sorted(set(CODE_PATH.findall(text)))
-            if not any(ROOT.glob(name.rstrip("/")))]
-
-
-@pytest.mark.parametrize("page", USER_PAGES, ids=lambda p: str(p.relative_to(ROOT)))
-def test_code_paths_exist(page: Path):
-    assert missing_code_paths(page) == []
-
-
-def test_the_path_check_finds_moved_files(tmp_path: Path):
-    page = tmp_path / "a.md"
-    page.write_text("`addon/core/sh.py` `addon/core/no_such_module.py` `native/src/*.c`\n")
-    assert missing_code_paths(page) == ["addon/core/no_such_module.py"]
-
-
-DOTTED = re.compile(r"`(addon(?:\.\w+)+)")
-
-
-def missing_dotted_names(page: Path) -> list[str]:
-    """`addon.core.x.name` names a page gives that lead to no module (and, past the module, to no
-    top-level name defined in it)."""
-    missing = []
-    for dotted in sorted(set(DOTTED.findall(page.read_text(encoding="utf-8")))):
-        parts = dotted.split(".")
-        for n in range(len(parts), 0, -1):
-            base = ROOT.joinpath(*parts[:n])
-            module = base.with_suffix(".py") if base.with_suffix(".py").exists() else \
-                base / "__init__.py"
-            if module.exists():
-                break
-        rest = parts[n:]
-        defined = len(rest) == 1 and re.search(
-            rf"^(?:def|class)\s+{rest[0]}\b|^{rest[0]}\s*[:=]", module.read_text(encoding="utf-8"),
-            re.M)
-        if rest and (len(rest) > 1 or not defined):
-            missing.append(dotted)
-    return missing
-
-
-@pytest.mark.parametrize("page", USER_PAGES, ids=lambda p: str(p.relative_to(ROOT)))
-def test_dotted_names_exist(page: Path):
-    assert missing_dotted_names(page) == []
-
-
-def test_the_name_check_finds_moved_modules(tmp_path: Path):
-    page = tmp_path / "a.md"
-    page.write_text("`addon.core.render.composite.apply_shadow_catcher` `addon.core.sh` "
-                    "`addon.core.composite.apply_shadow_catcher` `addon.core.sh.no_such_name`\n")
-    assert missing_dotted_names(page) == ["addon.core.composite.apply_shadow_catcher",
-                                          "addon.core.sh.no_such_name"]

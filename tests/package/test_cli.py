@@ -12,7 +12,7 @@ import pytest
 
 from addon import cli
 from addon.core import axes, splat_io
-from addon.core.images import files as image_io
+from addon.core.images import files
 from addon.core.transform import transform_gaussians
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -120,7 +120,7 @@ def test_import_train_render_and_mesh_from_the_venv(tmp_path):
                  "--out", str(tmp_path / "frame_"))
     assert result.returncode == 0, result.stderr
     for frame in (1, 2):
-        header = image_io.read_header(tmp_path / f"frame_{frame:04d}.png")
+        header = files.read_header(tmp_path / f"frame_{frame:04d}.png")
         assert header.size(False) == (480, 360)  # the first COLMAP camera's photo size
 
     mesh = tmp_path / "mesh.blend"
@@ -135,7 +135,7 @@ def test_blender_command_is_registered_with_the_add_on():
     import bpy_support as bs
 
     bs.ensure_registered()
-    from addon.blender import cli_command
+    from addon import cli_command
 
     import bpy
     assert cli_command.is_registered() == hasattr(bpy.utils, "register_cli_command")
@@ -163,8 +163,8 @@ def test_render_gives_each_frame_its_marker_cameras_size(tmp_path, rng):
     bs.reset_scene()
     result = run("render", str(scene_file), "--frames", "1-2", "--out", str(tmp_path / "f_"))
     assert result.returncode == 0, result.stderr
-    assert image_io.read_header(tmp_path / "f_0001.png").size(False) == (80, 60)
-    assert image_io.read_header(tmp_path / "f_0002.png").size(False) == (48, 72)
+    assert files.read_header(tmp_path / "f_0001.png").size(False) == (80, 60)
+    assert files.read_header(tmp_path / "f_0002.png").size(False) == (48, 72)
 
 
 def test_train_leaves_the_training_defaults_to_the_operator():

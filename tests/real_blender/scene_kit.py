@@ -1,6 +1,7 @@
-"""Scene pieces shared by the bpy tests (tests/blender/render/test_render_with_meshes.py), the installed-extension
-driver (scripts/test_installed_extension.py, inside a clean bpy venv) and the real-Blender scripts
-(copied beside them): plain bpy, no imports from this project, since each runs in its own Python."""
+"""Scene pieces shared by the bpy tests (tests/blender/render/test_render_with_meshes.py), the
+installed-extension stages (scripts/test_installed_extension.py, inside a clean bpy) and the
+real-Blender scripts (copied beside them): plain bpy, no imports from this project, since each
+runs in its own Python."""
 
 from __future__ import annotations
 
@@ -43,28 +44,42 @@ def meshes_and_camera(bpy, scene):
     return camera_in_front(bpy, scene, (0.0, 0.0, 0.0), 6.0 / 2.2)
 
 
-def render_settings(scene, *, threads: int, frames: tuple[int, int]) -> None:
-    """64x48, Cycles on the CPU (4 samples, no denoising, no bounces: emission materials render
-    flat), `threads` fixed, Standard view without dither (written files are compared with
-    computed ones), 8-bit RGBA PNG."""
-    scene.render.resolution_x, scene.render.resolution_y = 64, 48
-    scene.render.resolution_percentage = 100
+def flat_cycles(scene, *, samples: int = 4) -> None:
+    """Cycles on the CPU, `samples` samples, no denoising, no adaptive sampling, no bounces:
+    emission materials render flat, so an expected image needs no lighting."""
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
-    scene.cycles.samples = 4
+    scene.cycles.samples = samples
     scene.cycles.use_denoising = False
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.max_bounces = 0
+
+
+def standard_view(scene) -> None:
+    """The Standard view transform, no look, exposure 0, gamma 1, no dither: what written
+    files are compared against is computed exactly (tests/standard_view.py)."""
+    view = scene.view_settings
+    view.view_transform, view.look, view.exposure, view.gamma = "Standard", "None", 0.0, 1.0
+    scene.render.dither_intensity = 0.0
+
+
+def png_8bit(settings) -> None:
+    """Image settings for an 8-bit RGBA PNG (5.0 added `media_type`)."""
+    if hasattr(settings, "media_type"):
+        settings.media_type = "IMAGE"
+    settings.file_format, settings.color_mode, settings.color_depth = "PNG", "RGBA", "8"
+
+
+def render_settings(scene, *, threads: int, frames: tuple[int, int]) -> None:
+    """64x48, flat Cycles, `threads` fixed, the Standard view, 8-bit RGBA PNG."""
+    scene.render.resolution_x, scene.render.resolution_y = 64, 48
+    scene.render.resolution_percentage = 100
+    flat_cycles(scene)
     scene.render.threads_mode = "FIXED"
     scene.render.threads = threads
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.render.dither_intensity = 0.0
+    standard_view(scene)
     scene.frame_start, scene.frame_end = frames
-    settings = scene.render.image_settings
-    settings.file_format = "PNG"
-    settings.color_mode = "RGBA"
-    settings.color_depth = "8"
+    png_8bit(scene.render.image_settings)
 
 
 def world_bounds(obj):

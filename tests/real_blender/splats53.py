@@ -4,6 +4,7 @@ Runs inside a bpy 5.3 Python with nothing but bpy; the add-on comes from the ext
 
     ROOT=$(../shared/real-blender/root.sh py313); mkdir -p $ROOT/io/splats53
     cp -r ../shared/data/splats $ROOT/io/splats53/ && cp tests/real_blender/splats53.py \\
+        tests/real_blender/extension_kit.py tests/real_blender/scene_kit.py \\
         dist/gaussian_splatting-*-linux_x64.zip $ROOT/io/splats53/
     ../shared/real-blender/bpy313.sh 5.3.0 python /io/splats53/splats53.py \\
         --zip /io/splats53/gaussian_splatting-0.1.0-linux_x64.zip --data /io/splats53/splats \\
@@ -39,47 +40,12 @@ import faulthandler
 import os
 import sys
 import time
-import traceback
 from pathlib import Path
 
-EXTENSION = "bl_ext.user_default.gaussian_splatting"
-FAILURES: list[str] = []
+import scene_kit  # staged beside this file, as extension_kit
+from extension_kit import EXTENSION, FAILURES, check, ext, install_zip
+
 WIDTH, HEIGHT = 200, 150
-
-
-class check:
-    """`with check("name") as c:` prints PASS name: c.detail or FAIL name: the error."""
-
-    def __init__(self, name: str):
-        self.name, self.detail = name, ""
-
-    def __enter__(self):
-        self.t0 = time.perf_counter()
-        return self
-
-    def __exit__(self, kind, error, tb):
-        seconds = f"{time.perf_counter() - self.t0:.1f} s"
-        if error is None:
-            print(f"PASS {self.name}: {self.detail + ', ' if self.detail else ''}{seconds}", flush=True)
-        else:
-            FAILURES.append(self.name)
-            print(f"FAIL {self.name}: {kind.__name__}: {' '.join(str(error).split())[:800]}", flush=True)
-            traceback.print_exception(kind, error, tb)
-        return True
-
-
-def ext(name: str):
-    import importlib
-
-    return importlib.import_module(f"{EXTENSION}.{name}")
-
-
-def install(bpy, zip_path: Path) -> None:
-    with check("install the zip"):
-        result = bpy.ops.extensions.package_install_files(
-            filepath=str(zip_path), repo="user_default", enable_on_install=True)
-        assert result == {"FINISHED"}, result
-        assert EXTENSION in bpy.context.preferences.addons, "not enabled after installing"
 
 
 def clear(bpy) -> None:
@@ -311,28 +277,15 @@ def check_export(bpy, data: Path, work: Path) -> None:
 
 
 def build_scene(bpy, obj, engine: str):
-    """A cube in front of the splats, a plane behind, a camera along +Y."""
+    """A cube in front of the splats, a camera (50 mm) along +Y."""
     import math
 
-    import numpy as np
-    from mathutils import Vector
-
     scene = bpy.context.scene
-    corners = np.array([obj.matrix_world @ Vector(c) for c in obj.bound_box])
-    low, high = corners.min(axis=0), corners.max(axis=0)
-    centre, radius = (low + high) / 2, float(np.linalg.norm(high - low)) / 2
+    low, high, centre, radius = scene_kit.world_bounds(obj)
     bpy.ops.mesh.primitive_cube_add(size=0.35 * radius, location=(
         centre[0] + 0.25 * radius, low[1] - 0.4 * radius, centre[2]))
     cube = bpy.context.active_object
-    mat = bpy.data.materials.new("Cube")
-    nodes = mat.node_tree.nodes
-    nodes.clear()
-    emission = nodes.new("ShaderNodeEmission")
-    emission.inputs["Color"].default_value = (0.9, 0.3, 0.1, 1.0)
-    out = nodes.new("ShaderNodeOutputMaterial")
-    mat.node_tree.links.new(emission.outputs[0], out.inputs["Surface"])
-    mat.diffuse_color = (0.9, 0.3, 0.1, 1.0)
-    cube.data.materials.append(mat)
+    cube.data.materials.append(scene_kit.material(bpy, "Cube", (0.9, 0.3, 0.1)))
     camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
     scene.collection.objects.link(camera)
     camera.location = (centre[0], centre[1] - 2.2 * radius, centre[2])
@@ -340,19 +293,12 @@ def build_scene(bpy, obj, engine: str):
     scene.camera = camera
     render = scene.render
     render.resolution_x, render.resolution_y, render.resolution_percentage = WIDTH, HEIGHT, 100
-    render.engine = engine
     if engine == "CYCLES":
-        scene.cycles.device, scene.cycles.samples = "CPU", 4
-        scene.cycles.use_denoising = scene.cycles.use_adaptive_sampling = False
-        scene.cycles.max_bounces = 0
+        scene_kit.flat_cycles(scene)
+    render.engine = engine
     render.threads_mode, render.threads = "FIXED", 2
-    view = scene.view_settings
-    view.view_transform, view.look, view.exposure, view.gamma = "Standard", "None", 0.0, 1.0
-    render.dither_intensity = 0.0
-    settings = render.image_settings
-    if hasattr(settings, "media_type"):
-        settings.media_type = "IMAGE"
-    settings.file_format, settings.color_mode, settings.color_depth = "PNG", "RGBA", "8"
+    scene_kit.standard_view(scene)
+    scene_kit.png_8bit(render.image_settings)
     bpy.context.view_layer.update()
     ext("blender.render.compositor_bridge").ensure_bridge(scene)
     bpy.context.view_layer.update()
@@ -529,7 +475,7 @@ def main() -> int:
 
     print(f"bpy {bpy.app.version_string}", flush=True)
     if args.zip is not None:
-        install(bpy, args.zip)
+        install_zip(bpy, args.zip)
     elif EXTENSION not in bpy.context.preferences.addons:
         bpy.ops.wm.read_userpref()
     if EXTENSION not in bpy.context.preferences.addons:

@@ -10,7 +10,7 @@ with the add-on's viewport drawing off; then training again with no updates of t
 (`Update Every` 0). OUT.json holds each phase's lateness in ms (every tick), the 3D view draws
 counted (the add-on's draw handler), the training steps done, and a timeline of its stalls
 over 50 ms, draws and object updates (time.perf_counter(), what, seconds). A benchmark, never a test:
-examples/bench_ui_latency_blender.sh runs it and prints the table.
+benchmarks/bench_ui_latency_blender.sh runs it and prints the table.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ...core.blender_splats import attributes as convention
+from ...core.blender_splats import attributes
 from ...core.gaussians import Gaussians
 from .. import splat_object
 
@@ -70,7 +70,7 @@ def read_attribute(attribute, n: int) -> np.ndarray | None:
 
 
 def point_count(data) -> int:
-    position = data.attributes.get(convention.POSITION)
+    position = data.attributes.get(attributes.POSITION)
     return len(position.data) if position is not None else 0
 
 
@@ -81,45 +81,44 @@ def hidden_mask(data) -> np.ndarray | None:
 def read_names(data) -> tuple[str, ...]:
     """The attributes `read_conversion` reads from `data` (for change detection)."""
     names = attribute_names(data)
-    degree, _ = convention.degree_of(frozenset(names))
-    return tuple(convention.REQUIRED) + convention.sh_names(
-        min(degree, convention.RENDER_MAX_DEGREE)) + (HIDE,)
+    degree, _ = attributes.degree_of(frozenset(names))
+    return tuple(attributes.REQUIRED) + attributes.sh_names(
+        min(degree, attributes.RENDER_MAX_DEGREE)) + (HIDE,)
 
 
 def raw_log_scales(data) -> np.ndarray:
     """Per point, log of the `scale` attribute (NaN where it is not finite), for measures."""
-    scale = read_attribute(data.attributes[convention.SCALE], point_count(data))
+    scale = read_attribute(data.attributes[attributes.SCALE], point_count(data))
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.log(np.abs(scale.astype(np.float64))).astype(np.float32)
 
 
 def raw_logits(data) -> np.ndarray:
     """Per point, the opacity logit of `radiance:base`.w (clamped as the convention reads it)."""
-    base = read_attribute(data.attributes[convention.BASE], point_count(data))
-    return convention.opacity_logits(base[:, 3])
+    base = read_attribute(data.attributes[attributes.BASE], point_count(data))
+    return attributes.opacity_logits(base[:, 3])
 
 
-def read_conversion(data, *, drop_hidden: bool = True) -> convention.Conversion:
-    """The object-space Gaussians a splat point cloud holds (see the convention module for
+def read_conversion(data, *, drop_hidden: bool = True) -> attributes.Conversion:
+    """The object-space Gaussians a splat point cloud holds (see the attributes module for
     what is dropped and warned about). `BlenderSplatError` when an attribute is missing."""
     source = f"point cloud {data.name!r}"
-    attributes = data.attributes
     n = point_count(data)
     arrays: dict[str, np.ndarray] = {}
     for name in attribute_names(data):
-        if name in convention.REQUIRED or name.startswith(convention.SH_PREFIX):
-            attribute = attributes[name]
+        if name in attributes.REQUIRED or name.startswith(attributes.SH_PREFIX):
+            attribute = data.attributes[name]
             values = read_attribute(attribute, n)
             if values is None or len(attribute.data) != n:
-                raise convention.BlenderSplatError(
+                raise attributes.BlenderSplatError(
                     f"{source}: attribute {name!r} is {attribute.data_type}, not "
-                    f"{convention.REQUIRED.get(name, convention.SH_TYPE)[0]}")
+                    f"{attributes.REQUIRED.get(name, attributes.SH_TYPE)[0]}")
             arrays[name] = values
     if drop_hidden:
         hide = hidden_mask(data)
         if hide is not None and len(hide) == n:
             arrays = {name: values[~hide] for name, values in arrays.items()}
-    return convention.gaussians_from_attributes(arrays, source=source)
+    return attributes.gaussians_from_attributes(arrays, source=source)
 
 
 def read_gaussians(data, *, drop_hidden: bool = True) -> Gaussians:
@@ -163,21 +162,21 @@ def _sized_pointcloud(name: str, n: int):
 def write_attributes(pointcloud, gaussians: Gaussians) -> None:
     """Write `gaussians` into `pointcloud` (which has one point per Gaussian) as Blender's
     splat attributes; `radiance:sh_*` beyond the Gaussians' degree are removed."""
-    arrays = convention.attributes_from_gaussians(gaussians)
-    attributes = pointcloud.attributes
+    arrays = attributes.attributes_from_gaussians(gaussians)
+    existing = pointcloud.attributes
     for name, values in arrays.items():
-        data_type = convention.REQUIRED.get(name, convention.SH_TYPE)[0]
-        attribute = attributes.get(name)
+        data_type = attributes.REQUIRED.get(name, attributes.SH_TYPE)[0]
+        attribute = existing.get(name)
         if attribute is not None and (attribute.data_type != data_type or attribute.domain != "POINT"):
-            attributes.remove(attribute)
+            existing.remove(attribute)
             attribute = None
         if attribute is None:
-            attribute = attributes.new(name, data_type, "POINT")
+            attribute = existing.new(name, data_type, "POINT")
         if len(values):
             attribute.data.foreach_set(_KEYS[data_type][0], np.ascontiguousarray(values).reshape(-1))
-    for attribute in [a for a in attributes if a.name.startswith(convention.SH_PREFIX)
+    for attribute in [a for a in existing if a.name.startswith(attributes.SH_PREFIX)
                       and a.name not in arrays]:
-        attributes.remove(attribute)
+        existing.remove(attribute)
     pointcloud.update_tag()
 
 
@@ -255,7 +254,7 @@ def remove_points(obj, keep: np.ndarray) -> int:
     saved = []
     for attribute in old.attributes:
         spec = _GENERIC.get(attribute.data_type)
-        if attribute.domain != "POINT" or spec is None or attribute.name == convention.POSITION:
+        if attribute.domain != "POINT" or spec is None or attribute.name == attributes.POSITION:
             continue
         key, width, dtype = spec
         values = np.empty(n * width, dtype)
@@ -264,13 +263,13 @@ def remove_points(obj, keep: np.ndarray) -> int:
         saved.append((attribute.name, attribute.data_type, key, values.reshape(n, width)[keep]))
     positions = np.empty(n * 3, np.float32)
     if n:
-        old.attributes[convention.POSITION].data.foreach_get("vector", positions)
+        old.attributes[attributes.POSITION].data.foreach_get("vector", positions)
     pointcloud = _sized_pointcloud(old.name, n - removed)
     try:
         if hasattr(old, "type"):
             pointcloud.type = old.type
         if n - removed:
-            pointcloud.attributes[convention.POSITION].data.foreach_set(
+            pointcloud.attributes[attributes.POSITION].data.foreach_set(
                 "vector", positions.reshape(n, 3)[keep].reshape(-1))
         for name, data_type, key, values in saved:
             attribute = pointcloud.attributes.get(name) or pointcloud.attributes.new(
@@ -288,7 +287,7 @@ def replace_gaussians(obj, gaussians: Gaussians) -> None:
     """Rewrite a Blender splat object's point cloud with `gaussians` (any count)."""
     if point_count(obj.data) == len(gaussians) and gaussians.non_finite() is None:
         if len(gaussians):
-            obj.data.attributes[convention.POSITION].data.foreach_set(
+            obj.data.attributes[attributes.POSITION].data.foreach_set(
                 "vector", gaussians.means.reshape(-1))
         write_attributes(obj.data, gaussians)
         return

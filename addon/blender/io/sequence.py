@@ -28,7 +28,7 @@ from bpy.app.handlers import persistent
 from ...core.formats.errors import SplatFileError
 from ...core.formats.sequence import SplatSequence
 from ...core.gaussians import Gaussians
-from ..render import failures as render_failures, state as render_state
+from ..render import failures, state
 from .. import splat_object
 from ..registration import module_registration
 
@@ -125,7 +125,7 @@ def show_frame(obj, frame: int) -> bool:
     sequence = sequence_of(obj)
     if sequence is None or obj.data is None or obj.data.is_editmode:
         return False
-    if render_state.current.scene is not None:
+    if state.current.scene is not None:
         _check_delivered(obj, sequence, frame)
     number = file_number(obj, sequence, frame)
     if obj.data.get(SHOWN_KEY) == number:
@@ -139,7 +139,7 @@ def show_frame(obj, frame: int) -> bool:
 def update_scene(scene, frame: int | None = None) -> None:
     """Show the frame (default the scene's current) on every sequence object of `scene`;
     errors are printed once per file and leave the object as it was, except during a final
-    render, which they fail (see `render_failures`)."""
+    render, which they fail (see `failures`)."""
     frame = scene.frame_current if frame is None else frame
     for obj in scene.objects:
         if obj.type != "MESH" or not source_of(obj):
@@ -147,8 +147,8 @@ def update_scene(scene, frame: int | None = None) -> None:
         try:
             show_frame(obj, frame)
         except (SplatFileError, OSError, ValueError) as error:
-            if render_state.current.scene == scene.name:  # a final render must not show stale splats
-                render_failures.fail_render(
+            if state.current.scene == scene.name:  # a final render must not show stale splats
+                failures.fail_render(
                     scene, f"{obj.name!r} cannot show frame {frame} of its sequence: {error}",
                     "frame")
                 continue

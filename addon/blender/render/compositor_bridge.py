@@ -6,7 +6,7 @@ Render Layers node points at, with that scene's engine, after the main engine an
 compositor runs. The bridge uses this:
 
 - a hidden helper scene (`.Splat Composite`) whose render engine is this add-on's
-  (`render_hooks.SplatRenderEngine`); it holds nothing. Blender renders a compositor's scene
+  (`hooks.SplatRenderEngine`); it holds nothing. Blender renders a compositor's scene
   only when it has a camera (4.3 and 5.2 tried: "Cannot render, no camera"), so the helper
   borrows one (`attach_camera`: a pointer to a bridged scene's camera, no object of its own:
   a camera object in the helper scene made Blender 5.2.2 segfault) while the add-on runs;
@@ -39,7 +39,7 @@ import bpy
 from .. import splat_object
 from ..blender_splats import data as blender_data
 
-ENGINE_ID = "SPLAT_GAUSSIANS"          # the add-on's RenderEngine (render_hooks.SplatRenderEngine)
+ENGINE_ID = "SPLAT_GAUSSIANS"          # the add-on's RenderEngine (hooks.SplatRenderEngine)
 # A leading dot hides the scene from Blender's scene lists; the extension's name in it is what a
 # Blender without the extension names in its error ("Engine 'SPLAT_GAUSSIANS' not available for
 # scene '.Splat Composite (Gaussian Splatting extension)' (an add-on may need to be installed ...").

@@ -31,7 +31,7 @@ import bpy
 
 from . import compositor_bridge as bridge
 from .. import dependencies
-from . import state as render_state
+from . import state
 from ..registration import module_registration
 from .layers import output_paths, wants_splat_passes, written_file
 
@@ -47,17 +47,17 @@ def fail_render(scene, message: str, stage: str) -> None:
     `stage`: "init" (render_init, before the meshes render: the camera can still stop it),
     "frame" (while Blender prepares the frame: recorded, the compose step fails with it) or
     "compose"."""
-    if message not in render_state.current.errors:
+    if message not in state.current.errors:
         print(f"Gaussian splats: ERROR: {message}", flush=True)
-        render_state.current.errors.append(message)
+        state.current.errors.append(message)
     if scene is None:
         return
-    render_state.current.failed_frames.add(scene.frame_current)
+    state.current.failed_frames.add(scene.frame_current)
     if not bpy.app.background or stage == "frame":
         return
     if stage == "init":
-        if scene.name not in render_state.current.camera_restore and scene.camera is not None:
-            render_state.current.camera_restore[scene.name] = scene.camera
+        if scene.name not in state.current.camera_restore and scene.camera is not None:
+            state.current.camera_restore[scene.name] = scene.camera
             scene.camera = None
     elif _blender_handles_sigint():
         import signal
@@ -83,22 +83,22 @@ def render_blockers(scene) -> list[str]:
 
 def last_errors() -> list[str]:
     """Why the current or last render failed (empty when it did not)."""
-    return list(render_state.current.errors)
+    return list(state.current.errors)
 
 
 def set_aside_outputs(scene) -> None:
     """Before a frame renders: move the files it would overwrite aside (see the module note)."""
     for path in output_paths(scene):
-        if path not in render_state.current.set_aside and os.path.isfile(path):
+        if path not in state.current.set_aside and os.path.isfile(path):
             head, name = os.path.split(path)
             aside = os.path.join(head, f".{name}.before-render")
             with contextlib.suppress(OSError):
                 os.replace(path, aside)
-                render_state.current.set_aside[path] = aside
+                state.current.set_aside[path] = aside
 
 
 def _put_back(path: str) -> bool:
-    aside = render_state.current.set_aside.pop(path, None)
+    aside = state.current.set_aside.pop(path, None)
     if aside is None:
         return False
     with contextlib.suppress(OSError):
@@ -109,11 +109,11 @@ def _put_back(path: str) -> bool:
 def settle_outputs() -> None:
     """When the render ends: files it wrote again stay (their previous copies go), the others
     come back."""
-    for path, aside in list(render_state.current.set_aside.items()):
+    for path, aside in list(state.current.set_aside.items()):
         if os.path.exists(path):
             with contextlib.suppress(OSError):
                 os.remove(aside)
-            render_state.current.set_aside.pop(path)
+            state.current.set_aside.pop(path)
         else:
             _put_back(path)
 

@@ -19,9 +19,9 @@ How a frame is made (see `compositor_bridge` for why it works this way):
 4. `render_write`: for multilayer EXR output, the splat layer's own colour, alpha and depth are
    added to the written file as the layer "Splats" (passes Combined and Depth).
 
-The meshes' render is read and the result written by `render_layers`; a render that cannot
-compose its splats fails loudly (`render_failures`); what a render knows between handler calls
-is `render_state.current`.
+The meshes' render is read and the result written by `layers`; a render that cannot
+compose its splats fails loudly (`failures`); what a render knows between handler calls
+is `state.current`.
 
 The engine also renders on its own: with "Gaussian Splats" as the scene's render engine (the
 "Render splats only" button), only the splats are rendered, over the world colour or over
@@ -51,7 +51,7 @@ from ...core.render.composite import (
     splat_layer,
 )
 from . import compositor_bridge as bridge
-from . import state as render_state
+from . import state
 from ..camera_adapter import frame_size, render_problem
 from .compositor_bridge import ENGINE_ID
 from ..registration import module_registration
@@ -102,7 +102,7 @@ class _Preparing:
         """Started for a frame that will be composed in display sRGB; else None."""
         if (frame is None or frame.camera is None or len(frame.gaussians) == 0
                 or not settings.enabled or scene.render.engine == ENGINE_ID
-                or frame.color_space != "SRGB" or render_state.current.errors):
+                or frame.color_space != "SRGB" or state.current.errors):
             return None
         options = frame.render_options()
         del options["color_space"]
@@ -152,13 +152,13 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             message = f"the splats could not be composed: {error}"
             self.report({"ERROR"}, f"Gaussian splats: {message}")
             self.error_set(f"Gaussian splats: {message}")
-            fail_render(bpy.data.scenes.get(render_state.current.scene or "") or depsgraph.scene,
-                        str(error) if str(error) in render_state.current.errors else message,
+            fail_render(bpy.data.scenes.get(state.current.scene or "") or depsgraph.scene,
+                        str(error) if str(error) in state.current.errors else message,
                         "compose")
 
     def _compose_for_bridge(self) -> None:
         start = time.perf_counter()
-        scene_name = render_state.current.scene
+        scene_name = state.current.scene
         main = bpy.data.scenes.get(scene_name) if scene_name else None
         if main is None:
             raise RuntimeError("the splat composite was rendered outside a render of a scene")
@@ -166,7 +166,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         settings = settings_of(main)
         # The Gaussians' half of the composite needs no mesh: it runs on a thread (in native code,
         # without the GIL) while Blender writes the mesh render out for us to read.
-        preparing = _Preparing.start(render_state.current.frames.get((main.name, layer_name)),
+        preparing = _Preparing.start(state.current.frames.get((main.name, layer_name)),
                                      main, settings)
         try:
             mesh_rgba, mesh_depth, timings = read_render_layer(main, layer_name)
@@ -181,15 +181,15 @@ class SplatRenderEngine(bpy.types.RenderEngine):
         region = render_region(*full, render_border(main.render))
         height, width = mesh_depth.shape
         origin = frame_target((width, height), full, region)
-        frame = render_state.current.frames.get((main.name, layer_name))
+        frame = state.current.frames.get((main.name, layer_name))
         stats = {"width": width, "height": height, "gaussians": 0, **timings}
         for warning in (frame.warnings if frame is not None else ()):
             print(f"Gaussian splats: {warning}")
         if frame is not None and frame.frame != main.frame_current:
             print(f"Gaussian splats: the splats were gathered at frame {frame.frame}, the render "
                   f"is of frame {main.frame_current}")
-        if render_state.current.errors:  # the render already failed (cancelled if it could be)
-            raise RuntimeError(render_state.current.errors[-1])
+        if state.current.errors:  # the render already failed (cancelled if it could be)
+            raise RuntimeError(state.current.errors[-1])
         if frame is None and settings.enabled and main.render.engine != ENGINE_ID:
             raise RuntimeError(f"no splats were gathered for scene {main.name!r}, view layer "
                                f"{layer_name!r} (the render's frame_change_post handler did "
@@ -216,7 +216,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
                          gather_ms=frame.gather_ms, native_ms=native_ms,
                          colour_ms=composed.stats.get("colour_ms", 0.0))
             if wants_splat_passes(main):
-                render_state.current.pending_passes[main.name] = (
+                state.current.pending_passes[main.name] = (
                     main.frame_current, splat_passes(frame, main, full, region))
         if shadow is not None and shadow.shape[:2] == rgba.shape[:2]:
             # Proxies (shadow catchers) are left out of the mesh layer; their shadows darken
@@ -273,12 +273,12 @@ class SplatRenderEngine(bpy.types.RenderEngine):
 def _on_render_init(scene, _depsgraph=None) -> None:
     if bridge.is_helper(scene):
         return
-    render_state.current.scene = scene.name
-    render_state.current.frames.clear()
-    render_state.current.pending_passes.clear()
-    render_state.current.errors.clear()
-    render_state.current.failed_frames.clear()
-    render_state.current.frame_start_ns = time.time_ns()
+    state.current.scene = scene.name
+    state.current.frames.clear()
+    state.current.pending_passes.clear()
+    state.current.errors.clear()
+    state.current.failed_frames.clear()
+    state.current.frame_start_ns = time.time_ns()
     settings = settings_of(scene)
     if not settings.enabled or scene.render.engine == ENGINE_ID:
         return
@@ -297,10 +297,10 @@ def _on_render_init(scene, _depsgraph=None) -> None:
         if blockers:
             fail_render(scene, "; ".join(blockers), "init")
             return
-        if render_result_image() is None or render_state.current.force_cache_file:
+        if render_result_image() is None or state.current.force_cache_file:
             # `blender -b -a`: no Render Result image to read the render from; the render
             # cache writes it (this flag is read when the render starts, after this handler).
-            render_state.current.cache_restore[scene.name] = scene.render.use_render_cache
+            state.current.cache_restore[scene.name] = scene.render.use_render_cache
             scene.render.use_render_cache = True
     except Exception as error:
         traceback.print_exc()
@@ -311,18 +311,18 @@ def _on_render_init(scene, _depsgraph=None) -> None:
 def _on_render_pre(scene, _depsgraph=None) -> None:
     if bridge.is_helper(scene):
         return
-    render_state.current.frame_start_ns = time.time_ns()
-    if render_state.current.scene == scene.name and settings_of(scene).enabled:
+    state.current.frame_start_ns = time.time_ns()
+    if state.current.scene == scene.name and settings_of(scene).enabled:
         set_aside_outputs(scene)
 
 
 @persistent
 def _on_frame_change(scene, depsgraph=None) -> None:
-    rendering = render_state.current.scene
+    rendering = state.current.scene
     if (depsgraph is None or rendering is None or scene.name != rendering
             or depsgraph.mode != "RENDER" or bridge.is_helper(scene)
             or not settings_of(scene).enabled or scene.render.engine == ENGINE_ID
-            or render_state.current.errors):
+            or state.current.errors):
         return
     try:
         frame = capture_frame(scene, depsgraph)
@@ -330,7 +330,7 @@ def _on_frame_change(scene, depsgraph=None) -> None:
         traceback.print_exc()
         fail_render(scene, f"the splats could not be gathered: {error}", "frame")
         return
-    render_state.current.frames[(scene.name, depsgraph.view_layer.name)] = frame
+    state.current.frames[(scene.name, depsgraph.view_layer.name)] = frame
 
 
 
@@ -338,10 +338,10 @@ def _on_frame_change(scene, depsgraph=None) -> None:
 def _on_render_write(scene, _depsgraph=None) -> None:
     if bridge.is_helper(scene):
         return
-    if scene.frame_current in render_state.current.failed_frames:
+    if scene.frame_current in state.current.failed_frames:
         remove_failed_file(scene)
         return
-    pending = render_state.current.pending_passes.pop(scene.name, None)
+    pending = state.current.pending_passes.pop(scene.name, None)
     if pending is None:
         return
     frame, layer = pending
@@ -365,18 +365,18 @@ def _on_render_write(scene, _depsgraph=None) -> None:
 def _on_render_done(scene, _depsgraph=None) -> None:
     if bridge.is_helper(scene):
         return
-    if scene.name in render_state.current.cache_restore:
-        scene.render.use_render_cache = render_state.current.cache_restore.pop(scene.name)
-    camera = render_state.current.camera_restore.pop(scene.name, None)
+    if scene.name in state.current.cache_restore:
+        scene.render.use_render_cache = state.current.cache_restore.pop(scene.name)
+    camera = state.current.camera_restore.pop(scene.name, None)
     if camera is not None:
         scene.camera = camera
     settle_outputs()
     release_buffers()  # a 1M-Gaussian frame keeps ~130 MB of working memory for the next one
-    render_state.current.scene = None
-    render_state.current.frames.clear()
-    render_state.current.pending_passes.clear()
-    if render_state.current.errors and not bpy.app.background:
-        message = render_state.current.errors[-1]
+    state.current.scene = None
+    state.current.frames.clear()
+    state.current.pending_passes.clear()
+    if state.current.errors and not bpy.app.background:
+        message = state.current.errors[-1]
         bpy.app.timers.register(lambda: report_in_window(message), first_interval=0.0)
 
 
@@ -446,7 +446,7 @@ def _bridge_broken(scene) -> bool:
 
 def set_up_bridge_later(scene_name: str) -> None:
     scene = bpy.data.scenes.get(scene_name)
-    if render_state.current.scene is not None or (hasattr(bpy.app, "is_job_running")
+    if state.current.scene is not None or (hasattr(bpy.app, "is_job_running")
                                     and bpy.app.is_job_running("RENDER")):
         return 0.5  # never while a render runs: try again when it is done
     if scene is not None and scene.render.engine != ENGINE_ID and settings_of(scene).enabled \

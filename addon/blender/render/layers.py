@@ -1,5 +1,5 @@
 """The meshes' render layer, round trip: what the helper engine reads from the scene's render
-and writes back (see `render_hooks` for how a frame is made).
+and writes back (see `hooks` for how a frame is made).
 
 Reading the render: `Image.save_render` of the Render Result to an uncompressed float
 multilayer EXR in a private temporary folder (the output format is switched for that one call
@@ -41,7 +41,7 @@ import numpy as np
 
 from ...core.images import exr_layers, exr_scanlines
 from ...core.render.composite import FAR, Region, splat_layer
-from . import state as render_state
+from . import state
 from .state import FrameSplats, settings_of
 
 _temp_dir: str | None = None
@@ -118,10 +118,10 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     timings = {}
     start = time.perf_counter()
     image = render_result_image()
-    own_file = not (image is None or render_state.current.force_cache_file)
+    own_file = not (image is None or state.current.force_cache_file)
     if not own_file:
         path = cache_file_path(scene)
-        since = render_state.current.frame_start_ns - 50_000_000
+        since = state.current.frame_start_ns - 50_000_000
         if not os.path.exists(path) or os.stat(path).st_mtime_ns < since:
             raise RuntimeError(
                 f"cannot read the render: there is no Render Result image and no fresh render "
@@ -274,5 +274,5 @@ def written_file(scene) -> str | None:
     """The image file Blender has just written for the current frame (a still or an animation
     frame: both names are tried, the one written since the frame began wins)."""
     fresh = [(os.stat(p).st_mtime_ns, p) for p in output_paths(scene) if os.path.exists(p)
-             and os.stat(p).st_mtime_ns >= render_state.current.frame_start_ns - 50_000_000]
+             and os.stat(p).st_mtime_ns >= state.current.frame_start_ns - 50_000_000]
     return max(fresh)[1] if fresh else None

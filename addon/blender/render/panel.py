@@ -77,7 +77,7 @@ class RENDER_PT_splats(GaussianSplatsPanel, bpy.types.Panel):
         return context.scene is not None and not bridge.is_helper(context.scene)
 
     def draw(self, context):
-        from . import failures as render_failures, hooks as render_hooks
+        from . import failures, hooks
 
         layout = self.layout
         layout.use_property_split = True
@@ -125,13 +125,13 @@ class RENDER_PT_splats(GaussianSplatsPanel, bpy.types.Panel):
         sub.active = settings.viewport
         sub.prop(settings, "viewport_resolution")
         sub.prop(settings, "viewport_coarse_pixels")
-        errors = render_failures.last_errors()
+        errors = failures.last_errors()
         if errors:  # the last render failed: say why where the settings are
             box = layout.box()
             box.label(text="The last render failed:", icon="ERROR")
             for line in errors[-1].split("; "):
                 box.label(text=line)
-        stats = render_hooks.last_stats
+        stats = hooks.last_stats
         if stats.get("total_ms"):
             box = layout.box()
             box.label(text=f"Last frame: {int(stats.get('gaussians', 0)):,} splats, "

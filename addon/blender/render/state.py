@@ -1,7 +1,7 @@
 """The state of the render in progress, and what each of its frames renders.
 
-`current` is the one place the render hooks (`render_hooks`), the reading of the meshes'
-render (`render_layers`) and the failure handling (`render_failures`) share what they know
+`current` is the one place the render hooks (`hooks`), the reading of the meshes'
+render (`layers`) and the failure handling (`failures`) share what they know
 about the render between Blender's handler calls.
 """
 
@@ -79,7 +79,7 @@ def render_threads(scene, settings) -> int:
 
 
 def capture_frame(scene, depsgraph) -> FrameSplats:
-    """Gather the splats and the camera a render depsgraph shows (see `render_hooks`)."""
+    """Gather the splats and the camera a render depsgraph shows (see `hooks`)."""
     settings = settings_of(scene)
     start = time.perf_counter()
     result = gather.gather(depsgraph)

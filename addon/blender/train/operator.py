@@ -56,7 +56,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from ...core.train import colmap_source as colmap_training
+from ...core.train import colmap_source
 from ...core.train.colmap_source import ColmapSource, TrainRequest
 from ...core.train.dataset import MAX_WIDTH, NO_CAMERA, Points
 from ...core.gaussians import Gaussians
@@ -176,7 +176,7 @@ def checkpoint_path(collection, explicit: str = "", *, resume: bool = False) -> 
     if resume and stored and Path(stored).is_file():
         return Path(stored)
     blend = bpy.path.abspath(bpy.data.filepath) if bpy.data.filepath else ""
-    return colmap_training.default_checkpoint(
+    return colmap_source.default_checkpoint(
         collection.name, str(collection.get("colmap_model_dir", "")), blend)
 
 
@@ -216,7 +216,7 @@ def train_request(collection, config: TrainConfig | None = None, *, image_folder
     for module in MODULES:
         dependencies.require(module, FEATURE)
     path = checkpoint_path(collection, str(checkpoint), resume=resume)
-    return colmap_training.train_request(
+    return colmap_source.train_request(
         source_of(collection), path, config, resume=resume, image_folder=image_folder,
         downscale=downscale, test_every=test_every, checkpoint_every=checkpoint_every,
         update_every=update_every, compact=compact, max_width=max_width)
@@ -341,6 +341,15 @@ def _scene_views(scene) -> list:
             if window.scene == scene for area in window.screen.areas if area.type == "VIEW_3D"]
 
 
+def request_job(request: TrainRequest,
+                on_progress: Callable[[Progress], None] | None = None) -> TrainingJob:
+    """The request as a training job (not started): the photos load on the job's thread."""
+    return TrainingJob(lambda job: request.make_trainer(job.loading), steps=request.config.steps,
+                       checkpoint=request.checkpoint, checkpoint_every=request.checkpoint_every,
+                       snapshot_every=request.update_every, compact_after=request.compact,
+                       on_progress=on_progress)
+
+
 def training_job(request: TrainRequest) -> OperatorJob:
     """The request as the job runner runs it: the job (not started), and what the main thread
     does with its snapshots and its end."""
@@ -365,7 +374,7 @@ def training_job(request: TrainRequest) -> OperatorJob:
                 message += f" (the view looks through '{camera.name}')"
         return level, message, obj
 
-    return OperatorJob(f"train:{name}", "Training", request.job(), finish, apply, target)
+    return OperatorJob(f"train:{name}", "Training", request_job(request), finish, apply, target)
 
 
 def train_colmap_collection(collection, config: TrainConfig | None = None,
@@ -376,7 +385,7 @@ def train_colmap_collection(collection, config: TrainConfig | None = None,
     update_every, compact). Raises on bad input or a failure."""
     request = train_request(collection, config, **options)
     before = SceneBefore(collection.name)
-    job = request.job(progress)
+    job = request_job(request, progress)
     job.run()
     return finish_training(request, job, before=before)[2]
 

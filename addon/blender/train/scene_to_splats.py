@@ -32,7 +32,7 @@ What it does:
    stay transparent: no background, no dark fringe. The Gaussians start from `initial_points`
    points spread over the targets' surfaces (area-weighted, the material's base colour, else
    grey). By default every view trains (`hold_out` 0). The training settings and their defaults
-   are Train Gaussians' (`train_operator.TrainingSettings`): until done (with no held-out
+   are Train Gaussians' (`train.operator.TrainingSettings`): until done (with no held-out
    views the stop test measures up to 8 training views), the "auto" strategy, compaction.
 6. Output: a splat object `<object> Splats` (world space, identity transform) in the active
    collection, and the .ply at `filepath` (`addon.core.splat_io.save`, the standard 3DGS layout
@@ -58,7 +58,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, FloatProperty, IntProperty, IntVectorProperty, StringProperty
 
-from ...core.images import files as image_io
+from ...core.images import files
 from ...core import splat_io
 from ...core.cameras import Camera, camera_to_blender
 from ...core.colour import display_from_linear, srgb_encode
@@ -294,7 +294,7 @@ def render_views(scene, cameras: list[Camera], *, samples: int = 32, denoise: bo
             bpy.ops.render.render(write_still=True, scene=scene.name)
             if not path.is_file():
                 raise SceneToSplatsError(f"Cycles wrote no image for view {i} (expected {path})")
-            rgba = image_io.to_float(image_io.read_pixels(path))
+            rgba = files.to_float(files.read_pixels(path))
             if rgba.shape[2] < 4:
                 opaque = np.ones(rgba.shape[:2] + (1,), np.float32)
                 rgba = np.concatenate([rgba[..., :3], opaque], axis=2)
@@ -455,7 +455,7 @@ def finish_scene_to_splats(request: SceneToSplatsRequest, job: TrainingJob, obj=
 
 
 def scene_to_splats_job(request: SceneToSplatsRequest) -> OperatorJob:
-    """The request as the job runner runs it (see `train_operator.training_job`)."""
+    """The request as the job runner runs it (see `operator.training_job`)."""
     state = {"object": None}
 
     def apply(step, gaussians):

@@ -24,7 +24,7 @@ Distorted cameras (every COLMAP model other than SIMPLE_PINHOLE and PINHOLE) are
 to pinhole with pycolmap: `undistort_camera` at COLMAP's resolution chooses the pinhole camera
 (and its crop, no blank pixels), which is then scaled like any other camera; observations go
 through pycolmap's `Camera.cam_from_img`, photos through the same mapping (bilinear, every bit
-depth, see `image_io.remap_bilinear`; it agrees with pycolmap's `undistort_image`). Undistorted
+depth, see `images.files.remap_bilinear`; it agrees with pycolmap's `undistort_image`). Undistorted
 photos (and upright copies of photos stored sideways with an EXIF orientation), with the
 undistorted model (a COLMAP workspace of its own: `images/`, `sparse/0/`), are cached in
 `cache_dir`, by default `<workspace>/splat_cache/` when that is writable, else a user cache

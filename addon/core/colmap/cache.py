@@ -12,7 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
-from ..images import files as image_io
+from ..images import files
 from ..atomic import atomic_write
 from .checks import inside
 from .errors import ColmapError
@@ -113,11 +113,11 @@ def write_photo_copies(images: list[ColmapImage], intrinsics: dict[int, PinholeI
         photo, intr = found[im.name], intrinsics[im.camera_id]
         if out.resolve() == photo.source.resolve():
             raise ColmapError(f"{out}: refusing to overwrite the input photo")
-        pixels = image_io.read_pixels(photo.source, orientation=photo.orientation)
+        pixels = files.read_pixels(photo.source, orientation=photo.orientation)
         if intr.distorted:
             x, y = undistortion_map(intr, im.camera, photo.size)
-            pixels = image_io.remap_bilinear(pixels, x, y)
-        image_io.write_pixels(out, pixels)
+            pixels = files.remap_bilinear(pixels, x, y)
+        files.write_pixels(out, pixels)
         return item
 
     workers = threads if threads > 0 else (os.cpu_count() or 1)
@@ -128,7 +128,7 @@ def write_photo_copies(images: list[ColmapImage], intrinsics: dict[int, PinholeI
                     im.path = out
                     done[im.name] = entry
                     report((k + 1) / len(todo), f"undistorted {im.name}")
-    except image_io.ImageError as error:
+    except files.ImageError as error:
         raise ColmapError(str(error)) from error
     finally:
         if done:

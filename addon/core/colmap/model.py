@@ -7,7 +7,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..images import files as image_io
+from ..images import files
 from .checks import check_binary_model, check_text_cameras, is_inside
 from .errors import ColmapError, import_pycolmap
 
@@ -139,8 +139,8 @@ def find_photos(registered, rec, image_dir: Path | None,
             missing[im.name] = f"it is a link leading outside {image_dir}; refused"
             continue
         try:
-            header = image_io.read_header(src)
-        except image_io.ImageError as error:
+            header = files.read_header(src)
+        except files.ImageError as error:
             missing[im.name] = str(error)
             continue
         cam = rec.cameras[im.camera_id]

@@ -4,7 +4,7 @@ Blender writes a multilayer EXR as one part per render pass, named `<layer>.<pas
 Blender 4.x does and 5.0 does when asked, one part holding them all), with channels
 `<layer>.<pass>.<channel>` (e.g. `ViewLayer.Combined.R`, `ViewLayer.Depth.Z`). Rows in the file
 run top to bottom, as in every image here. Reading is OpenImageIO's, imported on first
-use; writing goes through `image_io.write_subimages` (atomic).
+use; writing goes through `files.write_subimages` (atomic).
 """
 
 from __future__ import annotations

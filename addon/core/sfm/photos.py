@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..atomic import atomic_write
-from ..images import files as image_io
+from ..images import files
 from .errors import ReconstructionError
 
 
@@ -81,15 +81,15 @@ def write_photo(source: Path, images_dir: Path, name: str, max_size: int) -> Pho
     that cannot be decoded; ReconstructionError naming the target when it cannot be written (a
     full disk: that stops the run, it does not skip photos)."""
     try:
-        header = image_io.read_header(source)
-        image_io.check_decodes(source)  # a truncated or corrupt file fails here, by name
+        header = files.read_header(source)
+        files.check_decodes(source)  # a truncated or corrupt file fails here, by name
         width, height = header.size(oriented=True)
         size = bounded_size(width, height, max_size)
         pixels = None
         if header.orientation != 1 or size != (width, height) or \
                 source.suffix.lower() != Path(name).suffix.lower():
-            pixels = image_io.read_pixels(source, orientation=header.orientation, size=size)
-    except image_io.ImageError as error:
+            pixels = files.read_pixels(source, orientation=header.orientation, size=size)
+    except files.ImageError as error:
         raise UnreadablePhoto(str(error)) from None
     target = images_dir / name
     try:
@@ -100,8 +100,8 @@ def write_photo(source: Path, images_dir: Path, name: str, max_size: int) -> Pho
             if pixels.shape[2] in (2, 4):  # alpha: COLMAP and training take colour
                 pixels = pixels[:, :, :pixels.shape[2] - 1]
             if target.suffix.lower() == ".jpg" and pixels.dtype != "uint8":
-                pixels = (image_io.to_float(pixels) * 255.0 + 0.5).clip(0, 255).astype("uint8")
-            image_io.write_pixels(target, pixels)
+                pixels = (files.to_float(pixels) * 255.0 + 0.5).clip(0, 255).astype("uint8")
+            files.write_pixels(target, pixels)
     except OSError as error:  # ImageError included
         raise ReconstructionError(f"{target}: cannot write the photo: "
                                   f"{getattr(error, 'strerror', None) or error}") from None

@@ -16,7 +16,7 @@ from typing import Generator
 
 import numpy as np
 
-from ..images import files as image_io
+from ..images import files
 from .errors import ReconstructionError
 from .photos import Photo, bounded_size
 from .sharpness import laplacian_variance
@@ -116,7 +116,7 @@ def sample_video(path: Path, images_dir: Path, count: int, max_size: int
                                 interpolation="AREA")
         pixels = upright(scaled.to_ndarray(), rotation)
         name = f"frame_{index:05d}.jpg"
-        image_io.write_pixels(images_dir / name, pixels)
+        files.write_pixels(images_dir / name, pixels)
         photos.append(Photo(name, f"frame {index}", width, height, None))
         yield len(photos), len(chosen)
         if len(photos) == len(chosen):

@@ -3,7 +3,7 @@ gathers on the main thread (`ColmapSource`), the dataset, the trainer set-up (`T
 and where checkpoints go. `addon/blender/train/operator.py` fills these from the collection.
 
 The camera takes one path: the training cameras are the scene's camera objects as they are now
-(read by `addon/blender/camera_adapter.camera_of` at each camera's recorded COLMAP resolution
+(read by `addon.blender.camera_adapter.camera_of` at each camera's recorded COLMAP resolution
 and handed over by image name), so the splats are trained in the Blender world and their object
 keeps an identity transform. Only the photos come from disk: the model's (undistorted) photos,
 matched to the cameras by `colmap_image_name` and the cameras scaled to their pixels. The points
@@ -24,7 +24,6 @@ import numpy as np
 from .. import colmap
 from ..cameras import Camera
 from .dataset import MAX_WIDTH, ColmapDataset, Points, with_cameras
-from ..jobs import TrainingJob
 from .trainer import Trainer, TrainConfig
 
 
@@ -75,7 +74,8 @@ def default_checkpoint(name: str, model_dir: str, blend_path: str = "") -> Path:
 
 @dataclass
 class TrainRequest:
-    """A checked training request: runs as a `TrainingJob` on any thread."""
+    """A checked training request: the Blender layer runs it as a `core.jobs.TrainingJob` on any
+    thread (`make_trainer` is that job's set-up), so this module needs nothing of jobs."""
 
     source: ColmapSource
     config: TrainConfig
@@ -89,26 +89,19 @@ class TrainRequest:
     compact: bool = True
     max_width: int = MAX_WIDTH
 
-    def make_trainer(self, job: TrainingJob | None = None) -> Trainer:
-        """Load the photos and make (or resume) the trainer; `job.loading` reports (and stops a
-        cancelled job between batches of photos)."""
+    def make_trainer(self, loading: Callable[[float, str], None] | None = None) -> Trainer:
+        """Load the photos and make (or resume) the trainer; `loading(fraction, message)`
+        reports (a job's `loading`, which stops a cancelled job between batches of photos)."""
         threads = self.config.threads
         dataset = self.source.dataset(self.image_folder, downscale=self.downscale,
                                       test_every=self.test_every, max_width=self.max_width,
-                                      preload_threads=threads,
-                                      progress=job.loading if job is not None else None)
+                                      preload_threads=threads, progress=loading)
         if not self.resume:
             return Trainer(dataset, self.config)
         trainer = Trainer.load_checkpoint(self.checkpoint, dataset)
         trainer.config.threads = threads
         trainer.config.max_gaussians = self.config.max_gaussians
         return trainer
-
-    def job(self, on_progress=None) -> TrainingJob:
-        return TrainingJob(self.make_trainer, steps=self.config.steps, checkpoint=self.checkpoint,
-                           checkpoint_every=self.checkpoint_every,
-                           snapshot_every=self.update_every, compact_after=self.compact,
-                           on_progress=on_progress)
 
 
 def train_request(source: ColmapSource, checkpoint: Path, config: TrainConfig | None = None, *,

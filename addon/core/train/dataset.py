@@ -37,7 +37,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..images import files as image_io
+from ..images import files
 from ..cameras import Camera
 from ..colmap import ColmapImage, ColmapPoints, ColmapScene
 
@@ -161,9 +161,9 @@ class ColmapDataset(Views):
                 self._cache.move_to_end(i)
                 return cached
         cam = self.cameras[i]
-        pixels = image_io.read_pixels(self.items[i].path, size=(cam.width, cam.height))
+        pixels = files.read_pixels(self.items[i].path, size=(cam.width, cam.height))
         if pixels.shape[:2] != (cam.height, cam.width):
-            raise image_io.ImageError(
+            raise files.ImageError(
                 f"{self.items[i].path}: {pixels.shape[1]}x{pixels.shape[0]} pixels, "
                 f"expected {cam.width}x{cam.height}")
         with self._lock:
@@ -182,12 +182,12 @@ class ColmapDataset(Views):
 
     def image(self, i: int) -> np.ndarray:
         """(H, W, 3) float32 colour of image i (see the module docstring for its scale)."""
-        return image_io.to_float(image_io.rgb_alpha(self.pixels(i))[0])
+        return files.to_float(files.rgb_alpha(self.pixels(i))[0])
 
     def alpha(self, i: int) -> np.ndarray | None:
         """(H, W) float32 alpha of image i, or None when the photo has none."""
-        alpha = image_io.rgb_alpha(self.pixels(i))[1]
-        return None if alpha is None else image_io.to_float(alpha[:, :, None])[:, :, 0]
+        alpha = files.rgb_alpha(self.pixels(i))[1]
+        return None if alpha is None else files.to_float(alpha[:, :, None])[:, :, 0]
 
     def preload(self, threads: int = 0,
                 progress: Callable[[float, str], None] | None = None) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import kernels as tk
+from . import kernels
 from ..gaussians import Gaussians, logit, sigmoid  # noqa: F401 (logit: for the strategies)
 
 PARAMETERS = ("means", "log_scales", "quats", "opacity_logits", "sh")
@@ -44,12 +44,12 @@ class GaussianParameters:
         """The parameters as `Gaussians`: views, no copy (they change with the next step)."""
         return Gaussians(**self.params)
 
-    def adam_step(self, grads: tk.Gradients, lrs: dict[str, float], step: int, *,
+    def adam_step(self, grads: kernels.Gradients, lrs: dict[str, float], step: int, *,
                   rows: np.ndarray | None = None, sh_coeffs: int | None = None,
                   threads: int = 0) -> None:
         """One Adam update of every parameter from `grads` with the rates `lrs` (keys
         `LEARNING_RATES`). rows: (N,) bool, or None for all: only these Gaussians are updated,
-        the others keep their parameters and moments (`train_kernels.adam_step`; the step's
+        the others keep their parameters and moments (`kernels.adam_step`; the step's
         visible Gaussians make this gsplat's `visible_adam`).
 
         sh_coeffs: how many leading SH coefficients can have nonzero gradients (the rendered
@@ -64,13 +64,13 @@ class GaussianParameters:
         for name in PARAMETERS[:-1]:
             if self.params[name].size:
                 m, v = self.moments[name]
-                tk.adam_step(self.params[name], arrays[name], m, v, lr=lrs[name], step=step,
+                kernels.adam_step(self.params[name], arrays[name], m, v, lr=lrs[name], step=step,
                              rows=rows, threads=threads)
         # SH: one array, DC (the first 3 values of each row) at its own rate, the higher bands
         # at theirs: every element gets exactly the update a separate array would.
         if self.params["sh"].size:
             m, v = self.moments["sh"]
-            tk.adam_step(self.params["sh"], arrays["sh"], m, v, lr=lrs["sh_rest"], step=step,
+            kernels.adam_step(self.params["sh"], arrays["sh"], m, v, lr=lrs["sh_rest"], step=step,
                          rows=rows, lead=3, lead_lr=lrs["sh_dc"], used=3 * self.sh_moved,
                          threads=threads)
 

@@ -1,7 +1,7 @@
 """A Blender scene to splats (the "Bake to Splats" operator), the Blender-free part: cameras
 around an object, surface points to start from, and an in-memory training dataset of RGBA
 renders. (`addon/blender/train/scene_to_splats.py` renders the views with Cycles and runs the
-training; splats -> a mesh texture is `mesh_texture`.)
+training; splats -> a mesh texture is `addon/core/mesh/texture.py`.)
 
 - `sphere_directions(n)`: n unit vectors spread evenly over the sphere (a Fibonacci lattice), or
   over the upper half (`upper_only`, z > 0) for things standing on the ground.

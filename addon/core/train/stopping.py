@@ -26,7 +26,7 @@ Check = tuple[float, float]  # (work seconds so far, PSNR) at one stopping check
 # The cost model of one training step in seconds of one core (forward, loss, backward, Adam,
 # strategy): least squares over 2,246 steps of the reference recipe on the demo scene at
 # 480x360 (its coarse levels included), 1.6k to 73k Gaussians, one thread, process CPU time on
-# this project's shared 2-core machine, 7 % median error (`examples/bench_train.py` prints the
+# this project's shared 2-core machine, 7 % median error (`benchmarks/bench_train.py` prints the
 # fit after its curves). Its scale only sets what "a minute" of work is; the stop step does not
 # depend on any measurement.
 WORK_PER_PIXEL = 2.5e-7

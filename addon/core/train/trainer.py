@@ -42,7 +42,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import stopping
-from . import kernels as tk
+from . import kernels
 from ..cameras import Camera
 from ..gaussians import Gaussians, sh_count
 from .optimizer import GaussianParameters, logit
@@ -131,7 +131,7 @@ def downscaled_view(camera: Camera, image: np.ndarray, factor: int) -> tuple[Cam
 def psnr(image: np.ndarray, target: np.ndarray) -> float:
     """PSNR in dB of `image` clamped to [0, 1] against `target` (the loss kernel's `mse` gives
     the same in a step, without another pass over the images)."""
-    return tk.psnr_of_mse(float(np.mean((np.clip(image, 0.0, 1.0) - target) ** 2)))
+    return kernels.psnr_of_mse(float(np.mean((np.clip(image, 0.0, 1.0) - target) ** 2)))
 
 
 @dataclass
@@ -178,7 +178,7 @@ class Trainer:
         self.set_gaussians(gaussians.with_degree(config.sh_degree))
         self._order: list[int] = []
         self._coarse_views: dict[tuple[int, int], tuple[Camera, np.ndarray]] = {}
-        self._grads: tk.Gradients | None = None
+        self._grads: kernels.Gradients | None = None
         self._loss_grad: dict[tuple[int, int], np.ndarray] = {}
 
     # -- parameters -----------------------------------------------------------------------
@@ -272,15 +272,15 @@ class Trainer:
         camera, target = self.training_view(view, level)
         degree = min(c.sh_degree, (self.step - 1) // c.sh_degree_interval)
         gaussians = self.gaussians
-        result, state = tk.render_train(gaussians, camera, background=self.background,
+        result, state = kernels.render_train(gaussians, camera, background=self.background,
                                         antialiased=c.antialiased, sh_degree=degree,
                                         threads=c.threads)
         grad_image = self._loss_grad.setdefault(target.shape[:2], np.empty(target.shape, np.float32))
-        loss = tk.l1_ssim_loss(result.rgb, target, lambda_dssim=c.lambda_dssim,
+        loss = kernels.l1_ssim_loss(result.rgb, target, lambda_dssim=c.lambda_dssim,
                                out_grad=grad_image, threads=c.threads)
         if self._grads is None or not self._grads.fits(len(gaussians), gaussians.sh.shape[1]):
-            self._grads = tk.Gradients.zeros_like(gaussians)
-        grads = tk.backward(state, gaussians, loss.grad, threads=c.threads, out=self._grads)
+            self._grads = kernels.Gradients.zeros_like(gaussians)
+        grads = kernels.backward(state, gaussians, loss.grad, threads=c.threads, out=self._grads)
 
         info = StepInfo(self.step, camera, state, grads, self.learning_rates(), loss.loss, level,
                         view)
@@ -290,7 +290,7 @@ class Trainer:
                                   sh_coeffs=(degree + 1) ** 2)
         densified = self.strategy.after_step(self.parameters, info)
         return {"step": self.step, "loss": loss.loss, "l1": loss.l1, "ssim": loss.ssim,
-                "psnr": tk.psnr_of_mse(loss.mse), "gaussians": len(self), "sh_degree": degree,
+                "psnr": kernels.psnr_of_mse(loss.mse), "gaussians": len(self), "sh_degree": degree,
                 "densified": densified, "sizing": self.strategy.sizing,
                 "pixels": camera.width * camera.height, "tile_pairs": state.tile_pairs,
                 "work": stopping.step_work(camera.width * camera.height, state.tile_pairs,
@@ -376,7 +376,7 @@ class Trainer:
                          antialiased=self.config.antialiased, sh_degree=sh_degree,
                          threads=self.config.threads).rgb
             rgb = np.clip(rgb, 0.0, 1.0)
-            ssim = tk.l1_ssim_loss(rgb, target, need_grad=False, threads=self.config.threads).ssim
+            ssim = kernels.l1_ssim_loss(rgb, target, need_grad=False, threads=self.config.threads).ssim
             values.append((psnr(rgb, target), ssim))
         if not values:
             return Evaluation(float("nan"), float("nan"), 0, 0.0)
@@ -458,11 +458,11 @@ def contribution(gaussians: Gaussians, cameras: list[Camera], *, background=None
                           gaussians.opacity_logits, np.zeros((len(gaussians), 1, 3), np.float32))
     total = np.zeros(len(gaussians))
     for camera in cameras:
-        result, state = tk.render_train(gaussians, camera, background=background,
+        result, state = kernels.render_train(gaussians, camera, background=background,
                                         antialiased=antialiased, threads=threads)
         d_rgb = np.zeros_like(result.rgb)
         d_rgb[..., 0] = 1.0
-        grads = tk.backward(state, gaussians, d_rgb, threads=threads)
+        grads = kernels.backward(state, gaussians, d_rgb, threads=threads)
         total += grads.sh[:, 0, 0] / SH_C0
     return total
 

@@ -18,10 +18,10 @@ import pytest
 
 from addon.blender import gather, splat_object
 from addon.blender.blender_splats import any_splats, convert, data, ownership
-from addon.blender.io import operators as io_operators
+from addon.blender.io import operators
 from addon.blender.render import compositor_bridge as bridge
 from addon.core import splat_io
-from addon.core.blender_splats import attributes as convention
+from addon.core.blender_splats import attributes
 from addon.core.transform import transform_gaussians
 from scenes import random_gaussians
 
@@ -38,10 +38,10 @@ def empty_scene():
 def _stand_in_cloud(gaussians, name="Cloud"):
     """A point cloud holding Blender's splat attributes for `gaussians` (radiance:base as
     FLOAT_COLOR where this Blender lacks FLOAT4)."""
-    arrays = convention.attributes_from_gaussians(gaussians)
+    arrays = attributes.attributes_from_gaussians(gaussians)
     pointcloud = data._sized_pointcloud(name, len(gaussians))
     for attr_name, values in arrays.items():
-        data_type = convention.REQUIRED.get(attr_name, convention.SH_TYPE)[0]
+        data_type = attributes.REQUIRED.get(attr_name, attributes.SH_TYPE)[0]
         if data_type == "FLOAT4" and not HAS_53:
             data_type = "FLOAT_COLOR"
         attribute = pointcloud.attributes.get(attr_name) or pointcloud.attributes.new(attr_name, data_type, "POINT")
@@ -75,7 +75,7 @@ def test_before_53_the_feature_is_absent_and_clear(rng):
     with bpy.context.temp_override(selected_objects=[obj], active_object=obj):
         assert not bpy.ops.splat.convert_to_blender_splats.poll()
         assert not bpy.ops.splat.convert_from_blender_splats.poll()
-    assert not io_operators.default_blender_splats()
+    assert not operators.default_blender_splats()
 
 
 @pytest.mark.skipif(HAS_53, reason="this bpy has Gaussian splat point clouds")
@@ -84,7 +84,7 @@ def test_before_53_importer_option_fails_clearly(tmp_path, rng):
     splat_io.save(random_gaussians(rng, 10, degree=0), path)
     before = bs.scene_state()
     with pytest.raises(data.BlenderSplatsUnsupported):
-        io_operators.import_splats(path, blender_splats=True)
+        operators.import_splats(path, blender_splats=True)
     assert bs.scene_state() == before
     with pytest.raises(RuntimeError, match="5.3"):  # the operator's error report
         bpy.ops.splat.import_splats(filepath=str(path), representation="BLENDER")
@@ -105,7 +105,7 @@ def test_read_a_cloud_equals_the_convention(rng, stand_in):
     obj = _stand_in_cloud(g)
     assert any_splats.is_splat_source(obj)
     back = data.read_gaussians(obj.data)
-    expected = convention.gaussians_from_attributes(convention.attributes_from_gaussians(g)).gaussians
+    expected = attributes.gaussians_from_attributes(attributes.attributes_from_gaussians(g)).gaussians
     assert bs.gaussians_equal(back, expected)
 
 
@@ -150,7 +150,7 @@ def test_export_of_a_blender_cloud_equals_its_data(rng, stand_in, tmp_path):
     obj.matrix_world = bs.bpy.context.scene.cursor.matrix  # identity
     bpy.context.view_layer.objects.active = obj
     path = tmp_path / "out.ply"
-    io_operators.export_splats(obj, path, forward_axis="Y", up_axis="Z")
+    operators.export_splats(obj, path, forward_axis="Y", up_axis="Z")
     written = splat_io.load(path)
     assert bs.gaussians_equal(written, data.read_gaussians(obj.data))
     with bpy.context.temp_override(active_object=obj, object=obj):

@@ -13,7 +13,7 @@ from mathutils import Vector
 
 from addon.blender import mesh_convert, splat_object
 from addon.blender.io import photo_scene
-from addon.core.images import files as image_io
+from addon.core.images import files
 from scenes import sphere_gaussians
 
 DEMO = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap"
@@ -52,7 +52,7 @@ def _render(scene, path: Path) -> np.ndarray:
     scene.render.filepath = str(path)
     scene.render.image_settings.file_format = "PNG"
     bpy.ops.render.render(write_still=True)
-    return image_io.to_float(image_io.read_pixels(path))[..., :3]
+    return files.to_float(files.read_pixels(path))[..., :3]
 
 
 def test_converted_mesh_renders_with_colour_in_cycles(tmp_path):

@@ -11,7 +11,7 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender.io import operators as io_operators, sequence
+from addon.blender.io import operators, sequence
 from addon.core import splat_io
 from addon.core.formats import registry
 from addon.core.render.renderer import render
@@ -47,7 +47,7 @@ def test_each_frame_shows_its_file_bit_exact(tmp_path):
     files = write_frames(tmp_path, COUNTS)
     scene = bpy.context.scene
     scene.frame_set(2)
-    obj = io_operators.import_sequence(files[1])
+    obj = operators.import_sequence(files[1])
     assert obj.splat.sequence_source == str(files[1]) and obj.name == "walk"
     assert bs.gaussians_equal(bs.mesh_gaussians(obj), file_gaussians(files[2]))  # frame 2 now
     assert len(bpy.data.objects) == 1
@@ -78,7 +78,7 @@ def test_edit_mode_is_left_alone(tmp_path):
     files = write_frames(tmp_path, COUNTS)
     scene = bpy.context.scene
     scene.frame_set(1)
-    obj = io_operators.import_sequence(files[1])
+    obj = operators.import_sequence(files[1])
     bpy.ops.object.mode_set(mode="EDIT")
     scene.frame_set(2)
     bpy.ops.object.mode_set(mode="OBJECT")
@@ -92,7 +92,7 @@ def test_a_bad_frame_keeps_the_previous_splats(tmp_path, capfd):
     files[2].write_bytes(b"ply\nformat nonsense\n")
     scene = bpy.context.scene
     scene.frame_set(1)
-    obj = io_operators.import_sequence(files[1])
+    obj = operators.import_sequence(files[1])
     scene.frame_set(2)
     assert len(obj.data.vertices) == COUNTS[1]
     assert "walk_0002.ply" in capfd.readouterr().err
@@ -103,7 +103,7 @@ def test_a_bad_frame_keeps_the_previous_splats(tmp_path, capfd):
 def _animation_scene(tmp_path, files):
     scene = bpy.context.scene
     scene.frame_set(1)
-    io_operators.import_sequence(files[1])
+    operators.import_sequence(files[1])
     camera = bs.add_camera(location=(0.0, -6.0, 0.0), rotation=(math.pi / 2, 0, 0), lens=35,
                            width=32, height=24)
     scene.render.engine = "BLENDER_WORKBENCH"
@@ -140,10 +140,10 @@ def test_export_round_trip(tmp_path):
     files = write_frames(tmp_path, COUNTS)
     scene = bpy.context.scene
     scene.frame_set(2)
-    obj = io_operators.import_sequence(tmp_path / "walk_####.ply")
+    obj = operators.import_sequence(tmp_path / "walk_####.ply")
     out = tmp_path / "out"
     out.mkdir()
-    written = io_operators.export_sequence(obj, out / "copy_####.ply", [1, 2, 3])
+    written = operators.export_sequence(obj, out / "copy_####.ply", [1, 2, 3])
     assert written == [out / f"copy_{n:04d}.ply" for n in (1, 2, 3)]
     assert scene.frame_current == 2
     for number in (1, 2, 3):
@@ -161,7 +161,7 @@ def test_memory_stays_bounded_and_scrubbing_back_reads_nothing(tmp_path):
     write_frames(tmp_path, {n: 10 + n for n in range(1, 21)}, degree=0)
     scene = bpy.context.scene
     scene.frame_set(1)
-    obj = io_operators.import_sequence(tmp_path)  # a folder
+    obj = operators.import_sequence(tmp_path)  # a folder
     frames = sequence.sequence_of(obj)
     assert len(frames) == 20 and frames.reads == 1
     for frame in range(1, 21):
@@ -180,7 +180,7 @@ def test_frames_of_the_same_count_gather_their_own_splats(tmp_path):
     files = write_frames(tmp_path, {1: 50, 2: 50})
     scene = bpy.context.scene
     scene.frame_set(1)
-    obj = io_operators.import_sequence(files[1])
+    obj = operators.import_sequence(files[1])
     for frame in (1, 2, 1, 2):
         scene.frame_set(frame)
         gathered = bs.gather.gather(bpy.context.evaluated_depsgraph_get()).gaussians
@@ -214,8 +214,8 @@ def test_a_frame_file_missing_on_another_machine_fails_that_frame(tmp_path):
         bpy.ops.render.render(animation=True)
     except RuntimeError:
         pass
-    from addon.blender.render import failures as render_failures
-    assert any("walk_0002.ply" in e and "missing" in e for e in render_failures.last_errors())
+    from addon.blender.render import failures
+    assert any("walk_0002.ply" in e and "missing" in e for e in failures.last_errors())
     assert not (tmp_path / "anim_0002.png").exists()
     # The same folder as imported with the gap: frame 2 holds frame 1, as image sequences do.
     sequence.record_numbers(obj, [1, 3])
@@ -237,7 +237,7 @@ def test_the_import_stores_the_path_relative_to_the_saved_blend(tmp_path):
     the absolute path."""
     (tmp_path / "frames").mkdir()
     files = write_frames(tmp_path / "frames", COUNTS)
-    unsaved = io_operators.import_sequence(files[1], relative=True)
+    unsaved = operators.import_sequence(files[1], relative=True)
     assert unsaved.splat.sequence_source == str(files[1])
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
     assert bpy.ops.splat.import_splats(filepath=str(files[1]), sequence=True) == {"FINISHED"}

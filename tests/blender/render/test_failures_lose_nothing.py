@@ -13,7 +13,7 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender.io import operators as io_operators
+from addon.blender.io import operators
 from addon.blender import mesh_convert, splat_object
 from addon.core import splat_io
 from addon.core import atomic
@@ -73,7 +73,7 @@ def test_import_failing_while_building_leaves_nothing(scene, tmp_path, monkeypat
     # the script function too
     monkeypatch.setattr(splat_object, "write_gaussians", _fails_on_call(1, splat_object.write_gaussians))
     with pytest.raises(Injected):
-        io_operators.import_splats(paths[0])
+        operators.import_splats(paths[0])
     assert (bs.scene_state(), _data_counts(), _settings(scene)) == (before, counts, settings)
 
 
@@ -154,13 +154,13 @@ def test_colmap_import_failing_while_building_leaves_nothing(scene, monkeypatch)
 
 def test_training_failing_mid_run_leaves_no_half_object_nor_checkpoint(tmp_path, monkeypatch):
     from addon.blender import job_runner
-    from addon.blender.train import operator as train_operator
+    from addon.blender.train import operator
     from addon.core.train import trainer as train
     demo = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap"
     bs.reset_scene()
     assert bpy.ops.splat.import_colmap(directory=str(demo), image_folder="images", align=True,
                                        backgrounds=False) == {"FINISHED"}
-    collection = next(c for c in bpy.data.collections if train_operator.is_colmap_collection(c))
+    collection = next(c for c in bpy.data.collections if operator.is_colmap_collection(c))
     scene = bpy.context.scene
     before, counts, settings = bs.scene_state(), _data_counts(), _settings(scene)
     keys = set(collection.keys())
@@ -180,18 +180,18 @@ def test_training_failing_mid_run_leaves_no_half_object_nor_checkpoint(tmp_path,
 
 def test_training_failing_on_a_trained_object_puts_its_splats_back(tmp_path, monkeypatch):
     from addon.blender import job_runner, splat_object
-    from addon.blender.train import operator as train_operator
+    from addon.blender.train import operator
     from addon.core.train import trainer as train
     demo = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap"
     bs.reset_scene()
     assert bpy.ops.splat.import_colmap(directory=str(demo), image_folder="images", align=True,
                                        backgrounds=False) == {"FINISHED"}
-    collection = next(c for c in bpy.data.collections if train_operator.is_colmap_collection(c))
+    collection = next(c for c in bpy.data.collections if operator.is_colmap_collection(c))
     options = dict(collection=collection.name, max_gaussians=5000, sh_degree=0, downscale=8.0,
                    threads=2, update_every=5)
     assert bpy.ops.splat.train(checkpoint=str(tmp_path / "first.npz"), steps=10,
                                **options) == {"FINISHED"}
-    obj = collection[train_operator.OBJECT_KEY]
+    obj = collection[operator.OBJECT_KEY]
     trained = splat_object.gaussians_from_data(obj.data, drop_hidden=False)
     steps = obj["splat_trained_steps"]
     monkeypatch.setattr(train.Trainer, "train_step", _fails_on_call(12, train.Trainer.train_step))
@@ -200,7 +200,7 @@ def test_training_failing_on_a_trained_object_puts_its_splats_back(tmp_path, mon
             bpy.ops.splat.train(checkpoint=str(tmp_path / "second.npz"), steps=40, **options)
     finally:
         job_runner.stop_all()
-    assert collection[train_operator.OBJECT_KEY] == obj
+    assert collection[operator.OBJECT_KEY] == obj
     assert bs.gaussians_equal(splat_object.gaussians_from_data(obj.data, drop_hidden=False), trained)
     assert obj["splat_trained_steps"] == steps
 
@@ -208,7 +208,7 @@ def test_training_failing_on_a_trained_object_puts_its_splats_back(tmp_path, mon
 def _failing_render(monkeypatch, tmp_path):
     """A scene of splats and meshes whose splat composite fails during F12, writing to
     tmp/out.png where a previous render lies."""
-    from addon.blender.render import hooks as render_hooks
+    from addon.blender.render import hooks
     from test_render_with_meshes import build_scene
 
     scene, *_ = build_scene(np.random.default_rng(5), "BLENDER_WORKBENCH", n=100)
@@ -217,7 +217,7 @@ def _failing_render(monkeypatch, tmp_path):
     scene.render.filepath = str(tmp_path / "out")
     bpy.ops.render.render()  # a first render sets the compositor bridge up (that stays, by design)
     (tmp_path / "out.png").write_bytes(b"the previous render")
-    monkeypatch.setattr(render_hooks, "compose", _fails_on_call(1, render_hooks.compose))
+    monkeypatch.setattr(hooks, "compose", _fails_on_call(1, hooks.compose))
     return scene
 
 

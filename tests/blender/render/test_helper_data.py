@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from addon.blender import splat_object
-from addon.blender.render import compositor_bridge as bridge, failures as render_failures
+from addon.blender.render import compositor_bridge as bridge, failures
 from scenes import random_gaussians
 from standard_view import read_png
 
@@ -34,8 +34,8 @@ def _scene(rng):
 
 def _render(scene, path) -> np.ndarray:
     scene.render.filepath = str(path)
-    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}, render_failures.last_errors()
-    assert render_failures.last_errors() == []
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}, failures.last_errors()
+    assert failures.last_errors() == []
     return read_png(str(path) + ".png")
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from addon.blender import dependencies, mesh_convert, splat_object
-from addon.blender.render import failures as render_failures, hooks as render_hooks
+from addon.blender.render import failures, hooks
 from scenes import random_gaussians
 
 
@@ -33,7 +33,7 @@ def _render_fails(scene, tmp_path, match: str) -> None:
         result = bpy.ops.render.render(write_still=True)
     except RuntimeError:
         result = {"CANCELLED"}
-    errors = render_failures.last_errors()
+    errors = failures.last_errors()
     written = sorted(p.name for p in tmp_path.glob("frame*"))
     assert written == [], f"a failed render left {written}"
     assert any(match in e for e in errors), errors
@@ -63,7 +63,7 @@ def test_splats_that_cannot_be_gathered_fail_the_render(rng, tmp_path, monkeypat
 
     def broken(*args, **kwargs):
         raise ValueError("forced: a bad splat object")
-    monkeypatch.setattr(render_hooks, "capture_frame", broken)
+    monkeypatch.setattr(hooks, "capture_frame", broken)
     _render_fails(scene, tmp_path, "a bad splat object")
 
 
@@ -72,7 +72,7 @@ def test_a_native_error_fails_the_render(rng, tmp_path, monkeypatch):
 
     def broken(*args, **kwargs):
         raise RuntimeError("forced: the native compositor failed")
-    monkeypatch.setattr(render_hooks, "compose", broken)
+    monkeypatch.setattr(hooks, "compose", broken)
     _render_fails(scene, tmp_path, "the native compositor failed")
 
 
@@ -85,11 +85,11 @@ def test_splat_passes_without_openimageio_fail_before_rendering(rng, tmp_path, n
     except RuntimeError:
         pass
     assert not list(tmp_path.glob("frame*"))
-    assert any("Splat Passes" in e and "OpenImageIO" in e for e in render_failures.last_errors())
+    assert any("Splat Passes" in e and "OpenImageIO" in e for e in failures.last_errors())
     # Turning the passes off renders the multilayer file without them.
     scene.splat_render.splat_passes = False
     assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
-    assert render_failures.last_errors() == []
+    assert failures.last_errors() == []
     assert (tmp_path / "frame.exr").exists()
 
 
@@ -99,7 +99,7 @@ def test_a_render_after_a_failure_works(rng, tmp_path, monkeypatch):
     _render_fails(scene, tmp_path, "splatcore")
     monkeypatch.undo()
     assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
-    assert (tmp_path / "frame.png").exists() and render_failures.last_errors() == []
+    assert (tmp_path / "frame.png").exists() and failures.last_errors() == []
 
 
 def test_require_names_the_feature_and_the_fix(no_module):

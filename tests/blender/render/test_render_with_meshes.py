@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from addon.blender import camera_adapter, splat_object
-from addon.blender.render import compositor_bridge, hooks as render_hooks, state as render_state
+from addon.blender.render import compositor_bridge, hooks, state
 from addon.core.images import exr_layers, exr_scanlines
 from addon.core.render.composite import compose
 from addon.core.render.renderer import render
@@ -55,21 +55,14 @@ def build_scene(rng, engine: str, *, n: int = 400, meshes: bool = True):
         plane.data.materials.append(material("Plane", (0.1, 0.35, 0.8), engine))
     camera = bs.add_camera(location=(0.0, -6.0, 0.0), rotation=(math.pi / 2, 0, 0), lens=35,
                            width=WIDTH, height=HEIGHT)
-    scene.render.engine = engine
     if engine == "CYCLES":
-        scene.cycles.device = "CPU"
-        scene.cycles.samples = 4
-        scene.cycles.use_denoising = False
-        scene.cycles.use_adaptive_sampling = False
-        scene.cycles.max_bounces = 0
+        scene_kit.flat_cycles(scene)
     else:
         scene.display.shading.color_type = "MATERIAL"
+    scene.render.engine = engine
     scene.render.threads_mode = "FIXED"
     scene.render.threads = 2
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.view_settings.exposure = 0.0
-    scene.view_settings.gamma = 1.0
+    scene_kit.standard_view(scene)
     return scene, splats, cube, plane, camera
 
 
@@ -201,8 +194,8 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
     gathered again."""
     scene, splats, _, _, _ = build_scene(rng, "BLENDER_WORKBENCH")
     frames, read = [], []
-    capture = render_hooks.capture_frame
-    monkeypatch.setattr(render_hooks, "capture_frame",
+    capture = hooks.capture_frame
+    monkeypatch.setattr(hooks, "capture_frame",
                         lambda *args: frames.append(capture(*args)) or frames[-1])
     read_channels = exr_scanlines.read_channels
     monkeypatch.setattr(exr_scanlines, "read_channels",
@@ -210,8 +203,8 @@ def test_renders_reuse_unchanged_splats_and_never_stale_ones(rng, tmp_path, monk
 
     def rendered(name):
         render_still(scene, tmp_path / name)
-        assert render_hooks.last_stats["gaussians"] == len(splats.data.vertices)
-        assert "prepared_ms" in render_hooks.last_stats  # made while Blender wrote the EXR
+        assert hooks.last_stats["gaussians"] == len(splats.data.vertices)
+        assert "prepared_ms" in hooks.last_stats  # made while Blender wrote the EXR
         # the render's EXR copy (in /dev/shm: memory) is gone as soon as it is read
         assert read and not os.path.exists(read[-1])
         return frames[-1]
@@ -296,8 +289,8 @@ def test_border_percentage_shift_and_pixel_aspect(rng, tmp_path):
     scene.render.use_border = True
     scene.render.border_min_x, scene.render.border_max_x = 0.2, 0.7
     scene.render.border_min_y, scene.render.border_max_y = 0.35, 0.9
-    region = render_hooks.render_region(*camera_adapter.frame_size(scene.render),
-                                        render_hooks.render_border(scene.render))
+    region = hooks.render_region(*camera_adapter.frame_size(scene.render),
+                                        hooks.render_border(scene.render))
     scene.render.use_crop_to_border = True
     cropped = read_png(render_still(scene, tmp_path / "crop"))
     assert cropped.shape[:2] == (region.height, region.width)
@@ -485,11 +478,11 @@ def test_render_cache_path_gives_the_same_image(rng, tmp_path):
     render is read from Blender's render cache file instead: same image."""
     scene, *_ = build_scene(rng, "BLENDER_WORKBENCH")
     normal = read_png(render_still(scene, tmp_path / "normal"))
-    render_state.current.force_cache_file = True
+    state.current.force_cache_file = True
     try:
         cached = read_png(render_still(scene, tmp_path / "cached"))
     finally:
-        render_state.current.force_cache_file = False
+        state.current.force_cache_file = False
     assert not scene.render.use_render_cache  # put back after the render
     assert np.array_equal(cached, normal)
 
@@ -515,7 +508,7 @@ def test_render_splats_only_engine(rng, tmp_path, capfd):
 
 def test_bridge_keeps_and_restores_a_users_compositor(rng):
     scene, *_ = build_scene(rng, "BLENDER_WORKBENCH")
-    render_hooks.set_up_bridge_later(scene.name)  # what the UI does once splats appear in a scene
+    hooks.set_up_bridge_later(scene.name)  # what the UI does once splats appear in a scene
     assert compositor_bridge.bridge_node(scene) is not None
     assert compositor_bridge.remove_bridge(scene)
     assert scene.compositing_node_group is None
@@ -543,7 +536,7 @@ def test_a_compositor_reading_the_depth_gets_the_composites(rng, tmp_path):
     """The helper render fills its Depth pass only when the compositor reads it (the bridge
     node's Depth output linked, e.g. by a user's compositor): then that is the composite's."""
     scene, _, _, _, camera = build_scene(rng, "BLENDER_WORKBENCH")
-    render_hooks.set_up_bridge_later(scene.name)
+    hooks.set_up_bridge_later(scene.name)
     assert not compositor_bridge.uses_depth(scene)
     tree = scene.compositing_node_group
     output = next(n for n in tree.nodes if n.bl_idname == "NodeGroupOutput")

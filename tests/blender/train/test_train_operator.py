@@ -17,12 +17,12 @@ import pytest
 
 from addon.blender.io import colmap_import
 from addon.blender import job_runner, viewport
-from addon.blender.train import operator as train_operator
+from addon.blender.train import operator
 from addon.blender.job_runner import RUNNING, JobOperator
 from addon.blender.train.operator import (OBJECT_KEY, source_of, train_colmap_collection,
                                           train_request, training_job)
 from addon.core import colmap
-from addon.core.images import files as image_io
+from addon.core.images import files
 from addon.core.train.dataset import NO_CAMERA
 from addon.core.jobs import Progress, format_duration, how_far, status_line
 from addon.core.render.renderer import render, seen_by_any
@@ -41,7 +41,7 @@ def demo(tmp_path):
     result = bpy.ops.splat.import_colmap(directory=str(DEMO), image_folder="images", align=True,
                                          backgrounds=False)
     assert result == {"FINISHED"}
-    collection = next(c for c in bpy.data.collections if train_operator.is_colmap_collection(c))
+    collection = next(c for c in bpy.data.collections if operator.is_colmap_collection(c))
     camera = next(o for o in collection.objects if o.get("colmap_image_name") == VIEW)
     yield SimpleNamespace(collection=collection, camera=camera, checkpoint=tmp_path / "ck.npz")
     job_runner.stop_all()
@@ -58,8 +58,8 @@ def _render_from(camera_obj, gaussians):
 
 
 def _photo(camera_obj, camera):
-    pixels = image_io.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
-    return image_io.to_float(image_io.rgb_alpha(pixels)[0])
+    pixels = files.read_pixels(camera_obj["colmap_photo"], size=(camera.width, camera.height))
+    return files.to_float(files.rgb_alpha(pixels)[0])
 
 
 def _world_gaussians(obj):
@@ -87,7 +87,7 @@ def test_train_operator_learns_lines_up_and_resumes(demo) -> None:
     assert np.allclose(np.array(obj.matrix_world), np.eye(4))
     assert obj["splat_trained_steps"] == 300 and obj["splat_heldout_psnr"] > 0
     assert demo.checkpoint.is_file()
-    assert demo.collection[train_operator.CHECKPOINT_KEY] == str(demo.checkpoint)
+    assert demo.collection[operator.CHECKPOINT_KEY] == str(demo.checkpoint)
 
     # The splats line up with the imported camera: its render matches the held-out photo.
     trained_rgb, camera = _render_from(demo.camera, _world_gaussians(obj))
@@ -211,7 +211,7 @@ def test_worker_thread_cancels_with_a_consistent_state(demo) -> None:
                                                          sh_degree=1, threads=2),
                             downscale=4.0, checkpoint=str(demo.checkpoint), update_every=10,
                             checkpoint_every=0)
-    job = request.job().start()
+    job = operator.request_job(request).start()
     deadline = time.monotonic() + 30
     while job.progress().step < 25 and not job.done and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -236,13 +236,13 @@ def test_cancel_while_loading_leaves_the_checkpoint_alone(demo) -> None:
     demo.checkpoint.write_bytes(b"an earlier checkpoint")
     request = train_request(demo.collection, TrainConfig(steps=50, threads=2), downscale=4.0,
                             checkpoint=str(demo.checkpoint))
-    job = request.job()
+    job = operator.request_job(request)
     job.cancel()  # before the first batch of photos is decoded
     job.start()
     assert job.join(30) and job.error is None and job.trainer is None
     assert job.progress().phase == "cancelled"
     assert demo.checkpoint.read_bytes() == b"an earlier checkpoint"
-    level, message, obj = train_operator.finish_training(request, job)
+    level, message, obj = operator.finish_training(request, job)
     assert level == "INFO" and "nothing changed" in message and obj is None
     assert OBJECT_KEY not in demo.collection
 
@@ -312,7 +312,7 @@ def test_menus_and_status_bar_are_registered() -> None:
     menu = job_runner.menu_parent()
     assert menu.__name__ == "VIEW3D_MT_splat"
     from addon.blender.train import scene_to_splats
-    assert train_operator._menu in menu.draw._draw_funcs
+    assert operator._menu in menu.draw._draw_funcs
     assert scene_to_splats._menu in menu.draw._draw_funcs
     # `WorkSpace.status_text_set(None)` may put back a draw function saved before this add-on
     # registered: the status line comes back at the next timer tick.
@@ -371,10 +371,10 @@ class _Layout:
 
 
 def test_training_panel_shows_the_count_as_it_grows(demo) -> None:
-    from addon.blender.train import panel as training_panel
+    from addon.blender.train import panel
     assert isinstance(bpy.types.VIEW3D_PT_splat_training, type)
     texts: list = []
-    training_panel.VIEW3D_PT_splat_training.draw(SimpleNamespace(layout=_Layout(texts)),
+    panel.VIEW3D_PT_splat_training.draw(SimpleNamespace(layout=_Layout(texts)),
                                                   bpy.context)
     assert texts == ["splat.train", "splat.bake_to_splats"]  # no job: the two buttons
     request = train_request(demo.collection, TrainConfig(steps=0, max_steps=210, sh_degree=0,
@@ -382,18 +382,18 @@ def test_training_panel_shows_the_count_as_it_grows(demo) -> None:
                             checkpoint=demo.checkpoint)
     running = training_job(request)
     counts = []  # the progress a panel reads, step by step: the count grows
-    request.job(lambda p: counts.append((p.gaussians, p.sizing)) if p.phase == "training"
-                else None).run()
+    operator.request_job(request, lambda p: counts.append((p.gaussians, p.sizing))
+                         if p.phase == "training" else None).run()
     assert counts[-1][0] > counts[0][0] and {s for _, s in counts} <= {"growing", "settled"}
     running.progress = Progress(phase="training", step=1234, total=30000, until_done=True,
                                 gaussians=19246, sizing="growing", gain_per_minute=0.84)
     texts.clear()
-    training_panel._draw_job(_Layout(texts), running)
+    panel._draw_job(_Layout(texts), running)
     assert "Step 1,234 (until done)" in texts and "19,246 Gaussians, growing" in texts
     assert "Held-out gain +0.84 dB/min" in texts and "splat.train_stop" in texts
     running.progress = Progress(phase="training", step=300, total=1500, gaussians=5000, eta=61.0)
     texts.clear()
-    training_panel._draw_job(_Layout(texts), running)
+    panel._draw_job(_Layout(texts), running)
     assert "Step 300 of 1,500" in texts and "5,000 Gaussians" in texts and "ETA 1:01" in texts
 
 
@@ -407,15 +407,15 @@ def test_after_training_the_views_look_through_a_photo(demo) -> None:
 
     free, ortho, through = view("PERSP"), view("ORTHO"), view("CAMERA")
     scene.camera = None
-    camera = train_operator.look_through_a_photo(scene, demo.collection, [free, ortho, through])
+    camera = operator.look_through_a_photo(scene, demo.collection, [free, ortho, through])
     assert camera is not None and camera.get("colmap_image_name") is not None
     assert scene.camera == camera and free.region_3d.view_perspective == "CAMERA"
     assert ortho.region_3d.view_perspective == "CAMERA"
     scene.camera = demo.camera  # a photo's camera already: kept
     free.region_3d.view_perspective = "PERSP"
-    assert train_operator.look_through_a_photo(scene, demo.collection, [free]) == demo.camera
-    assert train_operator.look_through_a_photo(scene, demo.collection, [through]) is None
-    assert train_operator.look_through_a_photo(scene, None, [view("PERSP")]) is None
+    assert operator.look_through_a_photo(scene, demo.collection, [free]) == demo.camera
+    assert operator.look_through_a_photo(scene, demo.collection, [through]) is None
+    assert operator.look_through_a_photo(scene, None, [view("PERSP")]) is None
 
 
 def test_updates_are_paced_by_what_they_cost_the_main_thread() -> None:

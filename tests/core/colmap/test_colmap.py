@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from addon.core import colmap
-from addon.core.images import files as image_io
+from addon.core.images import files
 from addon.core.colmap import ColmapError, read_colmap
 from addon.core.train.dataset import ColmapDataset, split_indices
 from tests.colmap_helpers import (colmap_own_residuals, project,
@@ -121,7 +121,7 @@ def test_beer_partial_images_8_and_undistortion_cache(shared_data, tmp_path):
             assert im.path is None
         else:
             assert im.path == folder / "images" / im.name
-            header = image_io.read_header(im.path)
+            header = files.read_header(im.path)
             assert (header.width, header.height) == (cam.width, cam.height)
     # The undistorted workspace is a COLMAP model of pinhole cameras that re-projects as ours.
     again = read_colmap(folder, "images", cache_dir=tmp_path / "unused")
@@ -175,7 +175,7 @@ def test_undistorted_photo_agrees_with_pycolmap(shared_data, tmp_path):
                                                   im.camera.cy], rtol=1e-12)
     intr = colmap.pinhole_of(cam, pycolmap.UndistortCameraOptions())
     x, y = colmap.undistortion_map(intr, im.camera, (720, 1280))
-    ours = image_io.remap_bilinear(image_io.read_pixels(im.source_path), x, y)
+    ours = files.remap_bilinear(files.read_pixels(im.source_path), x, y)
     diff = np.abs(ours.astype(float) - theirs.to_array().astype(float))
     print(f"undistorted photo vs pycolmap.undistort_image: mean |diff| {diff.mean():.3f}, "
           f"99th percentile {np.percentile(diff, 99):.1f}, max {diff.max():.0f} (of 255)")
@@ -218,7 +218,7 @@ def test_every_camera_model(tmp_path, rng, fmt):
         else:
             assert im.path == scene.undistorted_dir / "images" / im.name
         # The photo (undistorted where needed) shows the texture along each pixel's ray.
-        got = image_io.to_float(image_io.read_pixels(im.path))
+        got = files.to_float(files.read_pixels(im.path))
         assert got.shape == (cam.height, cam.width, 3)
         u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
         want = texture((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy)
@@ -255,14 +255,14 @@ def test_photo_bit_depths_orientation_and_downscaled_folder(tmp_path, rng):
 
     def writer(path, pixels):
         if path.suffix == ".exr":
-            image_io.write_pixels(path, pixels.astype(np.float16))
+            files.write_pixels(path, pixels.astype(np.float16))
         else:
-            image_io.write_pixels(path, np.round(pixels * 65535).astype(np.uint16)
+            files.write_pixels(path, np.round(pixels * 65535).astype(np.uint16)
                                 if path.suffix == ".png" else np.round(pixels * 255).astype(np.uint8))
 
     synthetic_workspace(tmp_path / "w", cameras, images, rng=rng, photo_writer=writer)
     # d.jpg: store it sideways with EXIF orientation 6 (display = rotate 90 degrees clockwise)
-    upright = image_io.read_pixels(tmp_path / "w" / "images" / "d.jpg")
+    upright = files.read_pixels(tmp_path / "w" / "images" / "d.jpg")
     spec = oiio.ImageSpec(upright.shape[0], upright.shape[1], 3, "uint8")
     spec.attribute("Orientation", 6)
     stored = np.ascontiguousarray(np.rot90(upright, k=1))
@@ -270,17 +270,17 @@ def test_photo_bit_depths_orientation_and_downscaled_folder(tmp_path, rng):
     out.open(str(tmp_path / "w" / "images" / "d.jpg"), spec)
     out.write_image(stored)
     out.close()
-    turned = image_io.read_pixels(tmp_path / "w" / "images" / "d.jpg", orientation=6)
+    turned = files.read_pixels(tmp_path / "w" / "images" / "d.jpg", orientation=6)
     assert turned.shape == upright.shape  # JPEG again: equal up to compression
     assert np.abs(turned.astype(int) - upright).mean() < 2
 
     scene = read_colmap(tmp_path / "w", cache_dir=tmp_path / "cache")
-    kinds = {im.name: image_io.read_pixels(im.path).dtype for im in scene.images}
+    kinds = {im.name: files.read_pixels(im.path).dtype for im in scene.images}
     assert kinds == {"a.png": np.uint16, "b.exr": np.float16, "c.png": np.uint16,
                      "d.jpg": np.uint8, "e.png": np.uint16}
     d = scene.image("d.jpg")
     assert d.path == scene.undistorted_dir / "images" / "d.jpg"  # an upright copy
-    got = image_io.read_pixels(d.path)
+    got = files.read_pixels(d.path)
     assert got.shape == upright.shape and np.abs(got.astype(int) - upright).mean() < 2
     c = scene.image("c.png")
     assert c.path == tmp_path / "w" / "images" / "c.png"  # pinhole, upright: used as it is
@@ -288,10 +288,10 @@ def test_photo_bit_depths_orientation_and_downscaled_folder(tmp_path, rng):
     # images_2 with only three photos, made by halving the originals (OpenImageIO, box)
     half = tmp_path / "w" / "images_2"
     for name in ("a.png", "c.png", "d.jpg"):
-        full = image_io.read_pixels(tmp_path / "w" / "images" / name,
+        full = files.read_pixels(tmp_path / "w" / "images" / name,
                                   orientation=6 if name == "d.jpg" else 1)
         size = (full.shape[1] // 2, full.shape[0] // 2)
-        image_io.write_pixels(half / name, image_io.read_pixels(
+        files.write_pixels(half / name, files.read_pixels(
             tmp_path / "w" / "images" / name, orientation=6 if name == "d.jpg" else 1, size=size))
     small = read_colmap(tmp_path / "w", "images_2", cache_dir=tmp_path / "cache")
     assert sorted(small.missing) == ["b.exr", "e.png"]
@@ -486,7 +486,7 @@ def test_dataset_cup_lazy_and_quick(shared_data):
         assert (a.width, a.height) == (b.width, b.height) == (200, 150)
         assert (a.fx, a.cx, a.cy) == pytest.approx((b.fx, b.cx, b.cy), rel=1e-12)
         mine = small.image(i)
-        theirs = image_io.to_float(image_io.read_pixels(folder4.with_photos[i].path))
+        theirs = files.to_float(files.read_pixels(folder4.with_photos[i].path))
         assert np.abs(mine - theirs).mean() < 0.03
     for i in range(10):
         small.image(i)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from addon.core.images import files as image_io
+from addon.core.images import files
 from addon.core.sfm import pairs
 from addon.core.sfm.photos import bounded_size, exif_focal_px, output_name, write_photo
 
@@ -79,7 +79,7 @@ def test_a_photo_stored_sideways_is_written_upright_and_bounded(tmp_path, rng):
     (tmp_path / "images").mkdir()
     photo = write_photo(source, tmp_path / "images", "sideways.png", max_size=50)
     assert (photo.width, photo.height) == (20, 50)
-    written = image_io.read_pixels(tmp_path / "images" / "sideways.png")
-    expected = image_io.read_pixels(source, orientation=6, size=(20, 50))
+    written = files.read_pixels(tmp_path / "images" / "sideways.png")
+    expected = files.read_pixels(source, orientation=6, size=(20, 50))
     assert written.shape == (50, 20, 3) and np.array_equal(written, expected)
     assert photo.focal_px == pytest.approx(28 * math.hypot(20, 50) / math.hypot(36, 24))

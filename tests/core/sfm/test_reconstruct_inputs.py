@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from addon.core import sfm
-from addon.core.images import files as image_io
+from addon.core.images import files
 from addon.core.sfm.source import find_source, natural_key
 
 DEMO_PHOTOS = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap" / "images"
@@ -25,7 +25,7 @@ def demo_photos(folder: Path, names) -> Path:
 
 
 def noise_photo(path: Path, rng: np.random.Generator, size=(240, 320)) -> None:
-    image_io.write_pixels(path, rng.integers(0, 256, size=(*size, 3), dtype=np.uint8))
+    files.write_pixels(path, rng.integers(0, 256, size=(*size, 3), dtype=np.uint8))
 
 
 def test_an_empty_folder(tmp_path):
@@ -174,7 +174,7 @@ def test_a_wrong_exif_focal_length_is_not_trusted(tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()
     for source in sorted(DEMO_PHOTOS.iterdir()):
-        pixels = image_io.read_pixels(source)
+        pixels = files.read_pixels(source)
         spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, "uint8")
         spec.attribute("Exif:FocalLengthIn35mmFilm", 144)
         out = oiio.ImageOutput.create(str(photos / source.name))

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from addon.core.images import files as image_io
+from addon.core.images import files
 from addon.core.sfm import ReconstructionError
 from addon.core.sfm.sharpness import laplacian_variance
 from addon.core.sfm.video import choose_frames, sample_video, upright
@@ -79,7 +79,7 @@ def test_a_video_gives_its_sharp_frames_at_a_bounded_size(tmp_path, rng):
     photos = drain(sample_video(video, out, count=8, max_size=64))
     assert [p.name for p in photos] == [f"frame_{i:05d}.jpg" for i in range(0, 40, 5)]
     for photo in photos:
-        header = image_io.read_header(out / photo.name)
+        header = files.read_header(out / photo.name)
         assert (header.width, header.height) == (photo.width, photo.height) == (64, 48)
 
 

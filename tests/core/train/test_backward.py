@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from addon.core.render import renderer as api
-from addon.core.train import kernels as tk
+from addon.core.train import kernels
 from addon.core.cameras import Camera
 from addon.core.gaussians import Gaussians, sh_count
 from tests import reference_backward as rb
@@ -61,12 +61,12 @@ def weights(rng, camera, alpha=False, depth=False):
 
 
 def native_gradients(gaussians, camera, w_rgb, w_alpha=None, w_depth=None, threads=0, **options):
-    _, state = tk.render_train(gaussians, camera, threads=threads, **options)
+    _, state = kernels.render_train(gaussians, camera, threads=threads, **options)
     f32 = lambda a: None if a is None else np.float32(a)  # noqa: E731
-    return tk.backward(state, gaussians, f32(w_rgb), f32(w_alpha), f32(w_depth), threads=threads)
+    return kernels.backward(state, gaussians, f32(w_rgb), f32(w_alpha), f32(w_depth), threads=threads)
 
 
-def assert_finite(grads: tk.Gradients):
+def assert_finite(grads: kernels.Gradients):
     for name in ("means", "log_scales", "quats", "opacity_logits", "sh", "xy", "xy_abs"):
         array = getattr(grads, name)
         assert array.dtype == np.float32
@@ -74,7 +74,7 @@ def assert_finite(grads: tk.Gradients):
     assert grads.stats["flushed"] == 0
 
 
-def assert_gradients_close(got: tk.Gradients, want: dict, rtol=RTOL, floor=FLOOR):
+def assert_gradients_close(got: kernels.Gradients, want: dict, rtol=RTOL, floor=FLOOR):
     assert_finite(got)
     for name, expected in want.items():
         actual = getattr(got, name).astype(np.float64)
@@ -107,7 +107,7 @@ def assert_scene_matches_finite_differences(rng, make):
 def test_render_train_matches_render_bit_for_bit(rng, options):
     gaussians, camera = random_scene(rng, 1500, 95, 77, 2)
     want = api.render(gaussians, camera, **options)
-    got, state = tk.render_train(gaussians, camera, **options)
+    got, state = kernels.render_train(gaussians, camera, **options)
     for name, a, b in zip(("rgb", "alpha", "depth"), got, want):
         assert np.array_equal(a, b), f"{name} differs from render()"
     # final_t is the transmittance behind alpha; n_contrib is set exactly where alpha > 0.
@@ -183,11 +183,11 @@ def test_screen_space_gradients(rng):
     assert np.all(np.abs(got.xy_abs - want_abs) <= RTOL * np.abs(want_abs) + FLOOR * scale)
     assert np.all(got.xy_abs >= np.abs(got.xy) * (1 - 1e-6))
     # The densification statistic, as 3DGS scales it (NDC units).
-    norm = tk.screen_gradient_norm(got, camera.width, camera.height)
+    norm = kernels.screen_gradient_norm(got, camera.width, camera.height)
     scaled = want_xy * [camera.width / 2, camera.height / 2]
     np.testing.assert_allclose(norm, np.linalg.norm(scaled, axis=1), rtol=1e-3, atol=FLOOR * scale)
-    assert np.allclose(tk.screen_gradient_norm(got, 1, 1, kind="pixels"), np.linalg.norm(got.xy, axis=1))
-    assert (tk.screen_gradient_norm(got, camera.width, camera.height, kind="abs") >= norm * (1 - 1e-6)).all()
+    assert np.allclose(kernels.screen_gradient_norm(got, 1, 1, kind="pixels"), np.linalg.norm(got.xy, axis=1))
+    assert (kernels.screen_gradient_norm(got, camera.width, camera.height, kind="abs") >= norm * (1 - 1e-6)).all()
 
 
 # ---------------------------------------------------------------- hard cases
@@ -300,9 +300,9 @@ def test_stacked_gaussians_with_the_stop(rng):
     means = np.column_stack([rng.normal(0, 0.02, (n, 2)), np.linspace(2, 4, n)])
     gaussians = Gaussians(means, np.full((n, 3), -2.5), rng.normal(size=(n, 4)),
                           np.full(n, 1.0), rng.normal(0, 0.5, (n, 1, 3)))
-    result, state = tk.render_train(gaussians, camera, background=BACKGROUND)
+    result, state = kernels.render_train(gaussians, camera, background=BACKGROUND)
     assert state.final_t.min() < 1e-3
-    grads = tk.backward(state, gaussians, np.ones((16, 16, 3), np.float32),
+    grads = kernels.backward(state, gaussians, np.ones((16, 16, 3), np.float32),
                         np.ones((16, 16), np.float32), np.ones((16, 16), np.float32))
     assert_finite(grads)
     assert np.abs(grads.opacity_logits[:50]).max() > 0
@@ -345,14 +345,14 @@ def test_fast_backward_matches_its_slow_twin(rng, options):
     gaussians.quats[:7] = 0  # zero quaternions (the identity) take a select, not a branch
     camera = random_camera(rng, 130, 90)
     w = [None if a is None else np.float32(a) for a in weights(rng, camera, True, True)]
-    fast_image, fast_state = tk.render_train(gaussians, camera, **options)
-    slow_image, slow_state = tk.render_train(gaussians, camera, exhaustive=True, **options)
+    fast_image, fast_state = kernels.render_train(gaussians, camera, **options)
+    slow_image, slow_state = kernels.render_train(gaussians, camera, exhaustive=True, **options)
     for a, b in zip(fast_image, slow_image):
         assert np.array_equal(a, b)
     assert np.array_equal(fast_state.n_contrib, slow_state.n_contrib)
     assert fast_image.stats["evaluations"] < slow_image.stats["evaluations"]
-    fast = tk.backward(fast_state, gaussians, *w)
-    slow = tk.backward(slow_state, gaussians, *w)
+    fast = kernels.backward(fast_state, gaussians, *w)
+    slow = kernels.backward(slow_state, gaussians, *w)
     assert_finite(fast)
     assert fast.stats["evaluations"] < slow.stats["evaluations"]
     assert (fast.opacity_logits != 0).mean() > 0.3  # a real workload
@@ -384,13 +384,13 @@ def test_gradients_identical_for_any_thread_count(rng):
 
 def test_state_and_outputs_are_reusable(rng):
     gaussians, camera = tiny_scene(rng, n=10, degree=1, width=40, height=30)
-    _, state = tk.render_train(gaussians, camera)
+    _, state = kernels.render_train(gaussians, camera)
     d = np.float32(rng.normal(size=(30, 40, 3)))
-    first = tk.backward(state, gaussians, d)
-    out = tk.Gradients.zeros_like(gaussians)
+    first = kernels.backward(state, gaussians, d)
+    out = kernels.Gradients.zeros_like(gaussians)
     for a in out.arrays().values():
         a[...] = np.nan  # overwritten, not accumulated
-    again = tk.backward(state, gaussians, d, out=out)
+    again = kernels.backward(state, gaussians, d, out=out)
     assert again is out
     for name, a in first.arrays().items():
         assert np.array_equal(a, getattr(again, name))
@@ -398,16 +398,16 @@ def test_state_and_outputs_are_reusable(rng):
 
 def test_changed_gaussians_are_refused(rng):
     gaussians, camera = tiny_scene(rng, n=10, degree=1, width=40, height=30)
-    _, state = tk.render_train(gaussians, camera)
+    _, state = kernels.render_train(gaussians, camera)
     drawn = int(np.flatnonzero(api.project(gaussians, camera).valid)[0])
     d = np.ones((30, 40, 3), np.float32)
     gaussians.means[drawn] += np.float32(0.01)  # e.g. an optimizer step before the backward
     with pytest.raises(ValueError, match="changed"):
-        tk.backward(state, gaussians, d)
+        kernels.backward(state, gaussians, d)
     with pytest.raises(ValueError, match="render_train"):
-        tk.backward(state, gaussians.subset(slice(0, 5)), d)
+        kernels.backward(state, gaussians.subset(slice(0, 5)), d)
     with pytest.raises(ValueError, match="render_train"):
-        tk.backward(state, gaussians.with_degree(2), d)
+        kernels.backward(state, gaussians.with_degree(2), d)
 
 
 def test_ill_conditioned_gaussians_are_not_taken_for_changed_ones(rng):
@@ -427,14 +427,14 @@ def test_ill_conditioned_gaussians_are_not_taken_for_changed_ones(rng):
                           np.float32([-1.6085011]),
                           rng.normal(0, 0.5, (1, sh_count(3), 3)).astype(np.float32))
     d = rng.normal(size=(150, 200, 3)).astype(np.float32)
-    _, state = tk.render_train(gaussians, camera)
+    _, state = kernels.render_train(gaussians, camera)
     assert state.visible[0]
-    grads = tk.backward(state, gaussians, d)
+    grads = kernels.backward(state, gaussians, d)
     assert all(np.isfinite(array).all() for array in vars(grads).values()
                if isinstance(array, np.ndarray))
     gaussians.log_scales[0, 1] += np.float32(0.01)
     with pytest.raises(ValueError, match="changed"):
-        tk.backward(state, gaussians, d)
+        kernels.backward(state, gaussians, d)
 
 
 # ---------------------------------------------------------------- bad input
@@ -443,7 +443,7 @@ def test_ill_conditioned_gaussians_are_not_taken_for_changed_ones(rng):
 @pytest.fixture
 def trained(rng):
     gaussians, camera = tiny_scene(rng, n=6, degree=1)
-    _, state = tk.render_train(gaussians, camera)
+    _, state = kernels.render_train(gaussians, camera)
     return gaussians, camera, state
 
 
@@ -461,20 +461,20 @@ def test_backward_rejects_bad_image_gradients(trained):
     for change, error, keyword in cases:
         args = dict(d_rgb=ok, d_alpha=None, d_depth=None) | change
         with pytest.raises(error, match=keyword):
-            tk.backward(state, gaussians, **args)
+            kernels.backward(state, gaussians, **args)
     with pytest.raises(TypeError, match="TrainState"):
-        tk.backward(object(), gaussians, ok)
+        kernels.backward(object(), gaussians, ok)
     with pytest.raises(ValueError, match="out"):
-        tk.backward(state, gaussians, ok, out=tk.Gradients.zeros(len(gaussians) + 1, 4))
+        kernels.backward(state, gaussians, ok, out=kernels.Gradients.zeros(len(gaussians) + 1, 4))
     with pytest.raises(ValueError, match="threads"):
-        tk.backward(state, gaussians, ok, threads=-1)
+        kernels.backward(state, gaussians, ok, threads=-1)
 
 
 def test_native_backward_rejects_bad_arguments(trained):
     import splatcore
     gaussians, camera, state = trained
     n = len(gaussians)
-    outs = tk.Gradients.zeros_like(gaussians)
+    outs = kernels.Gradients.zeros_like(gaussians)
 
     def call(**change):
         args = dict(state=state.handle, means=gaussians.means, log_scales=gaussians.log_scales,

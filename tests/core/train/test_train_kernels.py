@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from addon.core.train import kernels as tk
+from addon.core.train import kernels
 from tests import reference_backward as rb
 
 SIZES = [(23, 17), (16, 16), (5, 3), (1, 1), (40, 9), (7, 600)]  # 600: several column chunks
@@ -69,10 +69,10 @@ def test_loss_reports_the_mse_psnr_measures(rng):
     target = rng.uniform(0, 1, image.shape).astype(np.float32)
     want = np.mean((np.clip(np.float64(image), 0, 1) - target) ** 2)
     for need_grad in (True, False):
-        got = tk.l1_ssim_loss(image, target, need_grad=need_grad, threads=2)
+        got = kernels.l1_ssim_loss(image, target, need_grad=need_grad, threads=2)
         assert abs(got.mse - want) <= 1e-12 * want
-    assert tk.psnr_of_mse(got.mse) == pytest.approx(-10 * np.log10(want), abs=1e-9)
-    assert tk.psnr_of_mse(0.0) == float("inf")
+    assert kernels.psnr_of_mse(got.mse) == pytest.approx(-10 * np.log10(want), abs=1e-9)
+    assert kernels.psnr_of_mse(0.0) == float("inf")
 
 
 @pytest.mark.parametrize("size", SIZES)
@@ -87,7 +87,7 @@ def test_loss_on_flat_images_matches_reference(rng, size, level):
 
 
 def _check_loss(image, target, lam, *, grad_tolerance):
-    got = tk.l1_ssim_loss(image, target, lambda_dssim=lam)
+    got = kernels.l1_ssim_loss(image, target, lambda_dssim=lam)
     loss, l1, ssim, grad = rb.l1_ssim_loss(image, target, lam)
     assert got.l1 == pytest.approx(l1, rel=1e-10)
     assert got.ssim == pytest.approx(ssim, abs=1e-5)
@@ -101,7 +101,7 @@ def _check_loss(image, target, lam, *, grad_tolerance):
 def test_loss_gradient_matches_finite_differences_of_reference(rng):
     # End to end: native gradient against central differences of the float64 loss.
     image, target = _images(rng, 11, 14)
-    got = tk.l1_ssim_loss(image, target, lambda_dssim=0.2)
+    got = kernels.l1_ssim_loss(image, target, lambda_dssim=0.2)
     base = image.astype(np.float64)
     h = 1e-7
     for index in zip(*(rng.integers(0, n, 30) for n in image.shape)):
@@ -114,7 +114,7 @@ def test_loss_gradient_matches_finite_differences_of_reference(rng):
 
 def test_identical_images():
     image = np.random.default_rng(0).uniform(0, 1, (12, 10, 3)).astype(np.float32)
-    got = tk.l1_ssim_loss(image, image.copy())
+    got = kernels.l1_ssim_loss(image, image.copy())
     # Float32 (module docstring): S = 1 up to rounding of its numerator against its denominator.
     assert got.loss == pytest.approx(0, abs=1e-8) and got.ssim == pytest.approx(1, abs=1e-7)
     assert np.abs(got.grad).max() < 1e-7  # both terms at their minimum
@@ -122,31 +122,31 @@ def test_identical_images():
 
 def test_loss_identical_for_any_thread_count_and_reusable_output(rng):
     image, target = _images(rng, 150, 200)
-    first = tk.l1_ssim_loss(image, target, threads=1)
+    first = kernels.l1_ssim_loss(image, target, threads=1)
     out = np.full(image.shape, np.nan, np.float32)
     for threads in (2, 3, 0):
-        other = tk.l1_ssim_loss(image, target, threads=threads, out_grad=out)
+        other = kernels.l1_ssim_loss(image, target, threads=threads, out_grad=out)
         assert other.grad is out
         assert (other.loss, other.l1, other.ssim) == (first.loss, first.l1, first.ssim)
         assert np.array_equal(other.grad, first.grad)
-    no_grad = tk.l1_ssim_loss(image, target, need_grad=False)
+    no_grad = kernels.l1_ssim_loss(image, target, need_grad=False)
     assert no_grad.grad is None and no_grad.loss == first.loss
 
 
 def test_loss_rejects_bad_input(rng):
     image, target = _images(rng, 8, 9)
     with pytest.raises(ValueError, match="shape"):
-        tk.l1_ssim_loss(image[..., :2], target[..., :2])
+        kernels.l1_ssim_loss(image[..., :2], target[..., :2])
     with pytest.raises(ValueError, match="differs"):
-        tk.l1_ssim_loss(image, target[:-1])
+        kernels.l1_ssim_loss(image, target[:-1])
     with pytest.raises(ValueError, match="lambda"):
-        tk.l1_ssim_loss(image, target, lambda_dssim=1.5)
+        kernels.l1_ssim_loss(image, target, lambda_dssim=1.5)
     bad = image.copy()
     bad[1, 2, 0] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
-        tk.l1_ssim_loss(bad, target)
+        kernels.l1_ssim_loss(bad, target)
     with pytest.raises(ValueError, match="size"):
-        tk.l1_ssim_loss(np.zeros((0, 4, 3), np.float32), np.zeros((0, 4, 3), np.float32))
+        kernels.l1_ssim_loss(np.zeros((0, 4, 3), np.float32), np.zeros((0, 4, 3), np.float32))
     import splatcore
     for args, error, keyword in [
         ((image, target, 0.2, 1, np.zeros((8, 9, 3))), TypeError, "float32"),
@@ -171,7 +171,7 @@ def test_adam_matches_reference_over_steps(rng):
         grad[::7] = 0  # not seen this step: moments decay, the parameter still moves
         lr = 10.0 ** rng.uniform(-5, -1)
         before = [a.astype(np.float64) for a in (param, m, v)]
-        tk.adam_step(param, grad, m, v, lr=lr, step=step)
+        kernels.adam_step(param, grad, m, v, lr=lr, step=step)
         want_p, want_m, want_v = rb.adam(before[0], grad, before[1], before[2], lr=lr, step=step)
         # Moments: float32 rounding of m + 0.1 (g - m), which can cancel: relative to its terms.
         assert np.all(np.abs(m - want_m) <= 1e-6 * (np.abs(before[1]) + np.abs(grad)))
@@ -191,8 +191,8 @@ def test_adam_zero_gradients_and_threads(rng):
         p, m, v = param.copy(), np.zeros(n, np.float32), np.zeros(n, np.float32)
         grad = rng.normal(size=n).astype(np.float32) if not results else results[0][3]
         grad[:1000] = 0
-        tk.adam_step(p, grad, m, v, lr=0.01, step=1, threads=threads)
-        tk.adam_step(p, np.zeros(n, np.float32), m, v, lr=0.01, step=2, threads=threads)
+        kernels.adam_step(p, grad, m, v, lr=0.01, step=1, threads=threads)
+        kernels.adam_step(p, np.zeros(n, np.float32), m, v, lr=0.01, step=2, threads=threads)
         assert np.isfinite(p).all() and np.array_equal(p[:1000], param[:1000])  # 0/(0+eps) = 0
         results.append((p, m, v, grad))
     for other in results[1:]:
@@ -228,7 +228,7 @@ def test_adam_rejects_bad_input(rng):
         kwargs = {k: args.pop(k) for k in ("step", "lr", "beta1", "eps", "threads") if k in args}
         kwargs = dict(lr=0.1, step=1) | kwargs
         with pytest.raises(error, match=keyword):
-            tk.adam_step(args["param"], args["grad"], args["exp_avg"], args["exp_avg_sq"], **kwargs)
+            kernels.adam_step(args["param"], args["grad"], args["exp_avg"], args["exp_avg_sq"], **kwargs)
     assert not p.any()  # nothing was touched by a refused call
 
 
@@ -257,7 +257,7 @@ def test_sparse_adam_matches_reference_and_leaves_unselected_rows(rng, shape, le
         before = [a.copy() for a in (param, m, v)]
         want_p, want_m, want_v = _adam_reference_rows(param, grad, m, v, lr=lr, step=step,
                                                       rows=rows, lead=lead, lead_lr=lead_lr)
-        tk.adam_step(param, grad, m, v, lr=lr, step=step, rows=rows, lead=lead, lead_lr=lead_lr)
+        kernels.adam_step(param, grad, m, v, lr=lr, step=step, rows=rows, lead=lead, lead_lr=lead_lr)
         for got, old in zip((param, m, v), before):  # not selected: bit for bit as before
             assert np.array_equal(got[~rows], old[~rows])
         # Selected rows: the tolerances of test_adam_matches_reference_over_steps, the update
@@ -279,16 +279,16 @@ def test_sparse_adam_with_every_row_is_dense_adam_and_thread_independent(rng):
     grad = rng.normal(size=shape).astype(np.float32)
     base[2] = np.abs(base[2])
     dense = [a.copy() for a in base]
-    tk.adam_step(*dense[:1], grad, *dense[1:], lr=1e-3, step=3, threads=1)
+    kernels.adam_step(*dense[:1], grad, *dense[1:], lr=1e-3, step=3, threads=1)
     rows = rng.uniform(size=shape[0]) < 0.5
     results = []
     for threads in (1, 2, 3):
         everything = [a.copy() for a in base]
-        tk.adam_step(everything[0], grad, everything[1], everything[2], lr=1e-3, step=3,
+        kernels.adam_step(everything[0], grad, everything[1], everything[2], lr=1e-3, step=3,
                      rows=np.ones(shape[0], bool), threads=threads)
         assert all(np.array_equal(a, b) for a, b in zip(everything, dense))
         some = [a.copy() for a in base]
-        tk.adam_step(some[0], grad, some[1], some[2], lr=1e-3, step=3, rows=rows, lead=3,
+        kernels.adam_step(some[0], grad, some[1], some[2], lr=1e-3, step=3, rows=rows, lead=3,
                      lead_lr=2e-3, threads=threads)
         results.append(some)
     for other in results[1:]:
@@ -308,7 +308,7 @@ def test_sparse_adam_rejects_bad_rows_and_lead(rng):
         (dict(lead=1, lead_lr=float("inf")), ValueError, "lead_lr"),
     ]:
         with pytest.raises(error, match=keyword):
-            tk.adam_step(p, g, m, v, lr=0.1, step=1, **kwargs)
+            kernels.adam_step(p, g, m, v, lr=0.1, step=1, **kwargs)
     assert not p.any()
 
 
@@ -318,9 +318,9 @@ def test_adam_used_values_update_only_a_row_prefix(rng):
     m, v = rng.normal(size=shape).astype(np.float32), np.abs(rng.normal(size=shape)).astype(np.float32)
     rows = rng.uniform(size=shape[0]) < 0.6
     full = [a.copy() for a in (param, m, v)]
-    tk.adam_step(full[0], grad, full[1], full[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2)
+    kernels.adam_step(full[0], grad, full[1], full[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2)
     part = [a.copy() for a in (param, m, v)]
-    tk.adam_step(part[0], grad, part[1], part[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2,
+    kernels.adam_step(part[0], grad, part[1], part[2], lr=1e-3, step=4, rows=rows, lead=3, lead_lr=1e-2,
                  used=12)
     for got, want, old in zip(part, full, (param, m, v)):
         assert np.array_equal(got[:, :4], want[:, :4])  # the first 12 values: the full update
@@ -329,12 +329,12 @@ def test_adam_used_values_update_only_a_row_prefix(rng):
     grad[:, 4:] = 0.0
     m[:, 4:] = 0.0
     v[:, 4:] = 0.0
-    tk.adam_step(param, grad, m, v, lr=1e-3, step=4, rows=rows)
+    kernels.adam_step(param, grad, m, v, lr=1e-3, step=4, rows=rows)
     assert np.array_equal(param[:, 4:], part[0][:, 4:]) and not m[:, 4:].any() and not v[:, 4:].any()
     grad[0, 5, 1] = np.nan  # refused, even where the update would not read it
     before = param.copy()
     with pytest.raises(ValueError, match="non-finite"):
-        tk.adam_step(param, grad, m, v, lr=1e-3, step=5, used=12)
+        kernels.adam_step(param, grad, m, v, lr=1e-3, step=5, used=12)
     assert np.array_equal(param, before)
 
 
@@ -348,7 +348,7 @@ def test_parameters_adam_skips_sh_bands_never_rendered(rng):
     skipping, full = GaussianParameters(g), GaussianParameters(g)
     assert skipping.sh_moved == 0
     for step, degree in enumerate([0, 0, 1, 1, 2, 1, 3], start=1):
-        grads = tk.Gradients.zeros_like(g)
+        grads = kernels.Gradients.zeros_like(g)
         for array in grads.arrays().values():
             array[:] = rng.normal(size=array.shape)
         grads.sh[:, (degree + 1) ** 2:] = 0.0  # as the backward leaves bands not rendered
@@ -376,7 +376,7 @@ def test_parameters_adam_step_over_visible_rows(rng):
     dense, sparse = GaussianParameters(g), GaussianParameters(g)
     rows = rng.uniform(size=50) < 0.5
     for step in range(1, 4):
-        grads = tk.Gradients.zeros_like(g)
+        grads = kernels.Gradients.zeros_like(g)
         for array in grads.arrays().values():
             array[:] = rng.normal(size=array.shape)
         before = {k: (a.copy(), dense.moments[k][0].copy()) for k, a in sparse.params.items()}
@@ -402,7 +402,7 @@ def test_position_noise_matches_reference(rng):
     means, log_scales, quats, logits, noise = _noise_inputs(rng, 3000)
     want = rb.position_noise(means, log_scales, quats, logits, noise, 0.3)
     got = means.copy()
-    tk.position_noise(got, log_scales, quats, logits, noise, 0.3)
+    kernels.position_noise(got, log_scales, quats, logits, noise, 0.3)
     # Two float32 roundings: of the step, and of the sum.
     ulps = np.spacing(np.abs(np.float32(want))) + np.spacing(np.abs(np.float32(want - means)))
     assert (np.abs(got - want) <= ulps).all()
@@ -417,7 +417,7 @@ def test_position_noise_identical_for_any_thread_count(rng):
     results = []
     for threads in (1, 2, 5):
         got = means.copy()
-        tk.position_noise(got, log_scales, quats, logits, noise, 0.1, threads=threads)
+        kernels.position_noise(got, log_scales, quats, logits, noise, 0.1, threads=threads)
         results.append(got)
     assert all(np.array_equal(results[0], r) for r in results[1:])
 
@@ -433,9 +433,9 @@ def test_position_noise_rejects_bad_input(rng):
     ]:
         before = args[0].copy()
         with pytest.raises(error, match=keyword):
-            tk.position_noise(*args)
+            kernels.position_noise(*args)
         assert np.array_equal(args[0], before)
     frozen = means.copy()
     frozen.flags.writeable = False
     with pytest.raises(ValueError, match="writable"):
-        tk.position_noise(frozen, log_scales, quats, logits, noise, 1.0)
+        kernels.position_noise(frozen, log_scales, quats, logits, noise, 1.0)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from addon.core.train import kernels as tk
+from addon.core.train import kernels
 from addon.core.colmap import read_colmap
 from addon.core.train.dataset import ColmapDataset
 from addon.core.gaussians import Gaussians
@@ -73,7 +73,7 @@ def test_mcmc_regulariser_gradients_match_finite_differences(rng, dataset) -> No
     config = TrainConfig(strategy="mcmc", mcmc_opacity_reg=0.3, mcmc_scale_reg=0.2)
     g = random_gaussians(rng, 7, 0)
     params = GaussianParameters(g)
-    grads = tk.Gradients.zeros_like(g)
+    grads = kernels.Gradients.zeros_like(g)
     MCMCStrategy(config, 1.0, rng).after_backward(params, StepInfo(1, None, None, grads, {}))
 
     def reg(logits, log_scales):
@@ -104,13 +104,13 @@ def test_sh_adam_with_two_rates_equals_separate_arrays(rng, degree) -> None:
     lrs = {"means": 1e-3, "log_scales": 1e-3, "quats": 1e-3, "opacity_logits": 1e-3,
            "sh_dc": 2.5e-3, "sh_rest": 1.25e-4}
     for step in range(1, 4):
-        grads = tk.Gradients.zeros_like(g)
+        grads = kernels.Gradients.zeros_like(g)
         grads.sh[:] = rng.normal(size=grads.sh.shape)
         params.adam_step(grads, lrs, step)
         for array, grad, (m, v), lr in zip((dc, rest), (grads.sh[:, :1], grads.sh[:, 1:]), moments,
                                            (lrs["sh_dc"], lrs["sh_rest"])):
             if array.size:
-                tk.adam_step(array, np.ascontiguousarray(grad), m, v, lr=lr, step=step)
+                kernels.adam_step(array, np.ascontiguousarray(grad), m, v, lr=lr, step=step)
         assert np.array_equal(params.params["sh"], np.concatenate([dc, rest], axis=1))
         assert np.array_equal(params.moments["sh"][1], np.concatenate([moments[0][1], moments[1][1]], axis=1))
 
@@ -233,7 +233,7 @@ class _LossStream:
         for _ in range(steps):
             self.step += 1
             self.loss *= per_step
-            grads = tk.Gradients.zeros_like(self.params.gaussians)
+            grads = kernels.Gradients.zeros_like(self.params.gaussians)
             self.strategy.after_backward(self.params, StepInfo(
                 self.step, self.camera, None, grads, {}, self.loss, level, self.step % 5))
         return self.strategy.grow(self.params)

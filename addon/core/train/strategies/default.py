@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import kernels as tk
+from .. import kernels
 from ..optimizer import GaussianParameters, logit
 from ...transform import quat_to_matrix
 from .base import StepInfo, Strategy
@@ -31,7 +31,7 @@ class DefaultStrategy(Strategy):
 
     def after_backward(self, params: GaussianParameters, info: StepInfo) -> None:
         if info.step < self.config.densify_until:
-            norm = tk.screen_gradient_norm(info.grads, info.camera.width, info.camera.height)
+            norm = kernels.screen_gradient_norm(info.grads, info.camera.width, info.camera.height)
             seen = info.state.visible
             self.grad_accum[seen] += norm[seen]
             self.grad_count[seen] += 1

@@ -146,7 +146,7 @@ class MCMCStrategy(Strategy):
 
     def add_noise(self, params: GaussianParameters, scale: float) -> None:
         """Move nearly transparent Gaussians by covariance-shaped noise times `scale`
-        (`train_kernels.position_noise`: native, one pass; as NumPy over (N, 3, 3) matrices it
+        (`kernels.position_noise`: native, one pass; as NumPy over (N, 3, 3) matrices it
         took 5.2 ms a step at 20k Gaussians on one thread, a sixth of the step)."""
         noise = self.rng.standard_normal((len(params), 3))
         p = params.params

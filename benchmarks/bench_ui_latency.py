@@ -2,8 +2,8 @@
 the Train operator runs it in Blender): the main thread sleeps 10 ms in a loop and records how
 much later than that it woke, the GIL and the cores shared with the training threads.
 
-    .venv/bin/python examples/bench_ui_latency.py [--seconds 30] [--threads 0 1] [--downscale 1]
-    blender --background --python examples/bench_ui_latency.py -- --seconds 30
+    .venv/bin/python benchmarks/bench_ui_latency.py [--seconds 30] [--threads 0 1] [--downscale 1]
+    blender --background --python benchmarks/bench_ui_latency.py -- --seconds 30
 
 Prints, per kernel thread setting, the lateness's median, 95th percentile and maximum, and the
 training steps done meanwhile (the demo scene, 480x360 unless --downscale). `--threads 0` is

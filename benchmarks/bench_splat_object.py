@@ -1,7 +1,7 @@
 """Timings of the Blender side for a big splat object: load into an object, gather, export.
 
-    .venv/bin/python examples/bench_splat_object.py            # 1M Gaussians, SH degree 3
-    .venv/bin/python examples/bench_splat_object.py --n 200000 --degree 2
+    .venv/bin/python benchmarks/bench_splat_object.py            # 1M Gaussians, SH degree 3
+    .venv/bin/python benchmarks/bench_splat_object.py --n 200000 --degree 2
 
 Writes a random standard .ply of N Gaussians to a temporary folder, then times (wall clock, best
 of --repeat where it is cheap to repeat):

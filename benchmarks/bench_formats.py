@@ -1,7 +1,7 @@
 """Every writable splat format: file size and render PSNR after a round trip of the 125k PLAYBOT
 scene, and save/load times for synthetic Gaussians (1M, SH degree 3, by default).
 
-    .venv/bin/python examples/bench_formats.py [--count 1000000] [--skip-timing]
+    .venv/bin/python benchmarks/bench_formats.py [--count 1000000] [--skip-timing]
 
 PSNR is against the render of the PLY itself (320x240, one fixed camera); sizes are the files
 written here. Timing Gaussians are random (positions in a 10 m cube, SH ~ N(0, 0.3)): worse

@@ -1,6 +1,6 @@
-"""Bad arguments raise TypeError or ValueError naming the problem, never crash (docs/guide/
-scripts.md): at the Python API (`addon.core.render.renderer`) and directly at `splatcore`, whose
-positional signatures are what render.py passes."""
+"""The renderer's argument checks: bad arguments raise TypeError or ValueError naming the
+problem, never crash (docs/guide/scripts.md): at the Python API (`addon.core.render.renderer`)
+and directly at `splatcore`, whose positional signatures are what core/native.py passes."""
 
 from __future__ import annotations
 

@@ -1,6 +1,8 @@
 """`blender -c gaussian_splatting <verb> ...` (Blender 4.2+): the verbs of `addon.cli`.
 
 Registering costs nothing: `addon.cli` is imported when the command runs, not at add-on start.
+It sits beside `cli.py`, above the Blender layer, and `addon.register()` registers it after that
+layer's modules.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ _handle = None
 
 
 def _execute(argv: list[str]) -> int:
-    from ..cli import COMMAND_ID, main
+    from .cli import COMMAND_ID, main
     return main(argv, prog=f"blender -c {COMMAND_ID}")
 
 

@@ -2,17 +2,17 @@
 memory it takes, for the real PLAYBOT capture (../shared/data), a synthetic 1M-Gaussian SH3 scene
 and the demo scene.
 
-    .venv/bin/python examples/bench_render.py                  # the table (a few minutes)
-    .venv/bin/python examples/bench_render.py --quick          # 3 repeats, fewer sizes
-    .venv/bin/python examples/bench_render.py --more           # also the compositor's efficiency,
+    .venv/bin/python benchmarks/bench_render.py                  # the table (a few minutes)
+    .venv/bin/python benchmarks/bench_render.py --quick          # 3 repeats, fewer sizes
+    .venv/bin/python benchmarks/bench_render.py --more           # also the compositor's efficiency,
                                                                # the quality knobs and the error
                                                                # against the float64 reference
-    .venv/bin/python examples/bench_render.py --no-f12         # without the F12 table (no bpy)
-    .venv/bin/python examples/bench_render.py --cameras        # only the camera-type table:
+    .venv/bin/python benchmarks/bench_render.py --no-f12         # without the F12 table (no bpy)
+    .venv/bin/python benchmarks/bench_render.py --cameras        # only the camera-type table:
                                                                # pinhole, orthographic and each
                                                                # panorama on PLAYBOT, and their
                                                                # error against float64
-    /work/main/.venv/bin/python examples/bench_render.py --code /work/main
+    /work/main/.venv/bin/python benchmarks/bench_render.py --code /work/main
                                            # the same table for another checkout's code (before/after)
 
 Columns: ms per frame and per stage (project, sort, bin, composite; medians of the repeats),
@@ -22,7 +22,7 @@ peak memory: the process's resident-set high-water mark during one render above 
 before (Linux; `VmHWM` reset through /proc/self/clear_refs), which counts the renderer's working
 memory and the output images, and the renderer's own count of its working memory at its
 largest (stats["peak_bytes"], where the code reports it). Then the F12 table
-(examples/bench_render_with_meshes.py): a 1280x720 Cycles frame with and without PLAYBOT's and
+(benchmarks/bench_render_with_meshes.py): a 1280x720 Cycles frame with and without PLAYBOT's and
 the demo scene's splats, the extra split into gather, read, colour, native composite and write,
 and the frame's peak memory. Never a test: numbers only.
 Wall-clock numbers on a shared machine are noisy: compare runs taken back to back.
@@ -365,7 +365,7 @@ def main() -> None:
 
 def f12_table(args) -> None:
     """The F12 overhead split, from this checkout's bench_render_with_meshes (it needs bpy)."""
-    sys.path.insert(0, str(ROOT / "examples"))
+    sys.path.insert(0, str(ROOT / "benchmarks"))
     import bench_render_with_meshes as f12
 
     print(f"\nF12 at 1280x720, Cycles CPU 4 samples; medians of {args.repeats} interleaved "

@@ -4,7 +4,7 @@ its modal timer drives it in the UI (a poll every 0.25 s with a 0.1 s budget,
 held the main thread (what a 10 ms UI timer would wait at most) during the reconstruction (a
 child process) and during the import (Blender data, on the main thread). Numbers only.
 
-    .venv/bin/python examples/bench_reconstruct_ui.py [--photos examples/demo_colmap/images]
+    .venv/bin/python benchmarks/bench_reconstruct_ui.py [--photos examples/demo_colmap/images]
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 # defaults, SECONDS idle then SECONDS training. A benchmark that prints a table, never a test.
 # Needs the real-Blender roots (../shared/real-blender) and builds the linux-x64 zip.
 #
-#   examples/bench_ui_latency_blender.sh [SUITE] [SECONDS]     (SUITE: trixie = Blender 4.3, sid = 5.2)
+#   benchmarks/bench_ui_latency_blender.sh [SUITE] [SECONDS]     (SUITE: trixie = Blender 4.3, sid = 5.2)
 set -uo pipefail
 cd "$(dirname "$0")/.."
 SUITE=${1:-trixie}; SECONDS_EACH=${2:-30}

@@ -3,10 +3,10 @@ into its stages (render_train's project/sort/bin/composite, the L1+SSIM loss, th
 composite and per-Gaussian parts, Adam dense and over the visible Gaussians only, and what the
 trainer's Python adds around them).
 
-    .venv/bin/python examples/bench_train_kernels.py           # playbot 1280x720 and 50k at 200x150
-    .venv/bin/python examples/bench_train_kernels.py --quick   # the 200x150 case only
-    .venv/bin/python examples/bench_train_kernels.py --quick --cup 1500   # also cup, trained 1500 steps
-    .venv/bin/python examples/bench_train_kernels.py --levels 300   # cup after 300 steps, per
+    .venv/bin/python benchmarks/bench_train_kernels.py           # playbot 1280x720 and 50k at 200x150
+    .venv/bin/python benchmarks/bench_train_kernels.py --quick   # the 200x150 case only
+    .venv/bin/python benchmarks/bench_train_kernels.py --quick --cup 1500   # also cup, trained 1500 steps
+    .venv/bin/python benchmarks/bench_train_kernels.py --levels 300   # cup after 300 steps, per
                                                 # coarse-to-fine level, one thread (nothing else)
 
 Prints median wall-clock ms (and the best run's stages) for 1 and 2 threads, and single-thread
@@ -28,12 +28,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "examples"))
+sys.path.insert(0, str(ROOT / "benchmarks"))  # bench_render
 sys.path.insert(0, str(ROOT / "tests"))
 
 from addon.core.render import renderer as api  # noqa: E402
 from addon.core import splat_io  # noqa: E402
-from addon.core.train import kernels as tk  # noqa: E402
+from addon.core.train import kernels  # noqa: E402
 from bench_render import PLAYBOT, playbot_camera, table  # noqa: E402
 from scenes import fast_random_gaussians, random_camera  # noqa: E402
 
@@ -55,12 +55,12 @@ def backward_table(scenes: dict, repeats: int) -> None:
     for name, (gaussians, camera) in scenes.items():
         d_rgb = np.full((camera.height, camera.width, 3), 0.01, np.float32)
         for threads in (1, 2):
-            _, state = tk.render_train(gaussians, camera, threads=threads)
-            grads = tk.backward(state, gaussians, d_rgb, threads=threads)
+            _, state = kernels.render_train(gaussians, camera, threads=threads)
+            grads = kernels.backward(state, gaussians, d_rgb, threads=threads)
             render_ms, render_cpu = median_ms(lambda: api.render(gaussians, camera, threads=threads), repeats)
-            train_ms, _ = median_ms(lambda: tk.render_train(gaussians, camera, threads=threads), repeats)
+            train_ms, _ = median_ms(lambda: kernels.render_train(gaussians, camera, threads=threads), repeats)
             back_ms, back_cpu = median_ms(
-                lambda: tk.backward(state, gaussians, d_rgb, threads=threads, out=grads), repeats)
+                lambda: kernels.backward(state, gaussians, d_rgb, threads=threads, out=grads), repeats)
             s = grads.stats
             rows.append([name, threads, f"{render_ms:.1f}", f"{train_ms:.1f}", f"{back_ms:.1f}",
                          f"{s['ms_composite']:.1f}", f"{s['ms_project']:.1f}",
@@ -85,17 +85,17 @@ def step_profile(label: str, gaussians, views, repeats: int) -> None:
     for threads, clock in ((1, time.process_time), (2, time.perf_counter)):
         params = GaussianParameters(gaussians)
         g = params.gaussians
-        grads = tk.Gradients.zeros_like(g)
+        grads = kernels.Gradients.zeros_like(g)
         samples: dict[str, list[float]] = {}
         for r in range(repeats + 1):
             camera, target = views[r % len(views)]
             d_rgb = np.empty_like(target)
             t0 = clock()
-            result, state = tk.render_train(g, camera, threads=threads)
+            result, state = kernels.render_train(g, camera, threads=threads)
             t1 = clock()
-            tk.l1_ssim_loss(result.rgb, target, out_grad=d_rgb, threads=threads)
+            kernels.l1_ssim_loss(result.rgb, target, out_grad=d_rgb, threads=threads)
             t2 = clock()
-            tk.backward(state, g, d_rgb, threads=threads, out=grads)
+            kernels.backward(state, g, d_rgb, threads=threads, out=grads)
             t3 = clock()
             params.adam_step(grads, lrs, r + 1, threads=threads)
             t4 = clock()
@@ -166,15 +166,15 @@ def level_profile(steps: int, repeats: int) -> None:
     rows = []
     for level in (2, 1, 0):
         camera, target = trainer.training_view(dataset.train_indices[3], level)
-        result, state = tk.render_train(g, camera, sh_degree=degree, threads=1,
+        result, state = kernels.render_train(g, camera, sh_degree=degree, threads=1,
                                         background=trainer.background)
-        d_rgb = tk.l1_ssim_loss(result.rgb, target, threads=1).grad
-        grads = tk.backward(state, g, d_rgb, threads=1)
+        d_rgb = kernels.l1_ssim_loss(result.rgb, target, threads=1).grad
+        grads = kernels.backward(state, g, d_rgb, threads=1)
         samples: dict[str, list[float]] = {}
         for _ in range(repeats):
-            result, state = tk.render_train(g, camera, sh_degree=degree, threads=1,
+            result, state = kernels.render_train(g, camera, sh_degree=degree, threads=1,
                                             background=trainer.background)
-            tk.backward(state, g, d_rgb, threads=1, out=grads)
+            kernels.backward(state, g, d_rgb, threads=1, out=grads)
             s, b = result.stats, grads.stats
             for key, value in (("project", s["ms_project"]), ("sort", s["ms_sort"]),
                                ("bin", s["ms_bin"]), ("composite", s["ms_composite"]),

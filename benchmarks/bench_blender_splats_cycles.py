@@ -1,8 +1,8 @@
 """Side by side: Blender 5.3's own splats in Cycles against the add-on, time and PSNR.
 
-    .venv/bin/python examples/bench_blender_splats_cycles.py [--splats FILE] [--size 640x480]
+    .venv/bin/python benchmarks/bench_blender_splats_cycles.py [--splats FILE] [--size 640x480]
         [--samples 4 16 64] [--bpy 5.3.0] [--zip FILE] [--reference-size 64x48] [--eevee]
-    blender -b --python examples/bench_blender_splats_cycles.py -- --inside --out DIR [options]
+    blender -b --python benchmarks/bench_blender_splats_cycles.py -- --inside --out DIR [options]
 
 The same .ply, the same camera (looking at the splats' bounding box, as the installed-extension
 checks place it), 16-bit PNGs under the "Standard" view transform over a black world:
@@ -428,7 +428,7 @@ def driver(args: argparse.Namespace, argv: list[str]) -> int:
             shutil.copytree(out, Path(args.out), dirs_exist_ok=True)
         print()
         print(reference_check(out, results, size_of(args.reference_size)))
-        print(f"command: .venv/bin/python examples/bench_blender_splats_cycles.py {' '.join(argv)}")
+        print(f"command: .venv/bin/python benchmarks/bench_blender_splats_cycles.py {' '.join(argv)}")
         return 0
     finally:
         if "done" in locals() and done.returncode == 0:

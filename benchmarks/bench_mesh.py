@@ -1,7 +1,7 @@
 """Splats to meshes, speed against error: depth error, colour PSNR, triangles, texture, time.
 
-    .venv/bin/python examples/bench_mesh.py                         # demo scene only
-    .venv/bin/python examples/bench_mesh.py --cup /tmp/cup.ply      # plus a trained cup model
+    .venv/bin/python benchmarks/bench_mesh.py                         # demo scene only
+    .venv/bin/python benchmarks/bench_mesh.py --cup /tmp/cup.ply      # plus a trained cup model
         (train one with: .venv/bin/python examples/train.py --colmap ../shared/data/cup
          --images images_4 --steps 1500 --max-gaussians 25000 --out /tmp/cup.ply)
 
@@ -103,7 +103,7 @@ def psnr(a, b) -> float:
 
 def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, folder):
     from addon.blender import mesh_convert
-    from addon.core.mesh import surface, texture as mesh_texture
+    from addon.core.mesh import surface, texture
     from addon.core.render.renderer import render
 
     bounds = surface.splat_bounds(gaussians)
@@ -129,10 +129,10 @@ def run_scene(bpy, name, gaussians, fusion_cameras, test_cameras, settings, fold
         v, f = mesh_convert._decimate(v, f, budget)
         t["decimate"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        uvs = mesh_texture.unwrap(v, f, tex)
+        uvs = texture.unwrap(v, f, tex)
         t["unwrap"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        baked = mesh_texture.project_texture(v, f, views, tex, tolerance=2 * volume.grid.voxel,
+        baked = texture.project_texture(v, f, views, tex, tolerance=2 * volume.grid.voxel,
                                              corner_uvs=uvs)
         t["texture"] = time.perf_counter() - t0
         depth_err, miss, psnrs = [], [], []
@@ -211,7 +211,7 @@ def main() -> None:
         fusion = [scaled(dataset.cameras[i], args.view_size) for i in dataset.train_indices]
         held = [scaled(dataset.cameras[i], args.test_size) for i in dataset.test_indices][:3]
         rows += run_scene(bpy, "cup", splat_io.load(args.cup), fusion, held, settings, folder)
-    print("\n(command: .venv/bin/python examples/bench_mesh.py" +
+    print("\n(command: .venv/bin/python benchmarks/bench_mesh.py" +
           (f" --cup {args.cup}" if args.cup else "") + ")")
 
 

@@ -3,7 +3,7 @@ bytes, per densification strategy, on ../shared/data/cup (images_4, 200x150), be
 88x156 after undistortion) and the embedded demo COLMAP scene (examples/demo_colmap, 120x90),
 beside what the 3DGS paper reports at 7K iterations on its benchmark scenes.
 
-    .venv/bin/python examples/bench_train.py [--scenes cup beer demo] \
+    .venv/bin/python benchmarks/bench_train.py [--scenes cup beer demo] \
         [--strategies auto mcmc default] [--steps 2000 | --until-done] [--eval-every 250] \
         [--threads 1] [--cpu-limit SECONDS] [--variant "label:key=value,..."] \
         [--plot docs/train_curves.png]
@@ -35,7 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from addon.core.train import kernels as tk  # noqa: E402
+from addon.core.train import kernels  # noqa: E402
 from addon.core.colmap import read_colmap  # noqa: E402
 from addon.core.train.dataset import ColmapDataset  # noqa: E402
 from addon.core.render.renderer import render  # noqa: E402
@@ -301,21 +301,21 @@ def step_times(dataset: ColmapDataset, counts: tuple[int, ...]) -> None:
         g.log_scales -= np.float32(np.log(max(count / len(base), 1.0)) / 3)
         for threads in (1, 2):
             times = []
-            grads = tk.Gradients.zeros_like(g)
+            grads = kernels.Gradients.zeros_like(g)
             moments = {k: (np.zeros_like(v), np.zeros_like(v)) for k, v in g.arrays().items()}
             for step in range(20):
                 view = dataset.train_indices[step % len(dataset.train_indices)]
                 target = dataset.image(view)
                 t0 = time.perf_counter()
-                result, state = tk.render_train(g, dataset.cameras[view], threads=threads)
+                result, state = kernels.render_train(g, dataset.cameras[view], threads=threads)
                 t1 = time.perf_counter()
-                loss = tk.l1_ssim_loss(result.rgb, target, threads=threads)
+                loss = kernels.l1_ssim_loss(result.rgb, target, threads=threads)
                 t2 = time.perf_counter()
-                tk.backward(state, g, loss.grad, threads=threads, out=grads)
+                kernels.backward(state, g, loss.grad, threads=threads, out=grads)
                 t3 = time.perf_counter()
                 for name, array in g.arrays().items():
                     m, v = moments[name]
-                    tk.adam_step(array, grads.arrays()[name], m, v, lr=1e-9, step=step + 1,
+                    kernels.adam_step(array, grads.arrays()[name], m, v, lr=1e-9, step=step + 1,
                                  threads=threads)
                 t4 = time.perf_counter()
                 times.append((t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0))

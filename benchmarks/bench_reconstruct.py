@@ -4,7 +4,7 @@ poses against a reference (rotation error in degrees and position error as a sha
 size, after a similarity alignment of the camera centres), and for captures in order how smooth
 the camera path is (`compare.largest_step`). Numbers only, never a test.
 
-    .venv/bin/python examples/bench_reconstruct.py [--threads 2] [--only demo cup ...]
+    .venv/bin/python benchmarks/bench_reconstruct.py [--threads 2] [--only demo cup ...]
         [--features accurate|fast] [--mapper incremental|global] [--out DIR] [--render-cost]
         [--train-steps N [--seeds 0 1 ...]]
 
@@ -76,7 +76,7 @@ def render_cost(pycolmap, workspace: Path, threads: int) -> None:
     and through the exact ones: the PSNR our camera errors cost, without training noise."""
     from addon.core.cameras import Camera
     from addon.core.colmap import read_colmap
-    from addon.core.images import files as image_io
+    from addon.core.images import files
     from addon.core.render.renderer import render
     from addon.core.train.dataset import ColmapDataset
     from addon.core.train.trainer import Trainer, TrainConfig
@@ -102,7 +102,7 @@ def render_cost(pycolmap, workspace: Path, threads: int) -> None:
 
     rows = []
     for k, im in enumerate(scene.images):
-        photo = image_io.to_float(image_io.read_pixels(im.path))[:, :, :3]
+        photo = files.to_float(files.read_pixels(im.path))[:, :, :3]
         m = np.asarray(by_name[im.name].cam_from_world().matrix())
         w2c = np.eye(4)
         w2c[:3, :3] = m[:, :3] @ rotation.T

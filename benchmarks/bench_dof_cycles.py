@@ -1,7 +1,7 @@
 """Depth of field of splats against Cycles' own: small emissive spheres rendered by Cycles with
 the camera's depth of field, and splats in their place rendered by the add-on's thin-lens blur.
 
-    .venv/bin/python examples/bench_dof_cycles.py [--samples 256]
+    .venv/bin/python benchmarks/bench_dof_cycles.py [--samples 256]
 
 A 50 mm camera at f/1.0 focused at 4 m looks at five spheres (radius 4 cm) at 2 to 9 m; each is
 replaced by an isotropic Gaussian of the same projected second moment (sigma = radius / 2: a

@@ -1,7 +1,7 @@
 """How much each real splat file expands: the bytes of Gaussians it declares per byte read, as
 the readers measure it for `formats.limits.MAX_EXPANSION` (what the bound was chosen from).
 
-    .venv/bin/python examples/bench_expansion.py [--data ../shared/data/splats] [--synthetic 50000]
+    .venv/bin/python benchmarks/bench_expansion.py [--data ../shared/data/splats] [--synthetic 50000]
 
 Loads every file (each streamed-SOG level's chunk, .spz, .ply, ...) under --data through
 `splat_io.load`, recording what each reader passes to `limits.check_expansion` (the declared

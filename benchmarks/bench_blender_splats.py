@@ -83,13 +83,13 @@ def geometry_nodes(bpy, obj):
 def bench(bpy, kind: str, path: Path, work: Path, n: int) -> dict[str, tuple[float, float]]:
     import numpy as np
 
-    io_operators = ext("blender.io.operators")
+    operators = ext("blender.io.operators")
     gather = ext("blender.gather")
     rows = {}
     for obj in list(bpy.data.objects):
         bpy.data.objects.remove(obj)
     gather.clear_cache()
-    wall, cpu, obj = timed(lambda: io_operators.import_splats(path, blender_splats=kind == "blender"))
+    wall, cpu, obj = timed(lambda: operators.import_splats(path, blender_splats=kind == "blender"))
     rows["import"] = (wall, cpu)
     scene = scene_for_f12(bpy, work)
     bpy.context.view_layer.update()

@@ -3,7 +3,7 @@ the same scene in several frames (the COLMAP frame, the frame the Blender import
 scales it to, a rigid motion, a uniform scale), which differ only in float rounding. Prints the
 held-out PSNR and Gaussian count of each at every --eval-every steps. Numbers only, never a test.
 
-    .venv/bin/python examples/bench_train_frames.py [--colmap examples/demo_colmap] [--steps 2000]
+    .venv/bin/python benchmarks/bench_train_frames.py [--colmap examples/demo_colmap] [--steps 2000]
 """
 
 from __future__ import annotations

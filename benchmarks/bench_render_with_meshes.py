@@ -1,7 +1,7 @@
 """What the splats add to an F12 frame (meshes in Cycles at low samples, plus splats), split into
 its parts, and the frame's peak memory.
 
-    .venv/bin/python examples/bench_render_with_meshes.py [--size 1280x720] [--samples 4]
+    .venv/bin/python benchmarks/bench_render_with_meshes.py [--size 1280x720] [--samples 4]
         [--splats FILE ...] [--random N ...] [--repeat 5]
 
 The scene is examples/render_headless.py's (a monkey and a pedestal with the splats, a sun);
@@ -30,7 +30,7 @@ held before it (Linux: /proc/self/clear_refs resets the peak), without and with 
 peak of the NumPy arrays the add-on holds during the frame (tracemalloc). Memory is measured on
 renders of its own, outside the timed ones.
 
-`f12_overhead()` returns one scene's figures as a dict (examples/bench_render.py reports them).
+`f12_overhead()` returns one scene's figures as a dict (benchmarks/bench_render.py reports them).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "examples"))
+sys.path.insert(0, str(ROOT / "examples"))  # render_headless: the scene
 
 import bpy  # noqa: E402
 
@@ -151,21 +151,21 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
     ("extra_cpu", the same way), the first render's gather ("gather_first"), the splat count,
     and the frame's peak memory (MB): "rss_plain_mb", "rss_splats_mb",
     "numpy_splats_mb" (see the module docstring)."""
-    from addon.blender.render import hooks as render_hooks
+    from addon.blender.render import hooks
     from addon.blender import splat_object
 
     scene = build(splats, random=random, size=size, samples=samples)
     count = sum(len(o.data.vertices) for o in scene.objects if splat_object.is_splat_object(o))
     _use_splats(scene, True)
     _render()  # gathers the splats: later frames find them in the cache
-    first = dict(render_hooks.last_stats)
+    first = dict(hooks.last_stats)
     plain, with_splats, stats, plain_cpu, splats_cpu = [], [], [], [], []
     for _ in range(repeat):
         _use_splats(scene, False)
         plain.append(_render(plain_cpu))
         _use_splats(scene, True)
         with_splats.append(_render(splats_cpu))
-        stats.append(dict(render_hooks.last_stats))
+        stats.append(dict(hooks.last_stats))
     median = statistics.median
     result = {
         "splats": count, "size": size, "blender": median(plain), "with_splats": median(with_splats),
