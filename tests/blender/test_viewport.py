@@ -158,6 +158,7 @@ def test_drawn_splats_are_occluded_by_a_mesh_in_front(rng, kind):
     behind = opaque & ~on_cube
     assert behind.sum() > 20
     expected = splat_rgba[behind][:, :3] + (1 - image.rgba[::-1][behind][:, 3:]) * meshes[behind][:, :3]
+    expected = np.minimum(expected, 255)  # the framebuffer saturates (a bright splat over a bright plane)
     assert np.abs(drawn[behind][:, :3] - expected).max() <= 2
     # Where nothing is drawn, the framebuffer is untouched.
     empty = image.rgba[::-1, :, 3] < 1 / 255

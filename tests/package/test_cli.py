@@ -109,12 +109,12 @@ def test_import_train_render_and_mesh_from_the_venv(tmp_path):
     result = run("train", str(scene), "--out", str(trained), "--steps", "20", "--max-width", "120",
                  "--max-gaussians", "2000", "--checkpoint", str(tmp_path / "state.npz"))
     assert result.returncode == 0 and trained.is_file(), result.stderr
-    assert "Training 20/20 (100 %)" in result.stdout
+    assert "Training step 20 of 20 (100 %)" in result.stdout
     splats = tmp_path / "trained.ply"
     result = run("train", str(trained), "--out", str(splats), "--steps", "25", "--resume",
                  "--downscale", "4", "--checkpoint", str(tmp_path / "state.npz"))
     assert result.returncode == 0 and len(splat_io.load(splats)) > 0, result.stderr
-    assert "Training 20/25 (80 %)" in result.stdout  # a resume starts where it stopped
+    assert "Training step 20 of 25 (80 %)" in result.stdout  # a resume starts where it stopped
 
     result = run("render", str(trained), "--frames", "1-2", "--engine", "SPLAT_GAUSSIANS",
                  "--out", str(tmp_path / "frame_"))

@@ -86,7 +86,7 @@ def test_printer_writes_a_line_per_stage_not_per_step() -> None:
     for step in range(1, 500):
         printer(Progress(phase="training", step=step, total=500, gaussians=10))
     printer(Progress(phase="done", step=500, total=500, gaussians=10))
-    assert len(training) == 2 and training[0].startswith("Training 1/500")
+    assert len(training) == 2 and training[0].startswith("Training step 1 of 500")
     every = ProgressPrinter("Training", interval=0.0, write=training.append)
     every(Progress(phase="training", step=1, total=5))
     every(Progress(phase="training", step=2, total=5))
