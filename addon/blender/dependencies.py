@@ -134,6 +134,12 @@ def poll_unavailable(cls, modules, feature: str) -> bool:
     return reason is None
 
 
+def poll_needs(cls, context=None) -> bool:
+    """An operator's `poll` (`poll = classmethod(poll_needs)`) from its `needs`, a
+    (modules, feature) pair: `poll_unavailable` of them."""
+    return poll_unavailable(cls, *cls.needs)
+
+
 def available(module: str) -> bool:
     try:
         require(module, "")

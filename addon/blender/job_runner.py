@@ -226,7 +226,7 @@ class JobOperator:
         return context.window_manager.invoke_props_dialog(self, width=420, title=title,
                                                           confirm_text=confirm_text)
 
-    def invoke_file_browser(self, context) -> set:
+    def invoke_file_browser(self, context, event=None) -> set:
         """`invoke` for a job that starts from the file browser (an importer): its accept runs
         `execute` in the background."""
         self.interactive = wants_background(context)

@@ -515,12 +515,9 @@ class SPLAT_OT_import_colmap(JobOperator, bpy.types.Operator):
                               description="Read on a worker thread with a modal timer (set by "
                                           "invoke; scripts get a blocking run)")
 
-    @classmethod
-    def poll(cls, context):
-        return dependencies.poll_unavailable(cls, MODULES, FEATURE)
-
-    def invoke(self, context, event):
-        return self.invoke_file_browser(context)
+    needs = (MODULES, FEATURE)
+    poll = classmethod(dependencies.poll_needs)
+    invoke = JobOperator.invoke_file_browser
 
     def execute(self, context):
         try:

@@ -52,7 +52,7 @@ from ..blender_splats import data as blender_data
 from ..blender_splats import ownership
 from . import sequence
 from ..camera_adapter import to_matrix
-from ..job_runner import preparing
+from ..job_runner import draw_settings, preparing
 from ..registration import module_registration
 
 IMPORT_GLOB = registry.filter_glob()
@@ -317,11 +317,7 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
 
     def draw(self, context):
         layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        layout.prop(self, "forward_axis")
-        layout.prop(self, "up_axis")
-        layout.prop(self, "sequence")
+        draw_settings(layout, self, ("forward_axis", "up_axis", "sequence"))
         row = layout.row()
         row.enabled = blender_data.supported() and not self.sequence
         row.prop(self, "representation")
