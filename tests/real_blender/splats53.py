@@ -213,8 +213,9 @@ def check_round_trips(bpy, data: Path, work: Path) -> None:
             clear(bpy)
             theirs = blender_import(bpy, path)
             data_mod = ext("blender.blender_splats.data")
+            required = ext("core.blender_splats.attributes").REQUIRED
             before = {a.name: data_mod.read_attribute(a, len(theirs.data.points))
-                      for a in theirs.data.attributes if a.name in data_mod.convention.REQUIRED
+                      for a in theirs.data.attributes if a.name in required
                       or a.name.startswith("radiance:sh_")}
             ours, _ = convert.from_blender_splats(theirs)
             again = convert.to_blender_splats(ours)
