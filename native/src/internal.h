@@ -111,7 +111,14 @@ double sc_now_ms(void);
  * On success free with sc_frame_free; on failure nothing is left allocated. */
 sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                            int with_pairs, sc_frame *frame, sc_stats *stats);
+
 void sc_frame_free(sc_frame *frame);
+
+/* Composites every tile of a prepared frame into `image` on `threads` threads: the render's
+ * pass, or, given `final_t` and `n_contrib`, the training forward's (which keeps what its
+ * backward needs). Returns the Gaussian evaluations made (render.c). */
+int64_t sc_composite_frame(const sc_frame *frame, const sc_camera *cam, const sc_image *image,
+                           float *final_t, int32_t *n_contrib, int exhaustive, int threads);
 
 /* sRGB conversions a rectangle at a time (colour.c), for sc_compose_srgb's tile pass: encode
  * mesh (scene-linear) into layer_view as sc_srgb_view does with zero_non_finite, and decode as
@@ -313,6 +320,16 @@ typedef struct {
     double dof_x, dof_y;       /* the circle of confusion's covariance (diagonal; 0: none) */
     double a, b, c, det;       /* Sigma2 with it, dilated, and its determinant */
 } sc_ewa;
+
+/* What a projection pass reads and writes, shared by the pinhole/orthographic pass (project.c)
+ * and the panoramic one (panorama.c): each embeds it as `p`. */
+typedef struct {
+    const sc_gaussians *g;
+    const sc_camera *cam;
+    const sc_options *opt;
+    sc_projection *out;
+    double campos[3]; /* the camera's centre in world space */
+} sc_projection_pass;
 
 /* The circle of confusion's variance per unit focal length squared at view depth z
  * (sc_camera's aperture and focus): (r/2)^2. */

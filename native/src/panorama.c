@@ -27,11 +27,7 @@
 #define PI 3.141592653589793
 
 typedef struct {
-    const sc_gaussians *g;
-    const sc_camera *cam;
-    const sc_options *opt;
-    sc_projection *out;
-    double campos[3];
+    sc_projection_pass p;
     double period; /* pixels, when the image wraps; else 0 */
     int cull;
     atomic_llong first_bad;
@@ -143,13 +139,13 @@ static int map_point(const sc_camera *cam, const double p[3], double uv[2], doub
 /* Gaussian i into `s` (and its seam copy into `copy`, row1 < row0 when none). Returns 1 when it
  * projects, 0 when culled. Inputs are finite. */
 static int project_gaussian(const pano_job *j, int64_t i, sc_splat *s, sc_splat *copy) {
-    const sc_gaussians *g = j->g;
-    const sc_camera *cam = j->cam;
+    const sc_gaussians *g = j->p.g;
+    const sc_camera *cam = j->p.cam;
     *copy = (sc_splat){.row1 = -1, .col1 = -1};
     double p[3], uv[2], jac[2][3];
     sc_to_camera(cam->world_to_camera, g->means + 3 * i, p);
     const double depth = sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
-    if (!(depth >= j->opt->near) || !(depth <= sc_far(cam))) return 0;
+    if (!(depth >= j->p.opt->near) || !(depth <= sc_far(cam))) return 0;
     if (!map_point(cam, p, uv, jac)) return 0;
     const double logit = g->opacity_logits[i];
     if (j->cull && logit < -5.6) return 0; /* sigmoid < 1/271: draws nothing */
@@ -187,7 +183,7 @@ static int project_gaussian(const pano_job *j, int64_t i, sc_splat *s, sc_splat 
         det0 = a0 * c0 - b0 * b0;
         ca = cc_cov / det, cb = -b0 / det, cc = ca_cov / det;
     }
-    if (j->opt->antialiased) opacity *= sqrt(det0 / det > 0.0 ? det0 / det : 0.0);
+    if (j->p.opt->antialiased) opacity *= sqrt(det0 / det > 0.0 ? det0 / det : 0.0);
 
     *s = (sc_splat){.x = (float)(cam->fx * uv[0] + cam->cx), .y = (float)(cam->cy - cam->fy * uv[1]),
                     .ca = (float)ca, .cb = (float)cb, .cc = (float)cc, .opacity = (float)opacity,
@@ -204,10 +200,10 @@ static int project_gaussian(const pano_job *j, int64_t i, sc_splat *s, sc_splat 
     if (j->cull && !reaches) return 0;
 
     double dir[3];
-    sc_view_dir(g->means + 3 * i, j->campos, dir);
+    sc_view_dir(g->means + 3 * i, j->p.campos, dir);
     const float dir_f[3] = {(float)dir[0], (float)dir[1], (float)dir[2]};
     float rgb[3];
-    sc_sh_colour_f(j->opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir_f, rgb);
+    sc_sh_colour_f(j->p.opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir_f, rgb);
     s->r = fmaxf(rgb[0] + 0.5f, 0.0f), s->g = fmaxf(rgb[1] + 0.5f, 0.0f);
     s->b = fmaxf(rgb[2] + 0.5f, 0.0f);
     copy->r = s->r, copy->g = s->g, copy->b = s->b;
@@ -224,9 +220,9 @@ static void finish(const sc_projection *out, int64_t row, const sc_splat *s, int
 static void project_range(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     pano_job *j = ctx;
-    const int64_t n = j->g->count;
+    const int64_t n = j->p.g->count;
     for (int64_t i = begin; i < end; ++i) {
-        if (!sc_gaussian_finite(j->g, i)) {
+        if (!sc_gaussian_finite(j->p.g, i)) {
             long long seen = atomic_load(&j->first_bad);
             while (i < seen && !atomic_compare_exchange_weak(&j->first_bad, &seen, i)) {
             }
@@ -235,16 +231,16 @@ static void project_range(void *ctx, int64_t begin, int64_t end, int thread) {
         sc_splat s = {.row1 = -1, .col1 = -1}, copy;
         const int ok = project_gaussian(j, i, &s, &copy);
         if (!ok) s = (sc_splat){.row1 = -1, .col1 = -1}, copy = s;
-        finish(j->out, i, &s, ok);
-        if (j->out->wrap_rows) finish(j->out, n + i, &copy, ok && copy.row1 >= copy.row0);
+        finish(j->p.out, i, &s, ok);
+        if (j->p.out->wrap_rows) finish(j->p.out, n + i, &copy, ok && copy.row1 >= copy.row0);
     }
 }
 
 sc_status sc_project_panorama(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                               int cull, sc_projection *out, sc_stats *stats) {
-    pano_job j = {.g = g, .cam = cam, .opt = opt, .out = out, .cull = cull};
+    pano_job j = {.p = {.g = g, .cam = cam, .opt = opt, .out = out}, .cull = cull};
     atomic_init(&j.first_bad, g->count);
-    sc_camera_centre(cam->world_to_camera, j.campos);
+    sc_camera_centre(cam->world_to_camera, j.p.campos);
     if (sc_wraps(cam)) j.period = cam->fx * TWO_PI / (cam->params[1] - cam->params[0]);
     sc_parallel_for(opt->threads, g->count, 1024, project_range, &j);
     const long long bad = atomic_load(&j.first_bad);

@@ -12,11 +12,7 @@
 #include "sh_basis.h"
 
 typedef struct {
-    const sc_gaussians *g;
-    const sc_camera *cam;
-    const sc_options *opt;
-    sc_projection *out;
-    double campos[3];
+    sc_projection_pass p;
     double forward[3];  /* the camera's +z in world space: the view direction of an ORTHO camera */
     atomic_llong first_bad; /* smallest index holding a non-finite value, or count */
 } job;
@@ -60,22 +56,22 @@ void sc_footprint(sc_splat *s, const sc_camera *cam) {
 
 /* Returns 1 when projected, 0 when culled, -1 on non-finite input. */
 static int project_one(const job *j, int64_t i, sc_splat *s) {
-    const sc_gaussians *g = j->g;
-    const sc_camera *cam = j->cam;
+    const sc_gaussians *g = j->p.g;
+    const sc_camera *cam = j->p.cam;
     if (!sc_gaussian_finite(g, i)) return -1;
     sc_ewa e;
-    if (!sc_ewa_project(g, i, cam, j->opt->near, &e)) return 0;
+    if (!sc_ewa_project(g, i, cam, j->p.opt->near, &e)) return 0;
     const double a = e.a, b = e.b, c = e.c, det = e.det;
 
     double opacity = sc_sigmoid(g->opacity_logits[i]);
-    if (j->opt->antialiased || cam->aperture > 0.0) opacity *= sc_mass_factor(&e, j->opt->antialiased);
+    if (j->p.opt->antialiased || cam->aperture > 0.0) opacity *= sc_mass_factor(&e, j->p.opt->antialiased);
 
     double dir[3];
-    sc_view_dir(g->means + 3 * i, j->campos, dir);
+    sc_view_dir(g->means + 3 * i, j->p.campos, dir);
     if (cam->model == SC_ORTHO) memcpy(dir, j->forward, sizeof dir);
     const float dir_f[3] = {(float)dir[0], (float)dir[1], (float)dir[2]};
     float rgb[3];
-    sc_sh_colour_f(j->opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir_f, rgb);
+    sc_sh_colour_f(j->p.opt->sh_degree, g->sh + (int64_t)3 * g->sh_coeffs * i, dir_f, rgb);
 
     s->x = (float)sc_pixel_x(cam, &e);
     s->y = (float)sc_pixel_y(cam, &e);
@@ -160,8 +156,8 @@ typedef struct {
 } batch;
 
 static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_t *idx, batch *o) {
-    const sc_gaussians *g = fj->base.g;
-    const sc_camera *cam = fj->base.cam;
+    const sc_gaussians *g = fj->base.p.g;
+    const sc_camera *cam = fj->base.p.cam;
     /* The inputs, copied into contiguous lanes so that the loops below vectorise. */
     float in[14][LANES]; /* mean 3, log scale 3, quaternion 4, opacity logit 1 */
     for (int l = 0; l < LANES; ++l) {
@@ -173,7 +169,7 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
     }
     double v[12], campos[3];
     for (int k = 0; k < 12; ++k) v[k] = cam->world_to_camera[k];
-    for (int k = 0; k < 3; ++k) campos[k] = fj->base.campos[k];
+    for (int k = 0; k < 3; ++k) campos[k] = fj->base.p.campos[k];
     const double fxd = cam->fx, fyd = cam->fy, cxd = cam->cx, cyd = cam->cy;
     const int ortho = fj->ortho;
     /* An orthographic camera sees every Gaussian along its axis: dir = forward (as campos
@@ -199,9 +195,9 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
     for (int k = 0; k < 9; ++k) w[k] = fj->view[k];
     const float dilation = (float)SC_DILATION;
     const float lo_x = fj->lo_x, hi_x = fj->hi_x, lo_y = fj->lo_y, hi_y = fj->hi_y;
-    const float aa = fj->base.opt->antialiased ? 1.0f : 0.0f;
+    const float aa = fj->base.p.opt->antialiased ? 1.0f : 0.0f;
     const float aperture = fj->aperture, inv_focus = fj->inv_focus;
-    const int keep_mass = fj->base.opt->antialiased || aperture > 0.0f; /* sc_mass_factor */
+    const int keep_mass = fj->base.p.opt->antialiased || aperture > 0.0f; /* sc_mass_factor */
     const int width = cam->width, height = cam->height;
     for (int l = 0; l < LANES; ++l) {
         const float inv_z = ortho ? 1.0f : 1.0f / pf[2][l]; /* ORTHO: the band is 0, so J's */
@@ -279,8 +275,8 @@ static SC_ALWAYS_INLINE void project_lanes_body(const fast_job *fj, const int64_
  * additions, which a lane-parallel loop overlaps. The lanes' Gaussians lie within one CHUNK, so
  * their coefficient rows are at 32-bit offsets from the first. */
 static SC_ALWAYS_INLINE void colour_lanes(const fast_job *fj, const int64_t *idx, batch *o) {
-    const sc_gaussians *g = fj->base.g;
-    const int degree = fj->base.opt->sh_degree;
+    const sc_gaussians *g = fj->base.p.g;
+    const int degree = fj->base.p.opt->sh_degree;
     const int count = (degree + 1) * (degree + 1);
     const int64_t stride = (int64_t)3 * g->sh_coeffs;
     const float *restrict sh = g->sh + idx[0] * stride;
@@ -317,13 +313,13 @@ SC_MULTIVERSION(void, project_lanes, (const fast_job *fj, const int64_t *idx, ba
  * can hold, as sc_ewa_project), and with `cull` possibly reaching the image (see above). */
 static SC_ALWAYS_INLINE void select_body(const fast_job *fj, int64_t begin, int64_t end,
                                          uint8_t *restrict keep) {
-    const sc_gaussians *g = fj->base.g;
-    const sc_camera *cam = fj->base.cam;
+    const sc_gaussians *g = fj->base.p.g;
+    const sc_camera *cam = fj->base.p.cam;
     const float *restrict means = g->means + 3 * begin, *restrict scales = g->log_scales + 3 * begin;
     const float *restrict logits = g->opacity_logits + begin;
     double v[12];
     for (int k = 0; k < 12; ++k) v[k] = cam->world_to_camera[k];
-    const double near = fj->base.opt->near, far = sc_far(cam), fx = cam->fx, fy = cam->fy;
+    const double near = fj->base.p.opt->near, far = sc_far(cam), fx = cam->fx, fy = cam->fy;
     const double cx = cam->cx, cy = cam->cy;
     const int ortho = fj->ortho;
     const double aperture = cam->aperture > 0.0 ? cam->aperture : 0.0;
@@ -371,20 +367,20 @@ static void set_key(const sc_projection *out, int64_t i) {
 
 /* The float values of lane l into the splat of Gaussian i. */
 static void finish_lane(const fast_job *fj, const batch *o, int l, int64_t i) {
-    sc_splat *s = &fj->base.out->splats[i];
+    sc_splat *s = &fj->base.p.out->splats[i];
     *s = (sc_splat){.x = o->x[l], .y = o->y[l], .ca = o->ca[l], .cb = o->cb[l], .cc = o->cc[l],
                     .opacity = o->opacity[l], .r = o->rgb[0][l], .g = o->rgb[1][l],
                     .b = o->rgb[2][l], .depth = o->depth[l], .row0 = o->row0[l],
                     .row1 = o->row1[l], .col0 = o->col0[l], .col1 = o->col1[l], .k2 = o->k2[l]};
-    fj->base.out->valid[i] = 1;
-    set_key(fj->base.out, i);
+    fj->base.p.out->valid[i] = 1;
+    set_key(fj->base.p.out, i);
 }
 
 static void clear(const fast_job *fj, int64_t i) {
-    sc_splat *s = &fj->base.out->splats[i];
+    sc_splat *s = &fj->base.p.out->splats[i];
     *s = (sc_splat){.row1 = -1, .col1 = -1};
-    fj->base.out->valid[i] = 0;
-    set_key(fj->base.out, i);
+    fj->base.p.out->valid[i] = 0;
+    set_key(fj->base.p.out, i);
 }
 
 /* Whether every input value of Gaussians [begin, end) is finite: one pass over each array,
@@ -408,7 +404,7 @@ SC_MULTIVERSION(int, all_finite, (const sc_gaussians *g, int64_t begin, int64_t 
 /* Gaussians [begin, end), at most CHUNK of them. */
 static void project_fast_chunk(fast_job *fj, int64_t begin, int64_t end) {
     job *j = &fj->base;
-    const sc_gaussians *g = j->g;
+    const sc_gaussians *g = j->p.g;
     if (!all_finite(g, begin, end)) {
         for (int64_t i = begin; i < end; ++i)
             if (!sc_gaussian_finite(g, i)) {
@@ -437,9 +433,9 @@ static void project_fast_chunk(fast_job *fj, int64_t begin, int64_t end) {
             const int64_t i = idx[at + l];
             if (o.ok[l])
                 finish_lane(fj, &o, l, i);
-            else if (project_one(j, i, &j->out->splats[i]) == 1) { /* overflow: in double */
-                j->out->valid[i] = 1;
-                set_key(j->out, i);
+            else if (project_one(j, i, &j->p.out->splats[i]) == 1) { /* overflow: in double */
+                j->p.out->valid[i] = 1;
+                set_key(j->p.out, i);
             } else {
                 clear(fj, i);
             }
@@ -456,10 +452,10 @@ static void project_fast_range(void *ctx, int64_t begin, int64_t end, int thread
 sc_status sc_project_fast(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                           int cull, sc_projection *out, sc_stats *stats) {
     if (cam->model >= SC_EQUIRECTANGULAR) return sc_project_panorama(g, cam, opt, cull, out, stats);
-    fast_job fj = {.base = {.g = g, .cam = cam, .opt = opt, .out = out}, .cull = cull,
+    fast_job fj = {.base = {.p = {.g = g, .cam = cam, .opt = opt, .out = out}}, .cull = cull,
                    .ortho = cam->model == SC_ORTHO};
     atomic_init(&fj.base.first_bad, g->count);
-    sc_camera_centre(cam->world_to_camera, fj.base.campos);
+    sc_camera_centre(cam->world_to_camera, fj.base.p.campos);
     for (int k = 0; k < 3; ++k) fj.base.forward[k] = cam->world_to_camera[8 + k];
     for (int r = 0; r < 3; ++r)
         for (int k = 0; k < 3; ++k) fj.view[3 * r + k] = (float)cam->world_to_camera[4 * r + k];

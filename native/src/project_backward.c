@@ -403,45 +403,8 @@ static SC_ALWAYS_INLINE void lanes_body(lanes *restrict L, const sc_camera *cam,
         /* Colour: as sc_sh_backward for `degree`. */
         const double d_rgb[3] = {L->keep[0][l] * L->d[SC_DG_R][l], L->keep[1][l] * L->d[SC_DG_G][l],
                                  L->keep[2][l] * L->d[SC_DG_B][l]};
-        const double dx_ = dir[0], dy_ = dir[1], dz_ = dir[2];
         double basis[16], gx[16] = {0}, gy[16] = {0}, gz[16] = {0};
-        basis[0] = SC_SH_C0;
-        if (degree >= 1) {
-            basis[1] = -SC_SH_C1 * dy_, gy[1] = -SC_SH_C1;
-            basis[2] = SC_SH_C1 * dz_, gz[2] = SC_SH_C1;
-            basis[3] = -SC_SH_C1 * dx_, gx[3] = -SC_SH_C1;
-        }
-        if (degree >= 2) {
-            const double xx = dx_ * dx_, yy = dy_ * dy_, zz = dz_ * dz_;
-            const double *C2 = SC_SH_C2;
-            basis[4] = C2[0] * dx_ * dy_, gx[4] = C2[0] * dy_, gy[4] = C2[0] * dx_;
-            basis[5] = C2[1] * dy_ * dz_, gy[5] = C2[1] * dz_, gz[5] = C2[1] * dy_;
-            basis[6] = C2[2] * (2.0 * zz - xx - yy);
-            gx[6] = -2.0 * C2[2] * dx_, gy[6] = -2.0 * C2[2] * dy_, gz[6] = 4.0 * C2[2] * dz_;
-            basis[7] = C2[3] * dx_ * dz_, gx[7] = C2[3] * dz_, gz[7] = C2[3] * dx_;
-            basis[8] = C2[4] * (xx - yy), gx[8] = 2.0 * C2[4] * dx_, gy[8] = -2.0 * C2[4] * dy_;
-            if (degree >= 3) {
-                const double *C3 = SC_SH_C3;
-                basis[9] = C3[0] * dy_ * (3.0 * xx - yy);
-                gx[9] = C3[0] * 6.0 * dx_ * dy_, gy[9] = C3[0] * 3.0 * (xx - yy);
-                basis[10] = C3[1] * dx_ * dy_ * dz_;
-                gx[10] = C3[1] * dy_ * dz_, gy[10] = C3[1] * dx_ * dz_, gz[10] = C3[1] * dx_ * dy_;
-                basis[11] = C3[2] * dy_ * (4.0 * zz - xx - yy);
-                gx[11] = -2.0 * C3[2] * dx_ * dy_, gy[11] = C3[2] * (4.0 * zz - xx - 3.0 * yy);
-                gz[11] = 8.0 * C3[2] * dy_ * dz_;
-                basis[12] = C3[3] * dz_ * (2.0 * zz - 3.0 * xx - 3.0 * yy);
-                gx[12] = -6.0 * C3[3] * dx_ * dz_, gy[12] = -6.0 * C3[3] * dy_ * dz_;
-                gz[12] = C3[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy);
-                basis[13] = C3[4] * dx_ * (4.0 * zz - xx - yy);
-                gx[13] = C3[4] * (4.0 * zz - 3.0 * xx - yy), gy[13] = -2.0 * C3[4] * dx_ * dy_;
-                gz[13] = 8.0 * C3[4] * dx_ * dz_;
-                basis[14] = C3[5] * dz_ * (xx - yy);
-                gx[14] = 2.0 * C3[5] * dx_ * dz_, gy[14] = -2.0 * C3[5] * dy_ * dz_;
-                gz[14] = C3[5] * (xx - yy);
-                basis[15] = C3[6] * dx_ * (xx - 3.0 * yy);
-                gx[15] = C3[6] * 3.0 * (xx - yy), gy[15] = -6.0 * C3[6] * dx_ * dy_;
-            }
-        }
+        sc_sh_basis_grad(degree, dir[0], dir[1], dir[2], basis, gx, gy, gz);
         double d_dir0 = 0.0, d_dir1 = 0.0, d_dir2 = 0.0;
         SC_UNROLL_ALL /* no inner loop may stay: the lane loop would not vectorise */
         for (int i = 0; i < (degree + 1) * (degree + 1); ++i) {

@@ -113,6 +113,8 @@ typedef struct {
     const sc_frame *frame;
     const sc_camera *cam;
     const sc_image *image;
+    float *final_t;      /* the training forward's: what its backward needs (else NULL) */
+    int32_t *n_contrib;
     int exhaustive;
     int64_t evaluations[MAX_THREADS * PAD];
 } composite_job;
@@ -122,10 +124,23 @@ static void composite_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
     const sc_frame *f = j->frame;
     for (int64_t t = begin; t < end; ++t) {
         const int64_t first = f->offsets[t], count = f->offsets[t + 1] - first;
+        const int tx = (int)(t % f->tiles_x), ty = (int)(t / f->tiles_x);
         j->evaluations[thread * PAD] +=
-            sc_composite_tile(f->splats, f->list + first, count, (int)(t % f->tiles_x),
-                              (int)(t / f->tiles_x), j->cam, j->image, j->exhaustive);
+            j->final_t ? sc_composite_tile_train(f->splats, f->list + first, count, tx, ty, j->cam,
+                                                 j->image, j->final_t, j->n_contrib, j->exhaustive)
+                       : sc_composite_tile(f->splats, f->list + first, count, tx, ty, j->cam,
+                                           j->image, j->exhaustive);
     }
+}
+
+int64_t sc_composite_frame(const sc_frame *frame, const sc_camera *cam, const sc_image *image,
+                           float *final_t, int32_t *n_contrib, int exhaustive, int threads) {
+    composite_job job = {.frame = frame, .cam = cam, .image = image, .final_t = final_t,
+                         .n_contrib = n_contrib, .exhaustive = exhaustive};
+    sc_parallel_for(threads, frame->ntiles, 1, composite_tiles, &job);
+    int64_t evaluations = 0;
+    for (int t = 0; t < MAX_THREADS; ++t) evaluations += job.evaluations[t * PAD];
+    return evaluations;
 }
 
 sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
@@ -136,16 +151,12 @@ sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_option
     if (status != SC_OK) return status;
     const double binned = sc_now_ms();
 
-    composite_job job = {.frame = &frame, .cam = cam, .image = image,
-                         .exhaustive = opt->exhaustive};
-    sc_parallel_for(opt->threads < MAX_THREADS ? opt->threads : MAX_THREADS, frame.ntiles, 1,
-                    composite_tiles, &job);
+    stats->evaluations = sc_composite_frame(&frame, cam, image, NULL, NULL, opt->exhaustive,
+                                            opt->threads < MAX_THREADS ? opt->threads : MAX_THREADS);
     const double composited = sc_now_ms();
 
     stats->ms_composite = composited - binned;
     stats->ms_total = composited - start;
-    stats->evaluations = 0;
-    for (int t = 0; t < MAX_THREADS; ++t) stats->evaluations += job.evaluations[t * PAD];
     sc_frame_free(&frame);
     return SC_OK;
 }

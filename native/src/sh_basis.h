@@ -37,24 +37,18 @@ static SC_ALWAYS_INLINE void sc_sh_basis_f(float x, float y, float z, float basi
     basis[15] = (float)SC_SH_C3[6] * x * (xx - 3.0f * yy);
 }
 
-/* Backward of sc_sh_colour_f: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
- * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
- * free vector; the caller applies the normalisation).
- * The colour is sum_i basis_i(dir) coeffs_i, so dL/dcoeffs_i = basis_i dL/drgb and
- * dL/ddir = sum_i grad(basis_i) (coeffs_i . dL/drgb), with grad(basis_i) the derivatives of
- * the polynomials above in x, y, z (as the reference backward.cu computes them). */
-static SC_ALWAYS_INLINE void sc_sh_backward(int degree, const float *coeffs, const double dir[3],
-                                           const double d_rgb[3], double *d_coeffs,
-                                           double d_dir[3]) {
-    const double x = dir[0], y = dir[1], z = dir[2];
-    double basis[16], gx[16] = {0}, gy[16] = {0}, gz[16] = {0};
-    int k = 1;
+/* The basis values at the direction (x, y, z) for `degree`, and their derivatives in x, y and
+ * z (the polynomials of sc_sh_basis_f differentiated, as the reference backward.cu does), into
+ * the first (degree+1)^2 entries; the caller zeroes gx, gy and gz. Inline so that the lane loop
+ * of the projection backward vectorises it. */
+static SC_ALWAYS_INLINE void sc_sh_basis_grad(int degree, double x, double y, double z,
+                                              double basis[16], double gx[16], double gy[16],
+                                              double gz[16]) {
     basis[0] = SC_SH_C0;
     if (degree >= 1) {
         basis[1] = -SC_SH_C1 * y, gy[1] = -SC_SH_C1;
         basis[2] = SC_SH_C1 * z, gz[2] = SC_SH_C1;
         basis[3] = -SC_SH_C1 * x, gx[3] = -SC_SH_C1;
-        k = 4;
     }
     if (degree >= 2) {
         const double xx = x * x, yy = y * y, zz = z * z;
@@ -64,7 +58,6 @@ static SC_ALWAYS_INLINE void sc_sh_backward(int degree, const float *coeffs, con
         gx[6] = -2.0 * SC_SH_C2[2] * x, gy[6] = -2.0 * SC_SH_C2[2] * y, gz[6] = 4.0 * SC_SH_C2[2] * z;
         basis[7] = SC_SH_C2[3] * x * z, gx[7] = SC_SH_C2[3] * z, gz[7] = SC_SH_C2[3] * x;
         basis[8] = SC_SH_C2[4] * (xx - yy), gx[8] = 2.0 * SC_SH_C2[4] * x, gy[8] = -2.0 * SC_SH_C2[4] * y;
-        k = 9;
         if (degree >= 3) {
             basis[9] = SC_SH_C3[0] * y * (3.0 * xx - yy);
             gx[9] = SC_SH_C3[0] * 6.0 * x * y, gy[9] = SC_SH_C3[0] * 3.0 * (xx - yy);
@@ -83,9 +76,22 @@ static SC_ALWAYS_INLINE void sc_sh_backward(int degree, const float *coeffs, con
             gx[14] = 2.0 * SC_SH_C3[5] * x * z, gy[14] = -2.0 * SC_SH_C3[5] * y * z, gz[14] = SC_SH_C3[5] * (xx - yy);
             basis[15] = SC_SH_C3[6] * x * (xx - 3.0 * yy);
             gx[15] = SC_SH_C3[6] * 3.0 * (xx - yy), gy[15] = -6.0 * SC_SH_C3[6] * x * y;
-            k = 16;
         }
     }
+}
+
+/* Backward of sc_sh_colour_f: given dL/d(rgb) (before the +0.5 and the clamp), writes dL/dcoeffs
+ * for the first (degree+1)^2 coefficients (K,3 layout) and returns dL/d(dir) (dir treated as a
+ * free vector; the caller applies the normalisation).
+ * The colour is sum_i basis_i(dir) coeffs_i, so dL/dcoeffs_i = basis_i dL/drgb and
+ * dL/ddir = sum_i grad(basis_i) (coeffs_i . dL/drgb), with grad(basis_i) the derivatives of
+ * the polynomials above in x, y, z (as the reference backward.cu computes them). */
+static SC_ALWAYS_INLINE void sc_sh_backward(int degree, const float *coeffs, const double dir[3],
+                                           const double d_rgb[3], double *d_coeffs,
+                                           double d_dir[3]) {
+    double basis[16], gx[16] = {0}, gy[16] = {0}, gz[16] = {0};
+    const int k = degree >= 3 ? 16 : (degree + 1) * (degree + 1);
+    sc_sh_basis_grad(degree, dir[0], dir[1], dir[2], basis, gx, gy, gz);
     d_dir[0] = d_dir[1] = d_dir[2] = 0.0;
     for (int i = 0; i < k; ++i) {
         const float *c = coeffs + 3 * i;

@@ -30,27 +30,6 @@ void sc_train_state_free(sc_train_state *state) {
     state->final_t = NULL, state->n_contrib = NULL, state->depth = NULL;
 }
 
-typedef struct {
-    const sc_frame *frame;
-    const sc_camera *cam;
-    const sc_image *image;
-    float *final_t;
-    int32_t *n_contrib;
-    int exhaustive;
-    int64_t evaluations[MAX_THREADS * PAD];
-} forward_job;
-
-static void forward_tiles(void *ctx, int64_t begin, int64_t end, int thread) {
-    forward_job *j = ctx;
-    const sc_frame *f = j->frame;
-    for (int64_t t = begin; t < end; ++t) {
-        const int64_t first = f->offsets[t], count = f->offsets[t + 1] - first;
-        j->evaluations[thread * PAD] += sc_composite_tile_train(
-            f->splats, f->list + first, count, (int)(t % f->tiles_x), (int)(t / f->tiles_x),
-            j->cam, j->image, j->final_t, j->n_contrib, j->exhaustive);
-    }
-}
-
 static int clamp_threads(int threads) {
     return threads < 1 ? 1 : threads > MAX_THREADS ? MAX_THREADS : threads;
 }
@@ -76,16 +55,13 @@ sc_status sc_render_train(const sc_gaussians *g, const sc_camera *cam, const sc_
     if (status != SC_OK) return status;
     const double binned = sc_now_ms();
 
-    forward_job job = {.frame = &state->frame, .cam = cam, .image = image,
-                       .final_t = state->final_t, .n_contrib = state->n_contrib,
-                       .exhaustive = opt->exhaustive};
-    sc_parallel_for(clamp_threads(opt->threads), state->frame.ntiles, 1, forward_tiles, &job);
+    stats->evaluations = sc_composite_frame(&state->frame, cam, image, state->final_t,
+                                            state->n_contrib, opt->exhaustive,
+                                            clamp_threads(opt->threads));
     memcpy(state->depth, image->depth, sizeof(float) * pixels);
     const double composited = sc_now_ms();
     stats->ms_composite = composited - binned;
     stats->ms_total = composited - start;
-    stats->evaluations = 0;
-    for (int t = 0; t < MAX_THREADS; ++t) stats->evaluations += job.evaluations[t * PAD];
     return SC_OK;
 }
 
