@@ -28,10 +28,10 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from ..sh import SH_C0
-from .errors import SplatFileError
-from .limits import check_gaussian_count
-from .ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
-from .plyfile import PlyHeader, PlyTable, check_finite, read_elements, read_header
+from ..formats_common.errors import SplatFileError
+from ..formats_common.limits import check_gaussian_count
+from ..formats_common.ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
+from ..formats_common.plyfile import PlyHeader, PlyTable, check_finite, read_elements, read_header
 
 __all__ = ["load", "CHUNK_SIZE"]
 

@@ -34,9 +34,9 @@ import numpy as np
 from ..gaussians import Gaussians, sigmoid
 from ..sh import SH_C0
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .morton import morton_order
-from .quaternions import smallest_three
+from ..formats_common.errors import SplatFileError
+from ..formats_common.morton import morton_order
+from ..formats_common.quaternions import smallest_three
 
 __all__ = ["save", "CHUNK_SIZE", "header_text"]
 

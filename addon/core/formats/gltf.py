@@ -50,13 +50,13 @@ from ..gaussians import Gaussians
 from ..sh import SH_C0
 from ..transform import transform_gaussians
 from ..atomic import atomic_write
-from .assemble import Assembly
-from .contained import contained_file, read_regular
-from .errors import SplatFileError
-from .frames import rdf_to_rub
-from .json_file import malformed, parse_object
-from .limits import check_expansion, check_gaussian_count
-from .quaternions import unit_quaternions
+from ..formats_common.assemble import Assembly
+from ..formats_common.contained import contained_file, read_regular
+from ..formats_common.errors import SplatFileError
+from ..formats_common.frames import rdf_to_rub
+from ..formats_common.json_file import malformed, parse_object
+from ..formats_common.limits import check_expansion, check_gaussian_count
+from ..formats_common.quaternions import unit_quaternions
 
 __all__ = ["load", "save", "EXTENSION", "SPZ_EXTENSION", "attribute_names"]
 

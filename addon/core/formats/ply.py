@@ -20,10 +20,10 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .limits import check_gaussian_count
-from .ply_sh import F_REST_COUNTS, f_rest_names
-from .plyfile import PlyElement, PlyTable, check_finite, read_elements, read_header
+from ..formats_common.errors import SplatFileError
+from ..formats_common.limits import check_gaussian_count
+from ..formats_common.ply_sh import F_REST_COUNTS, f_rest_names
+from ..formats_common.plyfile import PlyElement, PlyTable, check_finite, read_elements, read_header
 
 __all__ = ["load", "save", "read_header", "property_names"]
 

@@ -56,15 +56,15 @@ from typing import Any, Callable
 import numpy as np
 
 from ..gaussians import Gaussians
-from . import webp
+from ..formats_common import webp
 from ..atomic import atomic_write
-from .codebook import palette, scalar_codebook
-from .contained import contained_file, is_contained_name, read_regular, unrepresentable
-from .errors import SplatFileError
-from .json_file import malformed, parse_object
-from .limits import check_expansion, check_gaussian_count
-from .morton import morton_order
-from .quaternions import smallest_three
+from ..formats_common.codebook import palette, scalar_codebook
+from ..formats_common.contained import contained_file, is_contained_name, read_regular, unrepresentable
+from ..formats_common.errors import SplatFileError
+from ..formats_common.json_file import malformed, parse_object
+from ..formats_common.limits import check_expansion, check_gaussian_count
+from ..formats_common.morton import morton_order
+from ..formats_common.quaternions import smallest_three
 
 __all__ = ["load", "load_with_info", "save", "SogInfo", "read_info", "morton_order", "MAX_COUNT", "VERSION"]
 

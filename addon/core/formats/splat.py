@@ -36,8 +36,8 @@ import numpy as np
 from ..gaussians import Gaussians, logit, sigmoid
 from ..sh import SH_C0
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .limits import check_gaussian_count
+from ..formats_common.errors import SplatFileError
+from ..formats_common.limits import check_gaussian_count
 
 __all__ = ["load", "save", "RECORD"]
 

@@ -68,8 +68,8 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .limits import check_expansion, check_gaussian_count
+from ..formats_common.errors import SplatFileError
+from ..formats_common.limits import check_expansion, check_gaussian_count
 from .splat import decode_alpha, encode_alpha
 
 __all__ = ["load", "load_with_flag", "memory_needed", "save", "Packed", "read_packed", "unpack", "pack", "serialize",
