@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gaussians import Gaussians
-from ..sh import SH_C0
+from ..gaussians import Gaussians, logit
+from ..sh import dc_from_colour
 from ..formats_common.errors import SplatFileError
 from ..formats_common.limits import check_gaussian_count
 from ..formats_common.ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
@@ -84,8 +84,8 @@ def _unpack_color(bits: np.ndarray, chunk: PlyTable, has_color_bounds: bool) -> 
     alpha = _unorm(bits, 0, 8)
     with np.errstate(divide="ignore"):
         logits = np.where(alpha <= 0.0, -OPACITY_LOGIT_LIMIT,
-                          np.where(alpha >= 1.0, OPACITY_LOGIT_LIMIT, -np.log(1.0 / alpha - 1.0)))
-    return (rgb - 0.5) / SH_C0, logits
+                          np.where(alpha >= 1.0, OPACITY_LOGIT_LIMIT, logit(alpha)))
+    return dc_from_colour(rgb), logits
 
 
 def _decode_sh(path: Path, table: PlyTable, n: int) -> np.ndarray:

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians, sigmoid
-from ..sh import SH_C0
+from ..sh import dc_colour
 from ..atomic import atomic_write
 from ..formats_common.errors import SplatFileError
 from ..formats_common.morton import morton_order
@@ -97,7 +97,7 @@ def _pack_rotation(quats: np.ndarray) -> np.ndarray:
 def _encode(g: Gaussians) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """-> chunk rows (C, 18) float32, packed vertices (N, 4) uint32, sh bytes (N, 3*(K-1)) uint8."""
     n = len(g)
-    colour = 0.5 + SH_C0 * g.sh[:, 0, :].astype(np.float64)
+    colour = dc_colour(g.sh[:, 0, :].astype(np.float64))
     fields = [_chunked(a) for a in (g.means.astype(np.float64), g.log_scales.astype(np.float64), colour)]
     # Bounds over each chunk's own rows: the padding repeats a row, so it changes nothing.
     bounds = [(c.min(axis=1), c.max(axis=1)) for c in fields]

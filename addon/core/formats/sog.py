@@ -55,7 +55,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..gaussians import Gaussians
+from ..gaussians import Gaussians, logit, sigmoid
 from ..formats_common import webp
 from ..atomic import atomic_write
 from ..formats_common.codebook import palette, scalar_codebook
@@ -299,7 +299,7 @@ def _decode_sh0(path: Path, meta: dict, source: _Source, count: int) -> tuple[np
     pixels = _image(source, _files(path, meta, "sh0", 1)[0], count)[:count]
     dc = _lookup(path, book, pixels[:, :3], "sh0")
     opacity = np.clip(pixels[:, 3] / 255.0, OPACITY_EPS, 1.0 - OPACITY_EPS)
-    return dc, np.log(opacity / (1.0 - opacity))
+    return dc, logit(opacity)
 
 
 def _decode_sh_rest(path: Path, meta: dict, source: _Source, count: int) -> np.ndarray:
@@ -511,7 +511,7 @@ def _write_folder(gaussians: Gaussians, folder: Path, antialiased: bool) -> None
     scale_book, scale_codes = scalar_codebook(g.log_scales)
     write("scales.webp", _as_image(_rows(*scale_codes.T), width, height))
     dc_book, dc_codes = scalar_codebook(g.sh[:, 0, :])
-    opacity = np.rint(1.0 / (1.0 + np.exp(-g.opacity_logits.astype(np.float64))) * 255.0)
+    opacity = np.rint(sigmoid(g.opacity_logits) * 255.0)
     write("sh0.webp", _as_image(_rows(*dc_codes.T, alpha=opacity.astype(np.uint8)), width, height))
     meta: dict[str, Any] = {
         "version": VERSION, "asset": {"generator": GENERATOR}, "count": n, "antialias": bool(antialiased),
