@@ -34,7 +34,7 @@ import numpy as np
 from ..gaussians import Gaussians, sigmoid
 from ..sh import dc_colour
 from ..atomic import atomic_write
-from ..formats_common.errors import SplatFileError
+from ..formats_common.errors import check_savable, os_errors
 from ..formats_common.morton import morton_order
 from ..formats_common.quaternions import smallest_three
 
@@ -124,17 +124,12 @@ def save(gaussians: Gaussians, path: str | os.PathLike, *, keep_order: bool = Fa
     order first (tight chunks) unless `keep_order`: Gaussians read from a compressed ply are
     already in chunks, and re-saving them in their order reproduces the file's data."""
     path = Path(path)
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise SplatFileError(path, f"cannot save non-finite values in {bad}")
+    check_savable(path, gaussians)
     g = gaussians if keep_order else gaussians.subset(morton_order(gaussians.means))
-    try:
-        with atomic_write(path) as f:
-            f.write(header_text(len(g), g.degree))
-            if len(g):
-                chunk_rows, packed, sh_bytes = _encode(g)
-                f.write(chunk_rows.astype("<f4").tobytes())
-                f.write(packed.astype("<u4").tobytes())
-                f.write(sh_bytes.tobytes())
-    except OSError as e:
-        raise SplatFileError(path, f"cannot write file: {e.strerror or e}") from None
+    with os_errors(path), atomic_write(path) as f:
+        f.write(header_text(len(g), g.degree))
+        if len(g):
+            chunk_rows, packed, sh_bytes = _encode(g)
+            f.write(chunk_rows.astype("<f4").tobytes())
+            f.write(packed.astype("<u4").tobytes())
+            f.write(sh_bytes.tobytes())

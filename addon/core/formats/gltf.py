@@ -53,7 +53,7 @@ from ..transform import transform_gaussians
 from ..atomic import atomic_write
 from ..formats_common.assemble import Assembly
 from ..formats_common.contained import contained_file, read_regular
-from ..formats_common.errors import SplatFileError
+from ..formats_common.errors import SplatFileError, check_savable, os_errors
 from ..formats_common.frames import rdf_to_rub
 from ..formats_common.json_file import malformed, parse_object
 from ..formats_common.limits import check_expansion, check_gaussian_count
@@ -151,9 +151,7 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
     """Write `gaussians` as `.glb` (binary) or `.gltf` (JSON, the buffer embedded as a data URI),
     atomically."""
     path = Path(path)
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise SplatFileError(path, f"cannot save non-finite values in {bad}")
+    check_savable(path, gaussians)
     document, binary = _document(gaussians)
     if path.suffix.lower() == ".gltf":
         encoded = base64.b64encode(binary).decode("ascii")
@@ -168,11 +166,8 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
         payload = struct.pack("<III", GLB_MAGIC, 2, total) + struct.pack("<II", len(text), CHUNK_JSON) + text
         if binary:
             payload += struct.pack("<II", len(binary), CHUNK_BIN) + binary
-    try:
-        with atomic_write(path) as f:
-            f.write(payload)
-    except OSError as e:
-        raise SplatFileError(path, f"cannot write file: {e.strerror or e}") from None
+    with os_errors(path), atomic_write(path) as f:
+        f.write(payload)
 
 
 # ------------------------------------------------------------------------------------------

@@ -60,7 +60,7 @@ from ..formats_common import webp
 from ..atomic import atomic_write
 from ..formats_common.codebook import palette, scalar_codebook
 from ..formats_common.contained import contained_file, is_contained_name, read_regular, unrepresentable
-from ..formats_common.errors import SplatFileError
+from ..formats_common.errors import SplatFileError, check_decoded, check_savable
 from ..formats_common.json_file import malformed, parse_object
 from ..formats_common.limits import check_expansion, check_gaussian_count
 from ..formats_common.morton import morton_order
@@ -354,9 +354,7 @@ def _decode(path: Path, source: _Source) -> tuple[Gaussians, SogInfo]:
     sh = np.concatenate([dc[:, None, :], rest], axis=1)
     with np.errstate(over="ignore"):
         gaussians = Gaussians(means, log_scales, quats, logits, sh)
-    bad = gaussians.non_finite()
-    if bad is not None:  # every input was checked; this is the net under those checks
-        raise _fail(path, f"non-finite values in decoded {bad}")
+    check_decoded(path, gaussians)  # every input was checked; this is the net under those checks
     info = SogInfo(count, gaussians.degree, bool(meta.get("antialias", False)),
                    int(meta["shN"]["count"]) if meta.get("shN") else 0)
     return gaussians, info
@@ -530,9 +528,7 @@ def save(gaussians: Gaussians, path: str | os.PathLike, *, antialiased: bool = F
     written beside it). Atomic: a `.sog` appears whole; a folder's meta.json is replaced last,
     after every image it names is in place."""
     path = Path(path)
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise _fail(path, f"cannot save non-finite values in {bad}")
+    check_savable(path, gaussians)
     if len(gaussians) > MAX_COUNT:
         raise _fail(path, f"cannot save {len(gaussians)} Gaussians in one SOG (at most {MAX_COUNT})")
     bundle = path.suffix.lower() == ".sog"

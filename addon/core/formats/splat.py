@@ -36,7 +36,7 @@ import numpy as np
 from ..gaussians import Gaussians, log_scales_of, logit, scales_of, sigmoid
 from ..sh import dc_colour, dc_from_colour
 from ..atomic import atomic_write
-from ..formats_common.errors import SplatFileError
+from ..formats_common.errors import SplatFileError, check_savable, os_errors
 from ..formats_common.limits import check_gaussian_count
 
 __all__ = ["load", "save", "RECORD"]
@@ -93,12 +93,10 @@ def encode_alpha(logits: np.ndarray) -> np.ndarray:
 def load(path: str | os.PathLike) -> Gaussians:
     """Read a `.splat` file (SH degree 0)."""
     path = Path(path)
-    try:
+    with os_errors(path, "cannot read file"):
         size = path.stat().st_size
         check_gaussian_count(path, size // RECORD.itemsize)
         data = path.read_bytes()
-    except OSError as e:
-        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
     if len(data) % RECORD.itemsize:
         raise SplatFileError(path, f"size {len(data)} bytes is not a multiple of the 32-byte .splat "
                                    f"record (truncated, or not a .splat file)")
@@ -123,9 +121,7 @@ def load(path: str | os.PathLike) -> Gaussians:
 
 def encode(gaussians: Gaussians, path: str | os.PathLike = "<memory>") -> np.ndarray:
     """The `.splat` records for `gaussians` (a structured array of RECORD)."""
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise SplatFileError(path, f"cannot write: Gaussians.{bad} holds NaN or Inf")
+    check_savable(path, gaussians)
     n = len(gaussians)
     rec = np.zeros(n, dtype=RECORD)
     rec["position"] = gaussians.means
@@ -153,5 +149,5 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
     """Write `gaussians` as `.splat` (SH bands above the DC term are dropped)."""
     path = Path(path)
     data = encode(gaussians, path).tobytes()
-    with atomic_write(path) as f:
+    with os_errors(path), atomic_write(path) as f:
         f.write(data)
