@@ -56,8 +56,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ..gaussians import Gaussians, logit, sigmoid
-from ..formats_common import webp
 from ..atomic import atomic_write
+from ..formats_common import webp
 from ..formats_common.codebook import palette, scalar_codebook
 from ..formats_common.contained import contained_file, is_contained_name, read_regular, unrepresentable
 from ..formats_common.errors import SplatFileError, check_decoded, check_savable
