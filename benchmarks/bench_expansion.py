@@ -1,5 +1,5 @@
 """How much each real splat file expands: the bytes of Gaussians it declares per byte read, as
-the readers measure it for `formats.limits.MAX_EXPANSION` (what the bound was chosen from).
+the readers measure it for `formats_common.limits.MAX_EXPANSION` (what the bound was chosen from).
 
     .venv/bin/python benchmarks/bench_expansion.py [--data ../shared/data/splats] [--synthetic 50000]
 
@@ -24,7 +24,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from addon.core import splat_io  # noqa: E402
-from addon.core.formats import gltf, limits, sog, spz  # noqa: E402
+from addon.core.formats import gltf, sog, spz  # noqa: E402
+from addon.core.formats_common import limits  # noqa: E402
 from addon.core.gaussians import Gaussians  # noqa: E402
 
 ROWS: list[tuple[float, int, int, int, int, str]] = []
@@ -66,7 +67,7 @@ def main() -> None:
     print(f"{'bytes decoded / read':>21} {'Gaussians':>10} {'SH':>3} {'file bytes':>11} {'declared':>11}  file")
     for ratio, count, degree, size, declared, path in sorted(ROWS):
         print(f"{ratio:21.2f} {count:10d} {degree:3d} {size:11d} {declared:11d}  {path}")
-    print(f"bound: formats.limits.MAX_EXPANSION = {limits.MAX_EXPANSION}")
+    print(f"bound: formats_common.limits.MAX_EXPANSION = {limits.MAX_EXPANSION}")
 
 
 if __name__ == "__main__":

@@ -411,7 +411,7 @@ def _child(reader: str, folder: Path, name: str, memory: int, seconds: int, pipe
     resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
     from addon.core.colmap import ColmapError
-    from addon.core.formats.errors import SplatFileError
+    from addon.core.formats_common.errors import SplatFileError
     _guard_opens(folder.parent / "outside")
     code, text = 0, ""
     try:
@@ -547,7 +547,8 @@ def preload() -> None:
 
     from addon.core import colmap, splat_io  # noqa: F401
     from addon.core.formats import (compressed_ply, gltf, ply, sequence, sog, sog_lod,  # noqa: F401
-                                    splat, spz, webp)
+                                    splat, spz)
+    from addon.core.formats_common import webp  # noqa: F401
     try:
         import OpenImageIO  # noqa: F401
     except ImportError:

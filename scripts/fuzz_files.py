@@ -74,7 +74,7 @@ def outside_files(g) -> dict[str, bytes]:
 
 def spare_images() -> list[bytes]:
     """Valid lossless WebP images of other sizes, to swap in for a SOG's own."""
-    from addon.core.formats import webp
+    from addon.core.formats_common import webp
     images = []
     with tempfile.TemporaryDirectory() as tmp:
         for height, width in ((1, 1), (4, 4), (64, 64), (1, 4096), (300, 300)):

@@ -31,7 +31,7 @@ COUNT = 10_000_000 - 1756  # what SIDE x SIDE holds
 
 
 def _webp(alpha: int) -> bytes:
-    from addon.core.formats import webp
+    from addon.core.formats_common import webp
     image = np.zeros((SIDE, SIDE, 4), np.uint8)
     image[..., 3] = alpha
     with tempfile.TemporaryDirectory() as tmp:

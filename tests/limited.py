@@ -18,7 +18,7 @@ limit = int(sys.argv[1])
 if limit:
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 sys.path.insert(0, sys.argv[2])
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.errors import SplatFileError
 try:
     exec(sys.argv[3])
     out = {"kind": "loaded", "text": str(result)}

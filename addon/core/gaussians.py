@@ -44,6 +44,20 @@ def logit(opacity):
     return np.log(p / (1.0 - p))
 
 
+def scales_of(log_scales) -> np.ndarray:
+    """Standard deviations of log scales, float64: exp(x) (inf where exp overflows)."""
+    x = np.asarray(log_scales, np.float64)
+    with np.errstate(over="ignore"):
+        return np.exp(x)
+
+
+def log_scales_of(scales) -> np.ndarray:
+    """Log scales of standard deviations, float64: log(s) (-inf at 0)."""
+    s = np.asarray(scales, np.float64)
+    with np.errstate(divide="ignore"):
+        return np.log(s)
+
+
 def _as_f32(name: str, value: object, tail: tuple[int, ...]) -> np.ndarray:
     array = np.ascontiguousarray(value, dtype=np.float32)
     if array.ndim != 1 + len(tail) or array.shape[1:] != tail:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 
 from .formats import registry
-from .formats.errors import SplatFileError
+from .formats_common.errors import SplatFileError
 from .gaussians import Gaussians
 
 __all__ = ["SplatFileError", "load", "save", "SUFFIXES"]

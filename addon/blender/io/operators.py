@@ -42,7 +42,7 @@ import numpy as np
 
 from ...core import axes
 from ...core.formats import registry
-from ...core.formats.errors import SplatFileError
+from ...core.formats_common.errors import SplatFileError
 from ...core.formats.sequence import SplatSequence, save_sequence
 from ...core.gaussians import Gaussians
 from ...core.transform import transform_gaussians

@@ -25,7 +25,7 @@ from pathlib import Path
 import bpy
 from bpy.app.handlers import persistent
 
-from ...core.formats.errors import SplatFileError
+from ...core.formats_common.errors import SplatFileError
 from ...core.formats.sequence import SplatSequence
 from ...core.gaussians import Gaussians
 from ..render import failures, state

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..formats.contained import is_contained_name, unrepresentable  # the one judge of names in files
+from ..formats_common.contained import is_contained_name, unrepresentable  # the one judge of names in files
 from .errors import ColmapError, import_pycolmap
 
 # Camera sides up to Blender's own resolution limit; COLMAP cameras are photos' sizes.

@@ -26,12 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gaussians import Gaussians
-from ..sh import SH_C0
-from .errors import SplatFileError
-from .limits import check_gaussian_count
-from .ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
-from .plyfile import PlyHeader, PlyTable, check_finite, read_elements, read_header
+from ..gaussians import Gaussians, logit
+from ..sh import dc_from_colour
+from ..formats_common.errors import SplatFileError, check_decoded
+from ..formats_common.limits import check_gaussian_count
+from ..formats_common.ply_sh import F_REST_COUNTS, f_rest_names, sh_from_file_layout
+from ..formats_common.plyfile import PlyHeader, PlyTable, check_finite, read_elements, read_header
 
 __all__ = ["load", "CHUNK_SIZE"]
 
@@ -84,8 +84,8 @@ def _unpack_color(bits: np.ndarray, chunk: PlyTable, has_color_bounds: bool) -> 
     alpha = _unorm(bits, 0, 8)
     with np.errstate(divide="ignore"):
         logits = np.where(alpha <= 0.0, -OPACITY_LOGIT_LIMIT,
-                          np.where(alpha >= 1.0, OPACITY_LOGIT_LIMIT, -np.log(1.0 / alpha - 1.0)))
-    return (rgb - 0.5) / SH_C0, logits
+                          np.where(alpha >= 1.0, OPACITY_LOGIT_LIMIT, logit(alpha)))
+    return dc_from_colour(rgb), logits
 
 
 def _decode_sh(path: Path, table: PlyTable, n: int) -> np.ndarray:
@@ -135,7 +135,4 @@ def load(path: str | os.PathLike, header: PlyHeader | None = None) -> Gaussians:
     rest = _decode_sh(path, tables["sh"], len(vertex)) if "sh" in tables else np.zeros((len(vertex), 0), np.float32)
     gaussians = Gaussians(means, log_scales, _unpack_rotation(packed[:, 1]), logits,
                           sh_from_file_layout(dc.astype(np.float32), rest))
-    bad = gaussians.non_finite()
-    if bad is not None:  # e.g. non-finite colour bounds
-        raise SplatFileError(path, f"non-finite values in decoded {bad}")
-    return gaussians
+    return check_decoded(path, gaussians)  # e.g. non-finite colour bounds

@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from ..gaussians import Gaussians, sigmoid
-from ..sh import SH_C0
+from ..sh import dc_colour
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .morton import morton_order
-from .quaternions import smallest_three
+from ..formats_common.errors import check_savable, os_errors
+from ..formats_common.morton import morton_order
+from ..formats_common.quaternions import smallest_three
 
 __all__ = ["save", "CHUNK_SIZE", "header_text"]
 
@@ -97,7 +97,7 @@ def _pack_rotation(quats: np.ndarray) -> np.ndarray:
 def _encode(g: Gaussians) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """-> chunk rows (C, 18) float32, packed vertices (N, 4) uint32, sh bytes (N, 3*(K-1)) uint8."""
     n = len(g)
-    colour = 0.5 + SH_C0 * g.sh[:, 0, :].astype(np.float64)
+    colour = dc_colour(g.sh[:, 0, :].astype(np.float64))
     fields = [_chunked(a) for a in (g.means.astype(np.float64), g.log_scales.astype(np.float64), colour)]
     # Bounds over each chunk's own rows: the padding repeats a row, so it changes nothing.
     bounds = [(c.min(axis=1), c.max(axis=1)) for c in fields]
@@ -124,17 +124,12 @@ def save(gaussians: Gaussians, path: str | os.PathLike, *, keep_order: bool = Fa
     order first (tight chunks) unless `keep_order`: Gaussians read from a compressed ply are
     already in chunks, and re-saving them in their order reproduces the file's data."""
     path = Path(path)
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise SplatFileError(path, f"cannot save non-finite values in {bad}")
+    check_savable(path, gaussians)
     g = gaussians if keep_order else gaussians.subset(morton_order(gaussians.means))
-    try:
-        with atomic_write(path) as f:
-            f.write(header_text(len(g), g.degree))
-            if len(g):
-                chunk_rows, packed, sh_bytes = _encode(g)
-                f.write(chunk_rows.astype("<f4").tobytes())
-                f.write(packed.astype("<u4").tobytes())
-                f.write(sh_bytes.tobytes())
-    except OSError as e:
-        raise SplatFileError(path, f"cannot write file: {e.strerror or e}") from None
+    with os_errors(path), atomic_write(path) as f:
+        f.write(header_text(len(g), g.degree))
+        if len(g):
+            chunk_rows, packed, sh_bytes = _encode(g)
+            f.write(chunk_rows.astype("<f4").tobytes())
+            f.write(packed.astype("<u4").tobytes())
+            f.write(sh_bytes.tobytes())

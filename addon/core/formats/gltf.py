@@ -46,17 +46,18 @@ from typing import Any
 
 import numpy as np
 
-from ..gaussians import Gaussians
-from ..sh import SH_C0
+from ..colour import srgb_decode
+from ..gaussians import Gaussians, log_scales_of, logit, scales_of, sigmoid
+from ..sh import dc_colour
 from ..transform import transform_gaussians
 from ..atomic import atomic_write
-from .assemble import Assembly
-from .contained import contained_file, read_regular
-from .errors import SplatFileError
-from .frames import rdf_to_rub
-from .json_file import malformed, parse_object
-from .limits import check_expansion, check_gaussian_count
-from .quaternions import unit_quaternions
+from ..formats_common.assemble import Assembly
+from ..formats_common.contained import contained_file, read_regular
+from ..formats_common.errors import SplatFileError, check_savable, os_errors
+from ..formats_common.frames import rdf_to_rub
+from ..formats_common.json_file import malformed, parse_object
+from ..formats_common.limits import check_expansion, check_gaussian_count
+from ..formats_common.quaternions import unit_quaternions
 
 __all__ = ["load", "save", "EXTENSION", "SPZ_EXTENSION", "attribute_names"]
 
@@ -112,10 +113,6 @@ class _Blob:
         return len(self.accessors) - 1
 
 
-def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
 def _document(gaussians: Gaussians) -> tuple[dict, bytes]:
     g = rdf_to_rub(gaussians)
     blob = _Blob([], [], [])
@@ -123,14 +120,14 @@ def _document(gaussians: Gaussians) -> tuple[dict, bytes]:
     attributes["POSITION"] = blob.add(g.means.astype("<f4"), FLOAT, "VEC3", bounds=True)
     q = unit_quaternions(g.quats)
     attributes[f"{PREFIX}ROTATION"] = blob.add(q[:, [1, 2, 3, 0]].astype("<f4"), FLOAT, "VEC4")
-    attributes[f"{PREFIX}SCALE"] = blob.add(np.exp(g.log_scales.astype(np.float64)).astype("<f4"), FLOAT, "VEC3")
-    opacity = 1.0 / (1.0 + np.exp(-g.opacity_logits.astype(np.float64)))
+    attributes[f"{PREFIX}SCALE"] = blob.add(scales_of(g.log_scales).astype("<f4"), FLOAT, "VEC3")
+    opacity = sigmoid(g.opacity_logits)
     attributes[f"{PREFIX}OPACITY"] = blob.add(opacity.astype("<f4"), FLOAT, "SCALAR")
     for index, name in enumerate(attribute_names(g.degree)):
         attributes[name] = blob.add(g.sh[:, index, :].astype("<f4"), FLOAT, "VEC3")
     # Fallback colour for viewers without the extension: linear, as glTF's COLOR_0 is.
-    srgb = np.clip(g.sh[:, 0, :].astype(np.float64) * SH_C0 + 0.5, 0.0, 1.0)
-    rgba = np.concatenate([_srgb_to_linear(srgb), opacity[:, None]], axis=1)
+    srgb = np.clip(dc_colour(g.sh[:, 0, :].astype(np.float64)), 0.0, 1.0)
+    rgba = np.concatenate([srgb_decode(srgb), opacity[:, None]], axis=1)
     attributes["COLOR_0"] = blob.add(np.rint(rgba * 255.0).astype(np.uint8), UBYTE, "VEC4", normalized=True)
     document = {
         "asset": {"version": "2.0", "generator": GENERATOR},
@@ -154,9 +151,7 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
     """Write `gaussians` as `.glb` (binary) or `.gltf` (JSON, the buffer embedded as a data URI),
     atomically."""
     path = Path(path)
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise SplatFileError(path, f"cannot save non-finite values in {bad}")
+    check_savable(path, gaussians)
     document, binary = _document(gaussians)
     if path.suffix.lower() == ".gltf":
         encoded = base64.b64encode(binary).decode("ascii")
@@ -171,11 +166,8 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
         payload = struct.pack("<III", GLB_MAGIC, 2, total) + struct.pack("<II", len(text), CHUNK_JSON) + text
         if binary:
             payload += struct.pack("<II", len(binary), CHUNK_BIN) + binary
-    try:
-        with atomic_write(path) as f:
-            f.write(payload)
-    except OSError as e:
-        raise SplatFileError(path, f"cannot write file: {e.strerror or e}") from None
+    with os_errors(path), atomic_write(path) as f:
+        f.write(payload)
 
 
 # ------------------------------------------------------------------------------------------
@@ -366,11 +358,10 @@ def _primitive_gaussians(path: Path, document: dict, buffers: list[bytes], primi
     if (scales < 0).any() or ((opacity < 0) | (opacity > 1)).any():
         raise SplatFileError(path, "out-of-range values: scales must be >= 0 and opacities in [0, 1]")
     tiny = np.finfo(np.float32).tiny
-    with np.errstate(divide="ignore"):
-        log_scales = np.log(np.maximum(scales, tiny))
+    log_scales = log_scales_of(np.maximum(scales, tiny))
     limit = 1.0 - np.finfo(np.float32).epsneg  # the largest float32 opacity below 1
     opacity = np.clip(opacity, tiny, limit)
-    return Gaussians(means, log_scales, quats, np.log(opacity) - np.log1p(-opacity), sh)
+    return Gaussians(means, log_scales, quats, logit(opacity), sh)
 
 
 def _node_matrix(path: Path, node: dict) -> np.ndarray:

@@ -20,10 +20,10 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .limits import check_gaussian_count
-from .ply_sh import F_REST_COUNTS, f_rest_names
-from .plyfile import PlyElement, PlyTable, check_finite, read_elements, read_header
+from ..formats_common.errors import SplatFileError, check_savable, os_errors
+from ..formats_common.limits import check_gaussian_count
+from ..formats_common.ply_sh import F_REST_COUNTS, f_rest_names
+from ..formats_common.plyfile import PlyElement, PlyTable, check_finite, read_elements, read_header
 
 __all__ = ["load", "save", "read_header", "property_names"]
 
@@ -135,12 +135,7 @@ def _write_body(f: BinaryIO, g: Gaussians) -> None:
 def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
     """Write the standard binary little-endian 3DGS `.ply`, atomically (temp file + rename)."""
     path = Path(path)
-    bad = gaussians.non_finite()
-    if bad is not None:  # such a file would not load again
-        raise SplatFileError(path, f"cannot save non-finite values in {bad}")
-    try:
-        with atomic_write(path) as f:
-            f.write(_header_text(len(gaussians), gaussians.degree))
-            _write_body(f, gaussians)
-    except OSError as e:
-        raise SplatFileError(path, f"cannot write file: {e.strerror or e}") from None
+    check_savable(path, gaussians)
+    with os_errors(path), atomic_write(path) as f:
+        f.write(_header_text(len(gaussians), gaussians.degree))
+        _write_body(f, gaussians)

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..gaussians import Gaussians
-from .errors import SplatFileError
+from ..formats_common.errors import SplatFileError
 
 __all__ = ["SplatFormat", "FORMATS", "format_for", "read", "write", "import_patterns",
            "export_formats", "filter_glob", "file_extensions", "SplatFileError"]
@@ -150,7 +150,7 @@ def read(path: str | os.PathLike) -> tuple[Gaussians, bool]:
         return fmt.reader(_resolve(path))
     except MemoryError:  # each reader bounds what it allocates; this is the net under them
         raise SplatFileError(path, f"not enough memory to load this {fmt.name} file "
-                                   f"(see formats.limits)") from None
+                                   f"(see formats_common.limits)") from None
     except RecursionError:
         raise SplatFileError(path, f"this {fmt.name} file nests too deeply to read") from None
 

@@ -33,9 +33,9 @@ from typing import Iterable
 
 from ..gaussians import Gaussians
 from . import registry
-from .contained import contained_file
-from .errors import SplatFileError
-from .limits import SEQUENCE_CACHE_BYTES
+from ..formats_common.contained import contained_file
+from ..formats_common.errors import SplatFileError
+from ..formats_common.limits import SEQUENCE_CACHE_BYTES
 
 __all__ = ["SplatSequence", "find_frames", "save_sequence"]
 

@@ -55,16 +55,16 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..gaussians import Gaussians
-from . import webp
+from ..gaussians import Gaussians, logit, sigmoid
 from ..atomic import atomic_write
-from .codebook import palette, scalar_codebook
-from .contained import contained_file, is_contained_name, read_regular, unrepresentable
-from .errors import SplatFileError
-from .json_file import malformed, parse_object
-from .limits import check_expansion, check_gaussian_count
-from .morton import morton_order
-from .quaternions import smallest_three
+from ..formats_common import webp
+from ..formats_common.codebook import palette, scalar_codebook
+from ..formats_common.contained import contained_file, is_contained_name, read_regular, unrepresentable
+from ..formats_common.errors import SplatFileError, check_decoded, check_savable
+from ..formats_common.json_file import malformed, parse_object
+from ..formats_common.limits import check_expansion, check_gaussian_count
+from ..formats_common.morton import morton_order
+from ..formats_common.quaternions import smallest_three
 
 __all__ = ["load", "load_with_info", "save", "SogInfo", "read_info", "morton_order", "MAX_COUNT", "VERSION"]
 
@@ -299,7 +299,7 @@ def _decode_sh0(path: Path, meta: dict, source: _Source, count: int) -> tuple[np
     pixels = _image(source, _files(path, meta, "sh0", 1)[0], count)[:count]
     dc = _lookup(path, book, pixels[:, :3], "sh0")
     opacity = np.clip(pixels[:, 3] / 255.0, OPACITY_EPS, 1.0 - OPACITY_EPS)
-    return dc, np.log(opacity / (1.0 - opacity))
+    return dc, logit(opacity)
 
 
 def _decode_sh_rest(path: Path, meta: dict, source: _Source, count: int) -> np.ndarray:
@@ -354,9 +354,7 @@ def _decode(path: Path, source: _Source) -> tuple[Gaussians, SogInfo]:
     sh = np.concatenate([dc[:, None, :], rest], axis=1)
     with np.errstate(over="ignore"):
         gaussians = Gaussians(means, log_scales, quats, logits, sh)
-    bad = gaussians.non_finite()
-    if bad is not None:  # every input was checked; this is the net under those checks
-        raise _fail(path, f"non-finite values in decoded {bad}")
+    check_decoded(path, gaussians)  # every input was checked; this is the net under those checks
     info = SogInfo(count, gaussians.degree, bool(meta.get("antialias", False)),
                    int(meta["shN"]["count"]) if meta.get("shN") else 0)
     return gaussians, info
@@ -511,7 +509,7 @@ def _write_folder(gaussians: Gaussians, folder: Path, antialiased: bool) -> None
     scale_book, scale_codes = scalar_codebook(g.log_scales)
     write("scales.webp", _as_image(_rows(*scale_codes.T), width, height))
     dc_book, dc_codes = scalar_codebook(g.sh[:, 0, :])
-    opacity = np.rint(1.0 / (1.0 + np.exp(-g.opacity_logits.astype(np.float64))) * 255.0)
+    opacity = np.rint(sigmoid(g.opacity_logits) * 255.0)
     write("sh0.webp", _as_image(_rows(*dc_codes.T, alpha=opacity.astype(np.uint8)), width, height))
     meta: dict[str, Any] = {
         "version": VERSION, "asset": {"generator": GENERATOR}, "count": n, "antialias": bool(antialiased),
@@ -530,9 +528,7 @@ def save(gaussians: Gaussians, path: str | os.PathLike, *, antialiased: bool = F
     written beside it). Atomic: a `.sog` appears whole; a folder's meta.json is replaced last,
     after every image it names is in place."""
     path = Path(path)
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise _fail(path, f"cannot save non-finite values in {bad}")
+    check_savable(path, gaussians)
     if len(gaussians) > MAX_COUNT:
         raise _fail(path, f"cannot save {len(gaussians)} Gaussians in one SOG (at most {MAX_COUNT})")
     bundle = path.suffix.lower() == ".sog"

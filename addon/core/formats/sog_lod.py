@@ -13,7 +13,7 @@ chunk is read once, whatever number of runs it holds, and let go before the next
 Bounds, all before anything is decoded: chunk names are judged by `contained.contained_file`
 (inside the set's folder, links followed, regular files); the tree is walked once, at most
 `MAX_TREE_NODES` nodes; the runs of the level must lie inside their chunk and not overlap, and
-together, like the chunks read for them, stay within `formats.limits.MAX_GAUSSIANS`.
+together, like the chunks read for them, stay within `formats_common.limits.MAX_GAUSSIANS`.
 """
 
 from __future__ import annotations
@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 
 from ..gaussians import Gaussians
-from .contained import contained_file, is_contained_name, read_regular, unrepresentable
-from .errors import SplatFileError
-from .json_file import malformed, parse_object
-from .limits import check_gaussian_count
+from ..formats_common.contained import contained_file, is_contained_name, read_regular, unrepresentable
+from ..formats_common.errors import SplatFileError
+from ..formats_common.json_file import malformed, parse_object
+from ..formats_common.limits import check_gaussian_count
 from .sog import MAX_COUNT, chunk_count, load_chunk
 
 __all__ = ["load", "levels", "LOD_META"]

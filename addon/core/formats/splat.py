@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gaussians import Gaussians, logit, sigmoid
-from ..sh import SH_C0
+from ..gaussians import Gaussians, log_scales_of, logit, scales_of, sigmoid
+from ..sh import dc_colour, dc_from_colour
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .limits import check_gaussian_count
+from ..formats_common.errors import SplatFileError, check_savable, os_errors
+from ..formats_common.limits import check_gaussian_count
 
 __all__ = ["load", "save", "RECORD"]
 
@@ -59,15 +59,15 @@ def _first_bad(mask: np.ndarray) -> int:
 
 def _exp32(log_scales: np.ndarray) -> np.ndarray:
     """float32 exp as the writer computes it (in float64, rounded once)."""
-    with np.errstate(over="ignore"):
-        return np.exp(log_scales.astype(np.float64)).astype(np.float32)
+    with np.errstate(over="ignore"):  # the cast to float32 overflows as exp may
+        return scales_of(log_scales).astype(np.float32)
 
 
 def _log32(scale: np.ndarray) -> np.ndarray:
     """float32 log of positive float32 scales, chosen among the neighbours of the rounded log so
     that the writer's exp gives the stored scale back bit for bit wherever some float32 can (where
     logs are coarser than the scales none can, and re-saving settles after one save)."""
-    log = np.log(scale.astype(np.float64)).astype(np.float32)
+    log = log_scales_of(scale).astype(np.float32)
     best, found = log.copy(), _exp32(log) == scale
     for direction in (np.inf, -np.inf):
         candidate = log
@@ -93,12 +93,10 @@ def encode_alpha(logits: np.ndarray) -> np.ndarray:
 def load(path: str | os.PathLike) -> Gaussians:
     """Read a `.splat` file (SH degree 0)."""
     path = Path(path)
-    try:
+    with os_errors(path, "cannot read file"):
         size = path.stat().st_size
         check_gaussian_count(path, size // RECORD.itemsize)
         data = path.read_bytes()
-    except OSError as e:
-        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
     if len(data) % RECORD.itemsize:
         raise SplatFileError(path, f"size {len(data)} bytes is not a multiple of the 32-byte .splat "
                                    f"record (truncated, or not a .splat file)")
@@ -116,16 +114,14 @@ def load(path: str | os.PathLike) -> Gaussians:
     log_scales = _log32(np.maximum(scale, np.finfo(np.float32).tiny))
 
     rgba = rec["rgba"]
-    sh = ((rgba[:, :3].astype(np.float32) / 255.0 - 0.5) / SH_C0).reshape(n, 1, 3)
+    sh = dc_from_colour(rgba[:, :3].astype(np.float32) / 255.0).reshape(n, 1, 3)
     quats = (rec["rot"].astype(np.float32) - 128.0) / 128.0  # w, x, y, z as the viewer decodes
     return Gaussians(position, log_scales, quats, decode_alpha(rgba[:, 3]), sh)
 
 
 def encode(gaussians: Gaussians, path: str | os.PathLike = "<memory>") -> np.ndarray:
     """The `.splat` records for `gaussians` (a structured array of RECORD)."""
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise SplatFileError(path, f"cannot write: Gaussians.{bad} holds NaN or Inf")
+    check_savable(path, gaussians)
     n = len(gaussians)
     rec = np.zeros(n, dtype=RECORD)
     rec["position"] = gaussians.means
@@ -135,7 +131,7 @@ def encode(gaussians: Gaussians, path: str | os.PathLike = "<memory>") -> np.nda
                                    f"{_first_bad(~np.isfinite(scale))}")
     rec["scale"] = scale
 
-    colour = 0.5 + SH_C0 * gaussians.sh[:, 0, :].astype(np.float64)
+    colour = dc_colour(gaussians.sh[:, 0, :].astype(np.float64))
     rec["rgba"][:, :3] = np.clip(np.rint(colour * 255.0), 0, 255)
     rec["rgba"][:, 3] = encode_alpha(gaussians.opacity_logits)
 
@@ -153,5 +149,5 @@ def save(gaussians: Gaussians, path: str | os.PathLike) -> None:
     """Write `gaussians` as `.splat` (SH bands above the DC term are dropped)."""
     path = Path(path)
     data = encode(gaussians, path).tobytes()
-    with atomic_write(path) as f:
+    with os_errors(path), atomic_write(path) as f:
         f.write(data)

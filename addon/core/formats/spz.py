@@ -68,8 +68,8 @@ import numpy as np
 
 from ..gaussians import Gaussians
 from ..atomic import atomic_write
-from .errors import SplatFileError
-from .limits import check_expansion, check_gaussian_count
+from ..formats_common.errors import SplatFileError, check_savable, os_errors
+from ..formats_common.limits import check_expansion, check_gaussian_count
 from .splat import decode_alpha, encode_alpha
 
 __all__ = ["load", "load_with_flag", "memory_needed", "save", "Packed", "read_packed", "unpack", "pack", "serialize",
@@ -362,10 +362,8 @@ def _read_ngsp(data: bytes, path: Path) -> Packed:
 def read_packed(path: str | os.PathLike) -> Packed:
     """Read an SPZ file into its quantised domain (no conversion)."""
     path = Path(path)
-    try:
+    with os_errors(path, "cannot read file"):
         data = path.read_bytes()
-    except OSError as e:
-        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
     if data[:2] == b"\x1f\x8b":
         return _read_legacy(_Gunzip(data, path), len(data), path)
     if data[:4] == b"NGSP":
@@ -522,9 +520,7 @@ def pack(gaussians: Gaussians, version: int = LATEST_VERSION, *, antialiased: bo
         raise SplatFileError(path, f"cannot write SPZ version {version} (choose from 2, 3, 4)")
     if not (1 <= sh1_bits <= 8 and 1 <= sh_rest_bits <= 8):
         raise SplatFileError(path, f"SH bits must be 1..8, got {sh1_bits} and {sh_rest_bits}")
-    bad = gaussians.non_finite()
-    if bad is not None:
-        raise SplatFileError(path, f"cannot write: Gaussians.{bad} holds NaN or Inf")
+    check_savable(path, gaussians)
     if len(gaussians) == 0:
         raise SplatFileError(path, "cannot write an SPZ of zero Gaussians (Niantic's reader rejects it)")
     s = _frame_signs(COORD_RUB, path)  # RDF <-> RUB: its own inverse
@@ -583,5 +579,5 @@ def save(gaussians: Gaussians, path: str | os.PathLike, version: int = LATEST_VE
     packed = pack(gaussians, version, antialiased=antialiased, sh1_bits=sh1_bits,
                   sh_rest_bits=sh_rest_bits, path=path)
     data = serialize(packed, path)
-    with atomic_write(path) as f:
+    with os_errors(path), atomic_write(path) as f:
         f.write(data)

@@ -13,8 +13,8 @@ import pytest
 from addon.core import splat_io
 from addon.core.formats import compressed_ply_write as writer
 from addon.core.formats import ply
-from addon.core.formats.errors import SplatFileError
-from addon.core.formats.morton import morton_order
+from addon.core.formats_common.errors import SplatFileError
+from addon.core.formats_common.morton import morton_order
 from addon.core.gaussians import Gaussians
 from addon.core.render.renderer import render
 from scenes import playbot_camera, psnr

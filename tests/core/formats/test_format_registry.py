@@ -9,7 +9,7 @@ import pytest
 
 from addon.core import splat_io
 from addon.core.formats import registry
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.errors import SplatFileError
 from addon.core.gaussians import Gaussians
 
 

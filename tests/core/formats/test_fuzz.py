@@ -99,7 +99,7 @@ def test_memory_grown_beyond_the_input_is_a_finding(monkeypatch):
     """Peak resident memory against the input's size: a gzip .spz of 37 KB declaring 2M points,
     loaded with the expansion bound raised (it stays under the address-space limit), is
     `amplified`; the same file within the bound is refused."""
-    from addon.core.formats import limits
+    from addon.core.formats_common import limits
     from scripts import fuzz_hostile
 
     files = fuzz_hostile.spz_gzip_bomb(2_000_000)

@@ -15,8 +15,8 @@ import pytest
 
 from addon.core import splat_io
 from addon.core.formats import gltf, ply
-from addon.core.formats.errors import SplatFileError
-from addon.core.formats.frames import rdf_to_rub
+from addon.core.formats_common.errors import SplatFileError
+from addon.core.formats_common.frames import rdf_to_rub
 from addon.core.gaussians import Gaussians
 from addon.core.render.renderer import render
 from scenes import playbot_camera

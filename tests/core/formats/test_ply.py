@@ -17,7 +17,7 @@ import pytest
 
 from addon.core import splat_io
 from addon.core.formats import compressed_ply, ply
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.errors import SplatFileError
 from addon.core.gaussians import Gaussians
 
 SH_C0 = 0.28209479177387814

@@ -10,7 +10,7 @@ import pytest
 
 from addon.core import splat_io
 from addon.core.cameras import Camera
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.errors import SplatFileError
 from addon.core.formats.sequence import SplatSequence, find_frames, save_sequence
 from addon.core.gaussians import Gaussians
 from addon.core.render.renderer import render

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from addon.core.formats import ply
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.errors import SplatFileError
 from addon.core.formats.sequence import SplatSequence, find_frames
 from scenes import random_gaussians
 

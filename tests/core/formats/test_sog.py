@@ -19,9 +19,10 @@ import numpy as np
 import pytest
 
 from addon.core import splat_io
-from addon.core.formats import codebook, ply, sog, sog_lod, webp
-from addon.core.formats.errors import SplatFileError
-from addon.core.formats.morton import morton_order
+from addon.core.formats import ply, sog, sog_lod
+from addon.core.formats_common import codebook, webp
+from addon.core.formats_common.errors import SplatFileError
+from addon.core.formats_common.morton import morton_order
 from addon.core.gaussians import Gaussians
 from addon.core.render.renderer import render
 from scenes import playbot_camera, psnr

@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from addon.core import splat_io
-from addon.core.formats import limits, sog
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats import sog
+from addon.core.formats_common import limits
+from addon.core.formats_common.errors import SplatFileError
 from limited import load_limited
 from scripts import fuzz_hostile
 from scenes import random_gaussians

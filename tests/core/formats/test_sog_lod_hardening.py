@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from addon.core.formats import limits, sog, sog_lod
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats import sog, sog_lod
+from addon.core.formats_common import limits
+from addon.core.formats_common.errors import SplatFileError
 from limited import load_limited
 from scripts import fuzz_hostile
 from scenes import random_gaussians

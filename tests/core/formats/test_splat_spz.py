@@ -19,7 +19,7 @@ import pytest
 
 from addon.core import splat_io
 from addon.core.formats import splat, spz
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.errors import SplatFileError
 from addon.core.gaussians import Gaussians
 
 SH_C0 = 0.28209479177387814
@@ -484,7 +484,7 @@ def _zero_zstd_frame(size: int) -> bytes:
 def test_spz_decompression_bomb_fails_before_allocating(tmp_path: Path) -> None:
     """The issue's reproducer: a small v4 file whose zstd streams really hold 12 million points
     (zeros compress by thousands) passes the compression-ratio bound; the Gaussian ceiling
-    (formats.limits) refuses it from the header, in bounded time and memory."""
+    (formats_common.limits) refuses it from the header, in bounded time and memory."""
     import tracemalloc
 
     n = 12_000_000
@@ -510,7 +510,7 @@ def test_spz_decompression_bomb_fails_before_allocating(tmp_path: Path) -> None:
 
 def test_every_reader_checks_the_gaussian_ceiling(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The ceiling is the user's to raise; each reader refuses a file above it, naming it."""
-    from addon.core.formats import limits
+    from addon.core.formats_common import limits
 
     rng = np.random.default_rng(4)
     g = random_gaussians(rng, 40, 1)

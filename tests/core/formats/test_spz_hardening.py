@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from addon.core.formats import registry, spz
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.errors import SplatFileError
 from limited import load_limited
 from scripts import fuzz_hostile
 
@@ -40,7 +40,7 @@ def gzip_bomb(path: Path, n: int, degree: int, zeros: int | None = None, noise: 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="address-space limit")
 def test_the_6m_point_gzip_bomb_loads_or_is_refused_under_4_gib(tmp_path: Path, monkeypatch) -> None:
-    """With the expansion bound raised past it (formats.limits), the bomb still loads or fails
+    """With the expansion bound raised past it (formats_common.limits), the bomb still loads or fails
     by name (the bound itself refuses it at once: test_spz_expansion...)."""
     path = gzip_bomb(tmp_path / "bomb.spz", 6_000_000, 3)
     assert path.stat().st_size < 400_000

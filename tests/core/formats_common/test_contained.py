@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from addon.core.formats.contained import contained_file, is_contained_name, unrepresentable
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common.contained import contained_file, is_contained_name, unrepresentable
+from addon.core.formats_common.errors import SplatFileError
 
 ESCAPING = ["../x.bin", "a/../../x.bin", "/etc/passwd", "/dev/zero", "C:/Windows/win.ini",
             "C:\\Windows\\win.ini", "C:x.bin", "c:", "..\\..\\x.bin", "a\\..\\..\\x.bin",

@@ -18,7 +18,7 @@ from typing import BinaryIO, Callable, Iterable
 
 import numpy as np
 
-from .errors import SplatFileError
+from .errors import SplatFileError, os_errors
 
 __all__ = ["read_header", "read_elements", "PlyHeader", "PlyElement", "PlyProperty", "PlyTable",
            "check_finite", "SCALAR_TYPES", "FORMATS", "MAX_HEADER_BYTES"]
@@ -92,10 +92,8 @@ def read_header(path: str | os.PathLike) -> PlyHeader:
 
 
 def _open(path: Path) -> BinaryIO:
-    try:
+    with os_errors(path, "cannot read file"):
         return open(path, "rb")
-    except OSError as e:
-        raise SplatFileError(path, f"cannot read file: {e.strerror or e}") from None
 
 
 def _header_bytes(path: Path, f: BinaryIO) -> tuple[bytes, int]:

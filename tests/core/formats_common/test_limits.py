@@ -1,4 +1,4 @@
-"""formats/limits.py: the Gaussian ceiling and the expansion bound, and how a user raises them."""
+"""formats_common/limits.py: the Gaussian ceiling and the expansion bound, and how a user raises them."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from addon.core.formats import limits
-from addon.core.formats.errors import SplatFileError
+from addon.core.formats_common import limits
+from addon.core.formats_common.errors import SplatFileError
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -33,7 +33,7 @@ def test_the_expansion_bound_names_the_file_the_size_the_bound_and_how_to_raise_
 
 @pytest.mark.parametrize("value, expected", [("1000", 1000), ("", 256), ("x", 256), ("-5", 256)])
 def test_the_environment_variable_raises_the_bound(value: str, expected: int) -> None:
-    code = "from addon.core.formats import limits; print(limits.MAX_EXPANSION)"
+    code = "from addon.core.formats_common import limits; print(limits.MAX_EXPANSION)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                          env={**os.environ, "SPLAT_MAX_EXPANSION": value}, check=True).stdout
     assert int(out) == expected

@@ -63,7 +63,7 @@ def check_gaussian_count(path: str | os.PathLike, count: int, what: str = "Gauss
     """Refuse a declared count above `MAX_GAUSSIANS`, naming the file and how to raise it."""
     if count > MAX_GAUSSIANS:
         raise SplatFileError(path, f"declares {count} {what}, more than the limit of {MAX_GAUSSIANS} "
-                                   f"per file (raise formats.limits.MAX_GAUSSIANS or set "
+                                   f"per file (raise formats_common.limits.MAX_GAUSSIANS or set "
                                    f"{ENVIRONMENT_VARIABLE} if the file is genuine)")
 
 
@@ -87,5 +87,5 @@ def check_expansion(path: str | os.PathLike, count: int, degree: int, file_bytes
                                f"bytes decoded per byte read, more than the bound of {MAX_EXPANSION} "
                                f"(real files ask under 32; far more is a decompression bomb or made "
                                f"to look like one: if the file is genuine, an instanced glTF say, "
-                               f"raise formats.limits.MAX_EXPANSION or set {EXPANSION_VARIABLE} "
+                               f"raise formats_common.limits.MAX_EXPANSION or set {EXPANSION_VARIABLE} "
                                f"before Blender starts)")

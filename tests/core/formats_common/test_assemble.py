@@ -1,11 +1,11 @@
-"""formats/assemble.py: parts written into one preallocated set."""
+"""formats_common/assemble.py: parts written into one preallocated set."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from addon.core.formats.assemble import Assembly
+from addon.core.formats_common.assemble import Assembly
 from scenes import random_gaussians
 
 
