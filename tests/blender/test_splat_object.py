@@ -222,6 +222,27 @@ def test_bad_files_report_an_error_and_leave_the_scene_unchanged(rng, tmp_path, 
     assert bs.scene_state() == before
 
 
+def test_a_decompression_bomb_is_refused_unless_max_expansion_allows_it(rng, tmp_path, monkeypatch):
+    """A 200 KB .glb showing one primitive through 400 nodes asks 332 bytes per byte: refused
+    by the importer's default Max Expansion, the message saying how to raise it; with it raised,
+    the read runs under that bound (and the module's is restored after)."""
+    from addon.core.formats_common import limits
+    from scripts import fuzz_hostile
+
+    path = tmp_path / "instanced.glb"
+    path.write_bytes(fuzz_hostile.glb_instances(nodes=400, count=3000, degree=0)["a.glb"])
+    make_object(random_gaussians(rng, 5, 0), "existing")
+    before = bs.scene_state()
+    with pytest.raises(RuntimeError, match="Max Expansion in File > Import > Gaussian Splats"):
+        bpy.ops.splat.import_splats(filepath=str(path))
+    assert bs.scene_state() == before
+    seen = []
+    monkeypatch.setattr(operators, "read_splat_file",
+                        lambda p: (seen.append(limits.MAX_EXPANSION), (random_gaussians(rng, 5, 0), False))[1])
+    assert bpy.ops.splat.import_splats(filepath=str(path), max_expansion=400) == {"FINISHED"}
+    assert seen == [400] and limits.MAX_EXPANSION == limits.DEFAULT_MAX_EXPANSION
+
+
 def test_export_errors(rng, tmp_path):
     empty = bpy.data.objects.new("empty", None)
     bpy.context.scene.collection.objects.link(empty)

@@ -35,13 +35,14 @@ import re
 from pathlib import Path
 
 import bpy
-from bpy.props import BoolProperty, CollectionProperty, EnumProperty, StringProperty
+from bpy.props import BoolProperty, CollectionProperty, EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper, poll_file_object_drop
 
 import numpy as np
 
 from ...core import axes
 from ...core.formats import registry
+from ...core.formats_common import limits
 from ...core.formats_common.errors import SplatFileError
 from ...core.formats.sequence import SplatSequence, save_sequence
 from ...core.gaussians import Gaussians
@@ -300,6 +301,11 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
                ("BLENDER", "Blender Splat Point Cloud",
                 "Blender 5.3's own Gaussian splat point cloud (what File > Import > PLY makes); "
                 "the add-on still renders, edits and exports it. Needs Blender 5.3")])
+    max_expansion: IntProperty(
+        name="Max Expansion", default=limits.MAX_EXPANSION, min=1, soft_max=100_000,
+        description="Bytes of splats a file may declare per byte it holds: a file beyond is "
+                    "refused as a decompression bomb (real files ask under 32). Raise it only "
+                    "for a file you trust, e.g. a glTF that shows one splat model many times")
     relative_path: BoolProperty(
         name="Relative Path", default=True,
         description="Store a sequence's path relative to the saved .blend file (//frames/...), "
@@ -317,7 +323,7 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
 
     def draw(self, context):
         layout = self.layout
-        draw_settings(layout, self, ("forward_axis", "up_axis", "sequence"))
+        draw_settings(layout, self, ("forward_axis", "up_axis", "sequence", "max_expansion"))
         row = layout.row()
         row.enabled = blender_data.supported() and not self.sequence
         row.prop(self, "representation")
@@ -349,7 +355,8 @@ class SPLAT_OT_import_splats(bpy.types.Operator, ImportHelper):
                 progress(k / len(paths), "")
                 try:
                     matrix = file_axes(path, self.forward_axis, self.up_axis)
-                    gaussians, antialiased = read_splat_file(path)
+                    with limits.expansion_bound(self.max_expansion):
+                        gaussians, antialiased = read_splat_file(path)
                 except (SplatFileError, OSError, ValueError) as error:
                     self.report({"ERROR"}, f"Cannot import: {error}")
                     return {"CANCELLED"}

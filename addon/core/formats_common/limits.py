@@ -23,6 +23,8 @@ loads.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
+from typing import Iterator
 
 from .errors import SplatFileError
 
@@ -59,6 +61,17 @@ MAX_GAUSSIANS = _from_environment(ENVIRONMENT_VARIABLE, DEFAULT_MAX_GAUSSIANS)
 MAX_EXPANSION = _from_environment(EXPANSION_VARIABLE, DEFAULT_MAX_EXPANSION)
 
 
+@contextmanager
+def expansion_bound(bound: int) -> Iterator[None]:
+    """`MAX_EXPANSION` is `bound` inside the block (the importer's "Max Expansion")."""
+    global MAX_EXPANSION
+    before, MAX_EXPANSION = MAX_EXPANSION, int(bound)
+    try:
+        yield
+    finally:
+        MAX_EXPANSION = before
+
+
 def check_gaussian_count(path: str | os.PathLike, count: int, what: str = "Gaussians") -> None:
     """Refuse a declared count above `MAX_GAUSSIANS`, naming the file and how to raise it."""
     if count > MAX_GAUSSIANS:
@@ -87,5 +100,6 @@ def check_expansion(path: str | os.PathLike, count: int, degree: int, file_bytes
                                f"bytes decoded per byte read, more than the bound of {MAX_EXPANSION} "
                                f"(real files ask under 32; far more is a decompression bomb or made "
                                f"to look like one: if the file is genuine, an instanced glTF say, "
-                               f"raise formats_common.limits.MAX_EXPANSION or set {EXPANSION_VARIABLE} "
-                               f"before Blender starts)")
+                               f"raise Max Expansion in File > Import > Gaussian Splats, "
+                               f"formats_common.limits.MAX_EXPANSION in a script, or set "
+                               f"{EXPANSION_VARIABLE} before Blender starts)")

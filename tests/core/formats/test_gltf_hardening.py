@@ -176,7 +176,8 @@ def test_a_primitive_shown_by_166_nodes_is_refused_by_its_expansion(tmp_path: Pa
     with pytest.raises(SplatFileError, match=r"a.glb: declares 9960000 Gaussians in the scene's instances of SH "
                                              r"degree 3 \(2241\.7 MiB loaded\) in \d+ bytes: \d+ bytes decoded per "
                                              r"byte read, more than the bound of 256 .*raise "
-                                             r"formats_common.limits.MAX_EXPANSION or set SPLAT_MAX_EXPANSION"):
+                                             r"Max Expansion in File > Import > Gaussian Splats, formats_common.limits"
+                                             r".MAX_EXPANSION in a script, or set SPLAT_MAX_EXPANSION"):
         gltf.load(path)
     assert time.process_time() - start < 1.0
 
