@@ -57,7 +57,7 @@ def main() -> None:
     import bpy
 
     import addon
-    from addon.blender import gather
+    from addon.blender.sources import gather
     from addon.core import splat_io
 
     addon.register()

@@ -144,7 +144,7 @@ def _scene():
 
 
 def _f12(bpy, verbose: bool) -> None:
-    from addon.blender import gather
+    from addon.blender.sources import gather
     from addon.blender.render import hooks
     from addon.blender.render.compositor_bridge import ENGINE_ID
 
@@ -168,7 +168,7 @@ def _viewport(bpy, camera, verbose: bool) -> None:
     import mathutils
 
     from addon.blender import viewport
-    from addon.blender import gather
+    from addon.blender.sources import gather
 
     width, height = 160, 120
     depsgraph = bpy.context.evaluated_depsgraph_get()

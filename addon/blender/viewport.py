@@ -48,7 +48,7 @@ from ..core import colour
 from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
 from ..core.render.renderer import render
-from . import gather
+from .sources import gather
 from .splat_object import BOUNDS_FLAG, drawn_by_addon, needs_sync, sync_display  # noqa: F401
 
 REST_SECONDS = 0.15

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 from ...core.cameras import Camera
 from ...core.gaussians import Gaussians
-from .. import gather
+from ..sources import gather
 from ..camera_adapter import camera_of, near_of, render_problem
 from .compositor_bridge import ENGINE_ID
 
