@@ -10,8 +10,8 @@ kind answers:
                      export's axis conversion `space`)
     change_key()     what changes when its Gaussians may have (None: ask every time), and
                      contents() what they are (a checksum), for the gather cache
-    settings         its display and render options: antialiased, colour space, SH degree,
-                     shown in the viewport
+    its display      `shown` (the viewport draws it) and its render options: `antialiased`,
+                     `color_space`, `sh_degree()` (from `settings`, the object's `obj.splat`)
 
 The kinds:
 

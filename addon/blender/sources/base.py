@@ -127,6 +127,13 @@ class Source:
     def color_space(self) -> str:
         return "SRGB" if self.settings is None else self.settings.color_space
 
+    @property
+    def shown(self) -> bool:
+        """Whether the viewport draws it: its owner's "Show in Viewport" (the scene's own switch
+        is the viewport's to read)."""
+        settings = getattr(self.owner, "splat", None)
+        return settings is None or getattr(settings, "show_in_viewport", True)
+
     # -- where it is, whether it changed, what it holds
 
     def matrix(self, space: np.ndarray | None = None) -> np.ndarray:

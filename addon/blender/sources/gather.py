@@ -68,6 +68,7 @@ class SplatBatch:
     color_space: str
     is_instance: bool
     cached: bool
+    shown: bool = True        # the object's "Show in Viewport" (`Object.splat.show_in_viewport`)
 
 
 @dataclass
@@ -145,7 +146,7 @@ def gather(depsgraph, *, objects=None, use_cache: bool = True,
         world, cached = _world(source, matrix, sh_degree, use_cache, local_this_call, warnings)
         seen.add(source.identity)
         batches.append(SplatBatch(owner.name, world, matrix, source.antialiased, sh_degree,
-                                  source.color_space, instance.is_instance, cached))
+                                  source.color_space, instance.is_instance, cached, source.shown))
 
     if use_cache and objects is None:
         for identity in [k for k in _world_cache if k not in seen]:
