@@ -24,6 +24,7 @@ stay (the function that entered it, indented by depth; a climb marked ^).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -95,20 +96,43 @@ class Walk:
         finally:
             sys.setprofile(None)
 
-    def report(self, title: str, verbose: bool) -> tuple[int, int]:
-        climbs = sum(s[2] for s in self.stays)
+    def counts(self) -> tuple[int, int]:
+        """(stays, climbs)."""
+        return len(self.stays), sum(s[2] for s in self.stays)
+
+    def report(self, title: str, verbose: bool) -> None:
         per_room: dict[str, int] = {}
         for module, *_ in self.stays:
             per_room[module] = per_room.get(module, 0) + 1
-        print(f"{title}: {len(self.stays)} stays in {len(per_room)} rooms, {climbs} climbs")
+        stays, climbs = self.counts()
+        print(f"{title}: {stays} stays in {len(per_room)} rooms, {climbs} climbs")
         print("    " + ", ".join(f"{m} {n}" for m, n in per_room.items()))
         if verbose:
             for index, (_, function, climb, _) in enumerate(self.stays):
                 print(f"      {'^' if climb else ' '} {'  ' * self._depth(index)}{function}")
-        return len(self.stays), climbs
 
 
-def _scene():
+@contextlib.contextmanager
+def stand_in():
+    """Before 5.3, a point cloud holding `radiance:base` counts as Blender's splats (as
+    tests/blender/blender_splats/test_blender_splats_bpy.py has it)."""
+    import bpy
+
+    from addon.blender.blender_splats import data
+
+    real = data.is_blender_splat_data
+    if not data.supported():
+        data.is_blender_splat_data = lambda d: isinstance(d, bpy.types.PointCloud) \
+            and "radiance:base" in d.attributes
+    try:
+        yield
+    finally:
+        data.is_blender_splat_data = real
+
+
+def build_scene():
+    """An empty scene with an add-on splat object (2000 splats), a point cloud holding
+    Blender's splat attributes (1000) and a 64x48 camera; returns the camera."""
     import bpy_support as bs
     from bpy_support import bpy
     from scenes import random_gaussians
@@ -121,9 +145,6 @@ def _scene():
     rng = np.random.default_rng(0)
     obj = splat_object.create_splat_object(random_gaussians(rng, 2000, 1, radius=1.0), "Splats")
     obj.location = (0.5, 0.0, 0.0)
-    if not data.supported():  # as tests/blender/blender_splats/test_blender_splats_bpy.py does
-        data.is_blender_splat_data = lambda d: isinstance(d, bpy.types.PointCloud) \
-            and "radiance:base" in d.attributes
     gaussians = random_gaussians(rng, 1000, 1, radius=1.0)
     pointcloud = data._sized_pointcloud("Cloud", len(gaussians))
     for name, values in attributes.attributes_from_gaussians(gaussians).items():
@@ -139,32 +160,38 @@ def _scene():
     cloud = bpy.data.objects.new("Cloud", pointcloud)
     bpy.context.scene.collection.objects.link(cloud)
     cloud.location = (-0.5, 0.0, 0.0)
-    camera = bs.add_camera(width=64, height=48)
-    return bpy, camera
+    return bs.add_camera(width=64, height=48)
 
 
-def _f12(bpy, verbose: bool) -> None:
-    from addon.blender.sources import gather
+def f12_walks() -> dict[str, Walk]:
+    """F12 ("Render splats only") of the scene, walked with the gather cache cold, then warm."""
+    import bpy
+
     from addon.blender.render import hooks
     from addon.blender.render.compositor_bridge import ENGINE_ID
+    from addon.blender.sources import gather
 
     bpy.context.scene.render.engine = ENGINE_ID
     engine = hooks.SplatRenderEngine
     original = engine._render_splats_only
+    walks = {}
     for cache in ("cold", "warm"):
         if cache == "cold":
             gather.clear_cache()
-        walk = Walk()
+        walk = walks[cache] = Walk()
         engine._render_splats_only = lambda self, depsgraph: walk.trace(original, self, depsgraph)
         try:
             bpy.ops.render.render()
         finally:
             engine._render_splats_only = original
         assert hooks.last_stats.get("gaussians") == 3000, hooks.last_stats
-        walk.report(f"F12 ({cache} cache)", verbose)
+    return walks
 
 
-def _viewport(bpy, camera, verbose: bool) -> None:
+def viewport_walks(camera) -> dict[str, Walk]:
+    """The viewport's draw of a 160x120 view through `camera`, walked with the gather cache
+    cold, then warm (the render it asks for run in this thread)."""
+    import bpy
     import mathutils
 
     from addon.blender import viewport
@@ -197,28 +224,33 @@ def _viewport(bpy, camera, verbose: bool) -> None:
 
     original = viewport.renderer.submit
     viewport.renderer.submit = submit
+    walks = {}
     try:
         for cache in ("cold", "warm"):
             if cache == "cold":
                 gather.clear_cache()
             viewport._views.clear()
-            walk = Walk()
-            walk.trace(viewport.draw_view, context)
+            rendered.clear()
+            walks[cache] = Walk()
+            walks[cache].trace(viewport.draw_view, context)
             assert rendered, "the draw asked for no render"
-            walk.report(f"viewport draw ({cache} cache)", verbose)
     finally:
         viewport.renderer.submit = original
         viewport.renderer.forget(4343)
         viewport._views.clear()
+    return walks
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--verbose", action="store_true", help="list every stay")
     args = parser.parse_args()
-    bpy, camera = _scene()
-    _f12(bpy, args.verbose)
-    _viewport(bpy, camera, args.verbose)
+    with stand_in():
+        camera = build_scene()
+        for cache, walk in f12_walks().items():
+            walk.report(f"F12 ({cache} cache)", args.verbose)
+        for cache, walk in viewport_walks(camera).items():
+            walk.report(f"viewport draw ({cache} cache)", args.verbose)
 
 
 if __name__ == "__main__":
