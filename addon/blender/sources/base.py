@@ -102,16 +102,12 @@ class Source:
                  settings, notes: tuple[str, ...] = ()) -> None:
         self.instance, self.evaluated, self.owner, self.data = instance, evaluated, owner, data
         self.degree, self.names, self.settings, self.notes = degree, names, settings, notes
+        # who it is: original object, owner, `persistent_id`, geometry type
+        self.identity = (evaluated.original.session_uid, owner.session_uid,
+                         tuple(instance.persistent_id) if instance.is_instance else None,
+                         evaluated.type)
 
-    # -- who it is, how it is shown
-
-    @property
-    def identity(self) -> tuple:
-        """The instance: original object, owner, `persistent_id`, geometry type."""
-        instance = self.instance
-        return (self.evaluated.original.session_uid, self.owner.session_uid,
-                tuple(instance.persistent_id) if instance.is_instance else None,
-                self.evaluated.type)
+    # -- how it is shown and rendered
 
     def sh_degree(self, all_sh_bands: bool = False) -> int:
         """The SH degree to render: the object's option, at most what the data holds."""
@@ -162,10 +158,11 @@ class Source:
         raise NotImplementedError
 
 
-def settings_of(evaluated, owner, *tests):
+def settings_of(evaluated, owner, is_one, or_one):
     """`obj.splat` of the splat object the geometry belongs to: the evaluated object's original
-    when it is one (by any of `tests`), else the owner (the instancer); None: defaults."""
+    when it is one (`is_one` or `or_one`: the kind's own test first), else the owner (the
+    instancer); None: defaults."""
     for candidate in (evaluated.original, owner):
-        if any(test(candidate) for test in tests):
+        if is_one(candidate) or or_one(candidate):
             return candidate.splat
     return None
