@@ -84,7 +84,7 @@ def bench(bpy, kind: str, path: Path, work: Path, n: int) -> dict[str, tuple[flo
     import numpy as np
 
     operators = ext("blender.io.operators")
-    gather = ext("blender.gather")
+    gather = ext("blender.sources.gather")
     rows = {}
     for obj in list(bpy.data.objects):
         bpy.data.objects.remove(obj)

@@ -186,7 +186,7 @@ def blender_world_positions(obj):
 
 def gathered(bpy, module: str, obj):
     """`obj`'s world-space Gaussians as the add-on renders them."""
-    return ext(module, "blender.gather").gather(bpy.context.evaluated_depsgraph_get(),
+    return ext(module, "blender.sources.gather").gather(bpy.context.evaluated_depsgraph_get(),
                                                 objects=[obj], use_cache=False).gaussians
 
 

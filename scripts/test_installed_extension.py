@@ -496,7 +496,7 @@ def dump_frame(bpy, scene, name: str, png: Path, exr_path: Path) -> None:
     own mesh colour and depth) of the same frame. Printed as a COMPARE line."""
     import numpy as np
 
-    gather = ext("blender.gather")
+    gather = ext("blender.sources.gather")
     depsgraph = bpy.context.evaluated_depsgraph_get()
     g = gather.gather(depsgraph).gaussians
     splats = png.with_suffix(".splats.npz")

@@ -7,7 +7,8 @@ import bpy  # slow to import: every bpy-level splat test module shares this one 
 import numpy as np
 
 import addon
-from addon.blender import gather, splat_object
+from addon.blender import splat_object
+from addon.blender.sources import gather
 from addon.core.cameras import BlenderCameraParams, Camera, camera_from_blender
 from addon.core.gaussians import Gaussians
 from addon.core.render.renderer import render

@@ -11,7 +11,7 @@ from types import ModuleType
 
 MODULE_NAMES: list[str] = [
     # one line per module, dotted under this package, e.g. "splat_object", "io.operators"
-    "properties", "gather", "io.operators", "edit_operators",  # splat objects
+    "properties", "sources.gather", "io.operators", "edit_operators",  # splat objects
     "io.sequence",  # splat sequences: the frame's file on the object (frame_change_pre)
     "io.colmap_import",  # COLMAP scenes: File > Import > COLMAP Scene
     "io.reconstruct",  # photos or a video: File > Import > Photos or Video

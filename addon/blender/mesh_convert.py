@@ -49,7 +49,8 @@ from ..core.cameras import Camera
 from ..core.mesh import surface, texture
 from ..core.mesh.surface import Cancelled
 from ..core.jobs import StagedJob
-from . import dependencies, gather
+from . import dependencies
+from .sources import gather
 from .blender_splats import any_splats
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, wants_background

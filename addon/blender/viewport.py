@@ -48,7 +48,7 @@ from ..core import colour
 from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
 from ..core.render.renderer import render
-from . import gather
+from .sources import gather
 from .splat_object import BOUNDS_FLAG, drawn_by_addon, needs_sync, sync_display  # noqa: F401
 
 REST_SECONDS = 0.15
@@ -388,16 +388,10 @@ _views: dict[int, _ViewState] = {}
 _combined: dict[tuple, Gaussians] = {}
 
 
-def _shown(batch) -> bool:
-    obj = bpy.data.objects.get(batch.name)
-    settings = getattr(obj, "splat", None) if obj is not None else None
-    return settings is None or getattr(settings, "show_in_viewport", True)
-
-
 def viewport_splats(depsgraph, scene) -> tuple[Gaussians, dict] | None:
     """The splats a viewport shows (per-object switches applied) and the render options."""
     result = gather.gather(depsgraph)
-    batches = [b for b in result.batches if _shown(b)]
+    batches = [b for b in result.batches if b.shown]
     if not batches:
         return None
     if len(batches) == len(result.batches):

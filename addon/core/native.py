@@ -3,7 +3,7 @@
 typed function per native entry point (the end of this file), as gsplat's `cuda/_wrapper.py`
 does for its kernels. No other module calls `splatcore`: the renderer (`render/renderer.py`,
 `render/composite.py`), the training kernels (`train/kernels.py`) and Blender's side
-(`blender/gather.py`) call these functions. The native module checks every argument again
+(`blender/sources/gather.py`) call these functions. The native module checks every argument again
 (`native/src/module.c`, a table per entry point) and raises TypeError or ValueError.
 """
 

@@ -8,7 +8,8 @@ from bpy_support import bpy  # the shared bpy import
 import numpy as np
 import pytest
 
-from addon.blender import edit_operators, gather, splat_object
+from addon.blender import edit_operators, splat_object
+from addon.blender.sources import gather
 from addon.core.cleanup import floater_masks, sigmoid
 from addon.core.gaussians import Gaussians
 from scenes import random_gaussians

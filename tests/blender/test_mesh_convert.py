@@ -10,7 +10,8 @@ import pytest
 
 from types import SimpleNamespace
 
-from addon.blender import gather, job_runner, mesh_convert, splat_object
+from addon.blender import job_runner, mesh_convert, splat_object
+from addon.blender.sources import gather
 from addon.core.mesh import surface
 from addon.core.mesh.surface import Cancelled
 from scenes import sphere_gaussians

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from addon.blender.render import compositor_bridge
-from addon.blender import gather, mesh_convert, splat_object
+from addon.blender import mesh_convert, splat_object
+from addon.blender.sources import gather
 from addon.core.images import exr_layers
 from addon.core.render.composite import apply_shadow_catcher
 from addon.core.gaussians import Gaussians

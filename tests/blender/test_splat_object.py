@@ -20,7 +20,8 @@ import mathutils
 import numpy as np
 import pytest
 
-from addon.blender import gather, splat_object
+from addon.blender import splat_object
+from addon.blender.sources import gather
 from addon.blender.io import operators
 from addon.core import splat_io
 from addon.core.gaussians import Gaussians

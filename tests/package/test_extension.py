@@ -94,7 +94,7 @@ FARM = textwrap.dedent("""
     core = ext.__name__ + ".core"
     exr_layers, render_mod, colour = (import_module(core + m)
                                       for m in (".images.exr_layers", ".render.renderer", ".colour"))
-    gather = import_module(ext.__name__ + ".blender.gather")
+    gather = import_module(ext.__name__ + ".blender.sources.gather")
     cameras = import_module(ext.__name__ + ".blender.camera_adapter")
     errors = []
     for frame in (1, 2):

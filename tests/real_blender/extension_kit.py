@@ -41,7 +41,7 @@ class check:
 
 
 def ext(name: str):
-    """The installed extension's module `name` ("blender.gather", "core.transform")."""
+    """The installed extension's module `name` ("blender.sources.gather", "core.transform")."""
     return importlib.import_module(f"{EXTENSION}.{name}")
 
 

@@ -53,7 +53,7 @@ def clear(bpy) -> None:
                        bpy.data.cameras, bpy.data.lights, bpy.data.collections):
         for item in list(collection):
             collection.remove(item)
-    ext("blender.gather").clear_cache()
+    ext("blender.sources.gather").clear_cache()
 
 
 def new_objects(bpy, before: set) -> list:

@@ -6,6 +6,7 @@ The attribute convention (names, exp/log scales, sigmoid/logit opacity, SH layou
     supported()                  this Blender has point clouds of type 'GAUSSIAN_SPLAT'
     is_blender_splat_data(data)  a PointCloud (original or evaluated) of that type
     is_blender_splat_object(obj) an object whose data is one (its evaluated data may differ)
+    degree_of(data)              -> (SH degree, notes on bands left out)
     read_conversion(data)        -> Conversion (object-space Gaussians, drops and warnings)
     new_pointcloud(gaussians, name) -> a PointCloud of type GAUSSIAN_SPLAT holding them
     create_object(gaussians, name, collection=...) -> a new object holding that point cloud
@@ -78,10 +79,14 @@ def hidden_mask(data) -> np.ndarray | None:
     return splat_object.hidden_mask(data, HIDE)
 
 
+def degree_of(data) -> tuple[int, list[str]]:
+    """The SH degree `data`'s attributes hold, and what is left out (`attributes.degree_of`)."""
+    return attributes.degree_of(frozenset(attribute_names(data)))
+
+
 def read_names(data) -> tuple[str, ...]:
     """The attributes `read_conversion` reads from `data` (for change detection)."""
-    names = attribute_names(data)
-    degree, _ = attributes.degree_of(frozenset(names))
+    degree, _ = degree_of(data)
     return tuple(attributes.REQUIRED) + attributes.sh_names(
         min(degree, attributes.RENDER_MAX_DEGREE)) + (HIDE,)
 

@@ -47,7 +47,9 @@ from ...core.formats_common.errors import SplatFileError
 from ...core.formats.sequence import SplatSequence, save_sequence
 from ...core.gaussians import Gaussians
 from ...core.transform import transform_gaussians
-from .. import gather, splat_object
+from .. import splat_object
+from ..sources import gather
+from ..sources.edit_mesh import edit_mode_gaussians
 from ..blender_splats import any_splats
 from ..blender_splats import data as blender_data
 from ..blender_splats import ownership
@@ -192,7 +194,7 @@ def evaluated_gaussians(obj, depsgraph=None, *, world_space: bool = True,
     if not world_space:
         evaluated = obj.evaluated_get(depsgraph)
         if evaluated.type == "MESH" and evaluated.data.is_editmode:
-            local = gather.edit_mode_gaussians(evaluated)
+            local = edit_mode_gaussians(evaluated)
         else:
             local = any_splats.data_gaussians(evaluated.data)
         return local if space is None else transform_gaussians(local, axes.snap(space))

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 from ...core.cameras import Camera
 from ...core.gaussians import Gaussians
-from .. import gather
+from ..sources import gather
 from ..camera_adapter import camera_of, near_of, render_problem
 from .compositor_bridge import ENGINE_ID
 
@@ -84,6 +84,9 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
     start = time.perf_counter()
     result = gather.gather(depsgraph)
     warnings = list(result.warnings)
+    antialiased = {"OBJECT": result.antialiased, "ON": True, "OFF": False}[settings.antialiased]
+    spaces = {b.color_space for b in result.batches}
+    reused = result.cache_hits
     camera = None
     near = settings.near
     camera_obj = depsgraph.scene.camera
@@ -97,8 +100,6 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
             raise ValueError(problem)
         camera = camera_of(camera_obj, depsgraph.scene_eval.render)
         near = near_of(camera_obj, settings.near)
-    antialiased = {"OBJECT": result.antialiased, "ON": True, "OFF": False}[settings.antialiased]
-    spaces = {b.color_space for b in result.batches}
     if len(spaces) > 1:
         warnings.append("splat objects disagree on the colour space: composing in sRGB")
     color_space = "LINEAR" if spaces == {"LINEAR"} else "SRGB"
@@ -107,4 +108,4 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
                        camera, antialiased, color_space,
                        min(settings.sh_degree, gaussians.degree), near,
                        render_threads(scene, settings),
-                       1000 * (time.perf_counter() - start), warnings, result.cache_hits)
+                       1000 * (time.perf_counter() - start), warnings, reused)

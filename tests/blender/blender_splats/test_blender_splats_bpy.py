@@ -16,7 +16,8 @@ from bpy_support import bpy
 import numpy as np
 import pytest
 
-from addon.blender import gather, splat_object
+from addon.blender import splat_object
+from addon.blender.sources import gather
 from addon.blender.blender_splats import any_splats, convert, data, ownership
 from addon.blender.io import operators
 from addon.blender.render import compositor_bridge as bridge
