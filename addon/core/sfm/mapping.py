@@ -4,8 +4,12 @@ kept, and why each photo left out was left out.
 Focal length: each camera starts from its photos' EXIF prior (`photos.exif_focal_px`) when they
 have one, else from COLMAP's guess (1.2 x the long side, no prior). A prior is never trusted
 blindly: photos cropped or exported after capture keep an EXIF focal length that is off by
-several times, so when fewer than `GOOD_SHARE` of the photos register with the priors, the
-mapping runs again without them and the run that registers more is kept.
+several times. A run with the priors is a poor start when fewer than `GOOD_SHARE` of the photos
+register, or when a placed photo's focal length is off by more than `FOCAL_SPREAD` times from
+the median of the photos it shares a size and a prior with (with a camera per photo, the demo's
+photos under a prior five times too long placed all 30, one of them at 111 px against 400:
+such a photo, however placed, is wrong). Then the mapping runs again without the priors, and
+the run with more photos placed with a sane focal length is kept.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from .photos import Photo
 MAPPERS = ("incremental", "global")
 DEFAULT_FOCAL_FACTOR = 1.2  # COLMAP's focal length guess: 1.2 x the long side
 GOOD_SHARE = 0.8
+FOCAL_SPREAD = 1.5  # photos of one size and one EXIF prior: focal lengths within this factor
 MIN_MATCHES = 15  # inlier matches that make a verified pair (COLMAP's min_num_matches)
 
 
@@ -37,6 +42,30 @@ class Mapped:
         if self.model is None:
             return set()
         return {image.name for image in self.model.images.values() if image.has_pose}
+
+    def focal_outliers(self, photos: list[Photo]) -> set[str]:
+        """Placed photos whose camera's focal length is more than FOCAL_SPREAD times off the
+        median of the placed photos of the same size and EXIF prior (`Photo.camera_key`)."""
+        if self.model is None:
+            return set()
+        keys = {p.name: p.camera_key for p in photos}
+        groups: dict[tuple, list[tuple[str, float]]] = {}
+        for image in self.model.images.values():
+            if image.has_pose and image.name in keys:
+                focal = float(self.model.cameras[image.camera_id].mean_focal_length())
+                groups.setdefault(keys[image.name], []).append((image.name, focal))
+        outliers = set()
+        for members in groups.values():
+            median = sorted(f for _, f in members)[len(members) // 2]
+            outliers |= {name for name, f in members
+                         if not median / FOCAL_SPREAD <= f <= median * FOCAL_SPREAD}
+        return outliers
+
+    def score(self, photos: list[Photo]) -> tuple[int, int]:
+        """What decides between two runs: the photos placed with a sane focal length, then the
+        fewer placed with an absurd one."""
+        outliers = len(self.focal_outliers(photos))
+        return len(self.registered) - outliers, -outliers
 
 
 def set_cameras(pycolmap, database: Path, photos: list[Photo], use_priors: bool) -> None:
@@ -89,8 +118,9 @@ def run_mapper(pycolmap, mapper: str, database: Path, images_dir: Path, output: 
 
 def map_photos(pycolmap, mapper: str, database: Path, images_dir: Path, scratch: Path,
                photos: list[Photo], threads: int) -> Generator[int, None, Mapped]:
-    """Map with the EXIF priors where there are any, again without them when too few photos
-    register; the run that registers more wins. A generator: COLMAP maps on a worker thread
+    """Map with the EXIF priors where there are any, again without them after a poor start (too
+    few photos placed, or some placed with an absurd focal length); the run that places more
+    with a sane focal length wins. A generator: COLMAP maps on a worker thread
     (it releases Python's lock) while this yields the photos placed so far, about 5 times a
     second; closing it cancels the mapper and waits for it."""
     attempts = [True, False] if any(p.focal_px for p in photos) else [False]
@@ -100,9 +130,9 @@ def map_photos(pycolmap, mapper: str, database: Path, images_dir: Path, scratch:
         models = yield from _on_a_thread(pycolmap, mapper, database, images_dir,
                                          scratch / str(number), threads)
         mapped = Mapped(models[0] if models else None, models[1:], use_priors, number > 0)
-        if best is None or len(mapped.registered) > len(best.registered):
+        if best is None or mapped.score(photos) > best.score(photos):
             best = mapped
-        if len(best.registered) >= GOOD_SHARE * len(photos):
+        if len(best.registered) >= GOOD_SHARE * len(photos) and not best.focal_outliers(photos):
             break
     return best
 

@@ -164,7 +164,8 @@ def test_a_cancelled_run_resumes_where_it_stopped(tmp_path):
 def test_a_wrong_exif_focal_length_is_not_trusted(tmp_path):
     """The demo photos with an EXIF 35 mm focal length five times their true one (28.8 mm: fx
     400 px on a 600 px diagonal), as a crop or an export leaves it: the scene still comes out
-    right, with the priors or from the run without them."""
+    right, with the priors or from the run without them. The default features: with plain SIFT
+    and a camera per photo the largest rotation error reached 0.71 degrees in 1 run of 5."""
     import OpenImageIO as oiio
     import pycolmap
 
@@ -180,7 +181,7 @@ def test_a_wrong_exif_focal_length_is_not_trusted(tmp_path):
         out = oiio.ImageOutput.create(str(photos / source.name))
         assert out.open(str(photos / source.name), spec) and out.write_image(pixels)
         out.close()
-    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2, features="fast"))
+    report = sfm.run(photos, tmp_path / "out", sfm.Options(threads=2))
     print(f"priors used: {report.used_priors}, retried: {report.retried}, "
           f"placed {len(report.registered)}")
     model = pycolmap.Reconstruction(str(tmp_path / "out" / "sparse" / "0"))
@@ -202,9 +203,10 @@ def test_too_few_placed_with_the_priors_maps_again_without_them(tmp_path, monkey
     photos = [Photo(f"{i}.jpg", f"{i}.jpg", 640, 480, 500.0) for i in range(30)]
     priors_seen = []
 
-    def fake_model(count):
-        images = {i: SimpleNamespace(name=f"{i}.jpg", has_pose=True) for i in range(count)}
-        return SimpleNamespace(images=images, num_reg_images=lambda: count)
+    def fake_model(count, focal=lambda i: 500.0):
+        images = {i: SimpleNamespace(name=f"{i}.jpg", has_pose=True, camera_id=i) for i in range(count)}
+        cameras = {i: SimpleNamespace(mean_focal_length=lambda i=i: focal(i)) for i in range(count)}
+        return SimpleNamespace(images=images, cameras=cameras, num_reg_images=lambda: count)
 
     def set_cameras(pycolmap, database, photos, use_priors):
         priors_seen.append(use_priors)
@@ -224,6 +226,21 @@ def test_too_few_placed_with_the_priors_maps_again_without_them(tmp_path, monkey
             break
     assert priors_seen == [True, False]
     assert len(mapped.registered) == 28 and mapped.retried and not mapped.used_priors
+
+    # All 30 placed with the priors, but one at 111 px among 400s: a poor start too; without
+    # the priors 29 placed, all sane: that run is kept.
+    priors_seen.clear()
+    monkeypatch.setattr(mapping, "run_mapper", lambda *args: [
+        fake_model(30, lambda i: 111.0 if i == 20 else 400.0) if priors_seen[-1] else fake_model(29)])
+    steps = mapping.map_photos(SimpleNamespace(CancellationToken=lambda: None), "incremental",
+                               tmp_path / "db", tmp_path, tmp_path, photos, 1)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            mapped = done.value
+            break
+    assert priors_seen == [True, False] and len(mapped.registered) == 29 and not mapped.used_priors
 
 
 def test_a_full_disk_stops_the_run_by_name_instead_of_skipping_photos(tmp_path, monkeypatch):
