@@ -45,7 +45,6 @@ from bpy.props import BoolProperty, StringProperty
 
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, ProgressPrinter, StagedJob, TrainingJob, status_line
-from . import viewport
 from .registration import register_classes, unregister_classes
 
 TIMER_STEP = 0.25  # seconds between polls of a background job
@@ -55,14 +54,43 @@ STAGE_BUDGET = 0.1  # seconds of main-thread work per poll for a StagedJob
 # new image), ~0.15 s a time in software OpenGL (Blender 4.3 under Xvfb), and a UI busy
 # redrawing answers late.
 SHOW_INTERVAL = 3.0
-# ... and paced by what they cost: the main thread's time for an update (writing the object,
-# then the 3D views' redraws over the COST_WINDOW seconds after it, `viewport.redraw_seconds`)
-# is at most this share of the time between updates (the walkthrough scene, 2 cores, Blender 4.3
-# under Xvfb: nine redraws of ~0.3 s after each update, 47 % of the time in stalls at one update
-# every 3 s; docs/benchmarks/ui_latency.md). At most MAX_SHOW_INTERVAL apart.
+# ... and paced by what they cost: the main thread's stalls (over STALL seconds) in the
+# COST_WINDOW seconds after an update, the object's write included, are at most this share of
+# the time between updates (`StallProbe`). In Blender 4.3 under Xvfb (software OpenGL, 2 cores)
+# an update of the walkthrough's splats brought nine redraws of 0.2-0.3 s, about 2 s of stalls:
+# one update every 3 s kept the main thread stalled 47 % of the time; timing the redraws between
+# the 3D view's own callbacks saw only two thirds of it (docs/benchmarks/training_sizes.md).
+# At most MAX_SHOW_INTERVAL apart.
 UPDATE_SHARE = 0.05
 COST_WINDOW = 4.0
+STALL = 0.05
 MAX_SHOW_INTERVAL = 60.0
+
+
+class StallProbe:
+    """The main thread's time lost to stalls over the next `seconds`: a timer every
+    PROBE_PERIOD, and each gap between its calls longer than STALL counted whole (the measure of
+    docs/benchmarks/training_sizes.md "By time, not by ticks"). Without an event loop (background
+    mode) it never runs and counts nothing."""
+
+    PROBE_PERIOD = 0.02
+
+    def __init__(self, seconds: float) -> None:
+        self.lost = 0.0
+        self._last = time.monotonic()
+        self._end = self._last + seconds
+        bpy.app.timers.register(self._tick, first_interval=self.PROBE_PERIOD)
+
+    def count(self, now: float) -> bool:
+        """One timer call at `now`; False once the probe's time is over."""
+        gap = now - self._last
+        if gap > STALL:
+            self.lost += gap
+        self._last = now
+        return now < self._end
+
+    def _tick(self) -> float | None:
+        return self.PROBE_PERIOD if self.count(time.monotonic()) else None
 
 
 @dataclass
@@ -79,20 +107,18 @@ class OperatorJob:
     progress: Progress = field(default_factory=Progress)
     pending: tuple[int, Gaussians] | None = None
     shown_at: float = float("-inf")  # time.monotonic() of the last snapshot shown
-    show_cost: float = 0.0  # main-thread seconds the last update cost (so far)
-    write_cost: float = 0.0  # ... of which writing the object
-    redraws_at_show: float = 0.0  # `viewport.redraw_seconds()` when it was shown
+    write_cost: float = 0.0  # main-thread seconds the last update's write took
+    probe: StallProbe | None = None  # the stalls after it
+
+    @property
+    def show_cost(self) -> float:
+        """Main-thread seconds the last update cost (so far)."""
+        return self.write_cost + (self.probe.lost if self.probe is not None else 0.0)
 
     def next_show(self) -> float:
         """When the next snapshot may be shown (time.monotonic())."""
         return self.shown_at + min(MAX_SHOW_INTERVAL, max(SHOW_INTERVAL,
                                                           self.show_cost / UPDATE_SHARE))
-
-    def count_redraws(self, now: float, redraw_seconds: float) -> None:
-        """The 3D views' redraws (`viewport.redraw_seconds()` at `now`) count to the last
-        update's cost while within its window."""
-        if now - self.shown_at <= COST_WINDOW:
-            self.show_cost = self.write_cost + redraw_seconds - self.redraws_at_show
 
 
 RUNNING: dict[str, OperatorJob] = {}
@@ -298,8 +324,8 @@ class JobOperator:
         start = time.monotonic()
         running.apply(*snapshot)
         running.shown_at = time.monotonic()
-        running.show_cost = running.write_cost = running.shown_at - start
-        running.redraws_at_show = viewport.redraw_seconds()
+        running.write_cost = running.shown_at - start
+        running.probe = StallProbe(COST_WINDOW)
 
     def modal(self, context, event):
         running = RUNNING.get(self._key)
@@ -313,7 +339,6 @@ class JobOperator:
             return {"RUNNING_MODAL"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        running.count_redraws(time.monotonic(), viewport.redraw_seconds())
         try:
             running.job.poll(STAGE_BUDGET)
             running.progress = running.job.progress()

@@ -426,27 +426,6 @@ def _draw() -> None:
     draw_view(bpy.context)
 
 
-# Main-thread seconds spent redrawing 3D views, summed (from the callback before a view draws its
-# scene to the one after its overlays): what an update of the splats costs the UI (Workbench
-# redraws a view eight or more times after a change, for its anti-aliasing samples; ~0.3 s a time
-# in software OpenGL, 2 cores, Blender 4.3 under Xvfb). The job runner paces updates by it.
-_redraws = {"started": None, "seconds": 0.0}
-
-
-def _redraw_started() -> None:
-    _redraws["started"] = time.perf_counter()
-
-
-def _redraw_ended() -> None:
-    started, _redraws["started"] = _redraws["started"], None
-    if started is not None:
-        _redraws["seconds"] += time.perf_counter() - started
-
-
-def redraw_seconds() -> float:
-    """Main-thread seconds spent redrawing 3D views since the add-on was enabled."""
-    return _redraws["seconds"]
-
 
 def draw_view(context) -> None:
     """The draw handler's work for one 3D view (`context`: scene, space_data, region,
@@ -601,14 +580,13 @@ _on_load_post = _on_stored_state  # (the name the tests and older callers use)
 
 _HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_stored_state),
              ("undo_post", _on_stored_state), ("redo_post", _on_stored_state))
-_DRAW_HANDLERS = ((_redraw_started, "PRE_VIEW"), (_draw, "POST_VIEW"), (_redraw_ended, "POST_PIXEL"))
-_handles: list = []
+_handle = None
 
 
 def register() -> None:
-    if not _handles:
-        _handles.extend(bpy.types.SpaceView3D.draw_handler_add(callback, (), "WINDOW", kind)
-                        for callback, kind in _DRAW_HANDLERS)
+    global _handle
+    if _handle is None:
+        _handle = bpy.types.SpaceView3D.draw_handler_add(_draw, (), "WINDOW", "POST_VIEW")
     for name, handler in _HANDLERS:
         if handler not in getattr(bpy.app.handlers, name):
             getattr(bpy.app.handlers, name).append(handler)
@@ -618,8 +596,10 @@ def unregister() -> None:
     for name, handler in _HANDLERS:
         if handler in getattr(bpy.app.handlers, name):
             getattr(bpy.app.handlers, name).remove(handler)
-    while _handles:
-        bpy.types.SpaceView3D.draw_handler_remove(_handles.pop(), "WINDOW")
+    global _handle
+    if _handle is not None:
+        bpy.types.SpaceView3D.draw_handler_remove(_handle, "WINDOW")
+        _handle = None
     if bpy.app.timers.is_registered(_tick):
         bpy.app.timers.unregister(_tick)
     renderer.stop()
