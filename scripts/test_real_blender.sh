@@ -196,7 +196,7 @@ import scene_kit; scene_kit.set_camera_kind(bpy.context.scene.camera.data, '$kin
             "$io/ui_turn/solid_plain.png" "$io/ui_turn/view.json" "$io/splats.npz")
         rc=$?
         stale=$($PY -c "import json, sys; r = json.load(open(sys.argv[1])); print(*r['errors']) if r['errors'] else None; \
-print(f\"{r['stale_draws']} stale of {r['draws_after_turn']} draws after the turn\"); sys.exit(bool(r['errors']))" "$io/ui_turn/view.json")
+print(f\"the view before on screen {r['stale_seconds']} s after rest, {r['draws_after_turn']} draws after the turn\"); sys.exit(bool(r['errors']))" "$io/ui_turn/view.json")
         rc2=$?
         note "$suite" "viewport turn (numpad 1)" "$([ $rc = 0 ] && [ $rc2 = 0 ] && echo ok || echo FAIL)" \
             "$(echo "$stale" | tail -1); ${detail#*: }"
