@@ -188,10 +188,19 @@ def _record_hash(data: bytes) -> str:
     return "sha256=" + base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
 
 
+def wheel_version(module: bytes) -> str:
+    """The wheel's version: the project's, with the module's hash as a local label
+    (0.1.0+1a2b3c4d5e6f). Blender installs an extension's wheels by their dist-info folder name
+    and keeps one it already has (`_bpy_internal/extensions/wheel_manager.py`): an update whose
+    module changed under the same version kept the old module (Debian's Blender 4.3, after the
+    bindings took keywords: "render_train() takes no keyword arguments")."""
+    return f"{version()}+{hashlib.sha256(module).hexdigest()[:12]}"
+
+
 def write_wheel(platform: str, binary: Path, out_dir: Path) -> Path:
     """A wheel holding `binary` at the top level, tagged cp311-abi3-<platform tag>."""
     target = PLATFORMS[platform]
-    name, ver = "splatcore", version()
+    name, ver = "splatcore", wheel_version(binary.read_bytes())
     tag = f"{PYTHON_TAG}-abi3-{target.wheel_tag}"
     info = f"{name}-{ver}.dist-info"
     files = {
@@ -225,7 +234,7 @@ def build_native_binary(platform: str, build_dir: Path) -> tuple[Path, list[Path
 
 
 def build_native_wheel(platform: str, out_dir: Path) -> Path:
-    """Build `splatcore-<version>-cp311-abi3-<tag>.whl` for a Blender platform name
+    """Build `splatcore-<version>+<module hash>-cp311-abi3-<tag>.whl` for a Blender platform name
     (linux-x64, linux-arm64, windows-x64, macos-arm64, macos-x64) into out_dir; returns its path.
     Replaces an older wheel of the same name."""
     with tempfile.TemporaryDirectory(prefix=f"splatcore-{platform}-") as scratch:

@@ -241,12 +241,13 @@ def check_vectorised(platform: str, build_dir: Path) -> str:
 
 def check_wheel(platform: str, wheel: Path) -> None:
     target = bn.PLATFORMS[platform]
-    check(wheel.name == f"splatcore-{bn.version()}-cp311-abi3-{target.wheel_tag}.whl",
-          f"{platform}: wheel name {wheel.name}")
     with zipfile.ZipFile(wheel) as archive:
         names = archive.namelist()
-        wheel_file = archive.read(f"splatcore-{bn.version()}.dist-info/WHEEL").decode()
-    check(target.binary in names, f"{platform}: {target.binary} not in the wheel ({names})")
+        check(target.binary in names, f"{platform}: {target.binary} not in the wheel ({names})")
+        version = bn.wheel_version(archive.read(target.binary))
+        check(wheel.name == f"splatcore-{version}-cp311-abi3-{target.wheel_tag}.whl",
+              f"{platform}: wheel name {wheel.name}")
+        wheel_file = archive.read(f"splatcore-{version}.dist-info/WHEEL").decode()
     check(f"Tag: cp311-abi3-{target.wheel_tag}" in wheel_file, f"{platform}: WHEEL tag")
 
 

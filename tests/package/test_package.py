@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import zipfile
@@ -44,3 +45,13 @@ def test_native_builds_as_abi3_wheel(tmp_path: Path) -> None:
     assert len(wheels) == 1 and "-cp311-abi3-" in wheels[0].name, wheels
     with zipfile.ZipFile(wheels[0]) as wheel:
         assert any(name.endswith(".abi3.so") or name.endswith(".pyd") for name in wheel.namelist())
+
+
+def test_each_native_build_has_its_own_wheel_version() -> None:
+    """Blender keeps an extension's wheel whose dist-info folder it already has: a rebuilt module
+    under the same version must not be kept, so the module's hash is the version's local label."""
+    from scripts import build_native
+
+    one, other = build_native.wheel_version(b"module one"), build_native.wheel_version(b"two")
+    assert re.fullmatch(re.escape(build_native.version()) + r"\+[0-9a-f]{12}", one), one
+    assert one != other and one == build_native.wheel_version(b"module one")
