@@ -195,11 +195,24 @@ def test_background_renderer_and_switches(rng):
         worker.stop()
 
 
+def _view_context(scene, view, window, width: int, height: int, region_id: int):
+    """A stand-in for a 3D view's draw-callback context (what `viewport.draw_view` reads)."""
+    import mathutils
+
+    region = type("Region", (), dict(width=width, height=height,
+                                     as_pointer=lambda self: region_id))()
+    return type("Context", (), dict(
+        scene=scene, region=region,
+        space_data=type("Space", (), dict(type="VIEW_3D", shading=type("S", (), dict(type="SOLID"))()))(),
+        region_data=type("RV3D", (), dict(view_matrix=mathutils.Matrix(view.tolist()),
+                                          window_matrix=mathutils.Matrix(window.tolist())))(),
+        evaluated_depsgraph_get=staticmethod(bpy.context.evaluated_depsgraph_get)))()
+
+
 def test_draw_handler_is_progressive(rng):
     """The handler's logic with a stand-in for the 3D view's context: a coarse image first,
     full resolution once the view rests, drawn offscreen."""
     import gpu
-    import mathutils
 
     bs.reset_scene()
     splat_object.create_splat_object(random_gaussians(rng, 300, 1, radius=1.0), "Splats")
@@ -211,19 +224,7 @@ def test_draw_handler_is_progressive(rng):
     window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
                                                 x=width, y=height))
 
-    class Region:
-        def __init__(self):
-            self.width, self.height = width, height
-
-        def as_pointer(self):
-            return 4242
-
-    context = type("Context", (), dict(
-        scene=scene, region=Region(),
-        space_data=type("Space", (), dict(type="VIEW_3D", shading=type("S", (), dict(type="SOLID"))()))(),
-        region_data=type("RV3D", (), dict(view_matrix=mathutils.Matrix(view.tolist()),
-                                          window_matrix=mathutils.Matrix(window.tolist())))(),
-        evaluated_depsgraph_get=staticmethod(bpy.context.evaluated_depsgraph_get)))()
+    context = _view_context(scene, view, window, width, height, 4242)
     offscreen = gpu.types.GPUOffScreen(width, height, format="RGBA8")
     try:
         with offscreen.bind():
@@ -266,7 +267,6 @@ def test_a_rested_view_never_shows_another_views_image(rng, monkeypatch):
     """After a view change (numpad 1/3/7, numpad 5, the end of an orbit) the image of the view
     before is drawn only while the view moves; once it rests, only this view's image, or
     nothing until it is ready."""
-    import mathutils
 
     bs.reset_scene()
     splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
@@ -277,21 +277,8 @@ def test_a_rested_view_never_shows_another_views_image(rng, monkeypatch):
     window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
                                                 x=width, y=height))
 
-    class Region:
-        def __init__(self):
-            self.width, self.height = width, height
-
-        def as_pointer(self):
-            return 4343
-
     def context_for(view_matrix):
-        return type("Context", (), dict(
-            scene=scene, region=Region(),
-            space_data=type("Space", (), dict(type="VIEW_3D", shading=type(
-                "S", (), dict(type="SOLID"))()))(),
-            region_data=type("RV3D", (), dict(view_matrix=mathutils.Matrix(view_matrix.tolist()),
-                                              window_matrix=mathutils.Matrix(window.tolist())))(),
-            evaluated_depsgraph_get=staticmethod(bpy.context.evaluated_depsgraph_get)))()
+        return _view_context(scene, view_matrix, window, width, height, 4343)
 
     drawn = []
     monkeypatch.setattr(viewport, "draw_image", lambda image, cache_key=None: drawn.append(image.key))

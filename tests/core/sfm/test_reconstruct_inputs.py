@@ -214,16 +214,18 @@ def test_too_few_placed_with_the_priors_maps_again_without_them(tmp_path, monkey
     def run_mapper(pycolmap, mapper, database, images, output, threads, on_image, cancel):
         return [fake_model(5 if priors_seen[-1] else 28)]
 
+    def map_all():
+        steps = mapping.map_photos(SimpleNamespace(CancellationToken=lambda: None),
+                                   "incremental", tmp_path / "db", tmp_path, tmp_path, photos, 1)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as done:
+                return done.value
+
     monkeypatch.setattr(mapping, "set_cameras", set_cameras)
     monkeypatch.setattr(mapping, "run_mapper", run_mapper)
-    steps = mapping.map_photos(SimpleNamespace(CancellationToken=lambda: None), "incremental",
-                               tmp_path / "db", tmp_path, tmp_path, photos, 1)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            mapped = done.value
-            break
+    mapped = map_all()
     assert priors_seen == [True, False]
     assert len(mapped.registered) == 28 and mapped.retried and not mapped.used_priors
 
@@ -232,14 +234,7 @@ def test_too_few_placed_with_the_priors_maps_again_without_them(tmp_path, monkey
     priors_seen.clear()
     monkeypatch.setattr(mapping, "run_mapper", lambda *args: [
         fake_model(30, lambda i: 111.0 if i == 20 else 400.0) if priors_seen[-1] else fake_model(29)])
-    steps = mapping.map_photos(SimpleNamespace(CancellationToken=lambda: None), "incremental",
-                               tmp_path / "db", tmp_path, tmp_path, photos, 1)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            mapped = done.value
-            break
+    mapped = map_all()
     assert priors_seen == [True, False] and len(mapped.registered) == 29 and not mapped.used_priors
 
 
