@@ -393,18 +393,23 @@ def _cycles_uv(p: np.ndarray, model: str, params) -> tuple[np.ndarray, np.ndarra
 
 
 def _uv_jacobian(p: np.ndarray, model: str, params, wraps: bool) -> np.ndarray:
-    """d(u, v)/dp (N, 2, 3) by central differences in float64 (steps 1e-6 |p|): independent
-    of the native code's closed forms."""
+    """d(u, v)/dp (N, 2, 3) by central differences in float64, independent of the native code's
+    closed forms. Steps h = 1e-6 |p| and h/2, Richardson-extrapolated: the error falls from
+    (h/l)^2 to (h/l)^4, l the mapping's own length scale, which near a central cylinder's poles
+    is the distance from its axis (a Gaussian 8e-4 from it at |p| = 2.2 had c off by 1.5e-5)."""
+    def central(step: np.ndarray) -> np.ndarray:
+        jac = np.zeros((len(p), 2, 3))
+        for k in range(3):
+            offset = np.zeros_like(p)
+            offset[:, k] = step
+            diff = _cycles_uv(p + offset, model, params)[0] - _cycles_uv(p - offset, model, params)[0]
+            if wraps:  # across the seam u jumps by a whole period
+                diff[:, 0] -= np.round(diff[:, 0])
+            jac[:, :, k] = diff / (2 * step[:, None])
+        return jac
+
     step = 1e-6 * np.linalg.norm(p, axis=1)
-    jac = np.zeros((len(p), 2, 3))
-    for k in range(3):
-        offset = np.zeros_like(p)
-        offset[:, k] = step
-        diff = _cycles_uv(p + offset, model, params)[0] - _cycles_uv(p - offset, model, params)[0]
-        if wraps:  # across the seam u jumps by a whole period
-            diff[:, 0] -= np.round(diff[:, 0])
-        jac[:, :, k] = diff / (2 * step[:, None])
-    return jac
+    return (4 * central(step / 2) - central(step)) / 3
 
 
 def wraps(model: str, params) -> bool:
