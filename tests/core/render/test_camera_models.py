@@ -5,7 +5,8 @@ equirectangular seam; the poles).
 
 Tolerances, per Gaussian (u = 1e-5, s = |mean| + |t| as in tests/checks.py): depth u s; xy
 u (|xy| + fx + fy) pixels (the mapping's angles are computed in double and rounded once to float);
-conic u cond lmax (inverting amplifies rounding by the condition number); opacity and rgb 1e-5.
+conic u cond lmax (inverting amplifies rounding by the condition number); opacity 1e-5 + u cond
+opacity (antialiasing's factor is a ratio of determinants); rgb 1e-5.
 Images: tests/checks.py's (1e-4 on rgb and alpha, ambiguous pixels left out)."""
 
 from __future__ import annotations
@@ -64,24 +65,32 @@ def panorama_camera(rng, width, height, model, params, *, inside=True) -> Camera
                   width, height, model=model, params=params)
 
 
+def _conic_eigen(conic: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each conic's largest eigenvalue and condition number (1 for the wrapping panoramas'
+    bands, conic (0, 0, cc))."""
+    a, b, c = conic.T
+    half = (a + c) / 2
+    disc = np.sqrt(np.maximum(0.0, half ** 2 - (a * c - b * b)))
+    lmax, lmin = half + disc, np.maximum(half - disc, 1e-300)
+    band = valid & (a == 0) & (b == 0)
+    return lmax, np.where(band, 1.0, lmax / lmin)
+
+
 def assert_projection_close(got, want, gaussians, camera):
     valid = want["valid"]
     np.testing.assert_array_equal(got.valid, valid, "valid differs")
     assert valid.mean() > 0.15
     means = np.asarray(gaussians.means, np.float64)
     s = np.linalg.norm(means, axis=1) + np.linalg.norm(camera.world_to_camera[:3, 3])
-    a, b, c = want["conic"].T
-    half = (a + c) / 2
-    disc = np.sqrt(np.maximum(0.0, half ** 2 - (a * c - b * b)))
-    lmax, lmin = half + disc, np.maximum(half - disc, 1e-300)
-    band = valid & (a == 0) & (b == 0)  # equirectangular bands: conic (0, 0, cc)
-    cond = np.where(band, 1.0, lmax / lmin)
+    lmax, cond = _conic_eigen(want["conic"], valid)
     checks = {
         "depth": (np.abs(got.depth - want["depth"]), UNIT * s),
         "xy": (np.abs(got.xy - want["xy"]),
                UNIT * (np.abs(want["xy"]) + camera.fx + camera.fy)),
         "conic": (np.abs(got.conic - want["conic"]), (UNIT * cond * lmax)[:, None]),
-        "opacity": (np.abs(got.opacity - want["opacity"]), 1e-5),
+        # antialiasing scales opacity by sqrt(det) ratios of the 2D covariance, as conditioned
+        # as its inverse (a mirrorball's Gaussian 0.06 degrees from straight ahead: cond 1e7)
+        "opacity": (np.abs(got.opacity - want["opacity"]), 1e-5 + UNIT * cond * want["opacity"]),
         "rgb": (np.abs(got.rgb - want["rgb"]), 1e-5),
     }
     for name, (err, tol) in checks.items():
@@ -173,9 +182,17 @@ def test_panorama_projection_matches_reference(rng, kind, antialiased):
 @pytest.mark.parametrize("kind", list(PANORAMAS))
 @pytest.mark.parametrize("layers", ["plain", "mesh+background"])
 def test_panorama_render_matches_reference(rng, kind, layers):
-    width, height = _size(rng)
-    gaussians = random_gaussians(rng, 400, 1, radius=4.0)
-    camera = panorama_camera(rng, width, height, *PANORAMAS[kind])
+    # Near a mapping's singular directions (a cube face's sides, a mirrorball's rim) a Gaussian
+    # can stretch into a conic of condition 1e4 or more (once in about 500 scenes), whose
+    # float32 rounding moves its alpha by more than the images' 1e-4: the projection test holds
+    # such conics to their conditioning; this one draws again until there is none.
+    for _ in range(20):
+        width, height = _size(rng)
+        gaussians = random_gaussians(rng, 400, 1, radius=4.0)
+        camera = panorama_camera(rng, width, height, *PANORAMAS[kind])
+        projected = ref.project_scene(gaussians, camera)
+        if _conic_eigen(projected["conic"], projected["valid"])[1][projected["valid"]].max() < 1e4:
+            break
     options = {}
     if layers != "plain":
         options["background"] = rng.random(3).astype(np.float32)
