@@ -115,10 +115,9 @@ def point_count(data) -> int:
     return len(position.data) if position is not None else 0
 
 
-def hidden_mask(data, name: str = HIDE) -> np.ndarray | None:
-    """The hidden flags of a mesh (`.hide_vert`; a point cloud's are named by the caller), None
-    where nothing is hidden."""
-    attribute = data.attributes.get(name)
+def hidden_mask(data) -> np.ndarray | None:
+    """The vertices of a mesh hidden in Edit Mode (`.hide_vert`), None where none is."""
+    attribute = data.attributes.get(HIDE)
     if attribute is None or attribute.domain != "POINT" or attribute.data_type != "BOOLEAN":
         return None
     n = len(attribute.data)

@@ -22,10 +22,11 @@ from ...core.gaussians import Gaussians
 from .. import splat_object
 
 GAUSSIAN_SPLAT = "GAUSSIAN_SPLAT"
-# Blender attribute data type -> (foreach property, values per point). FLOAT4 (5.3) is what
+# Blender attribute data type -> (foreach property, values per point, dtype). FLOAT4 (5.3) is what
 # Blender writes for radiance:base; a FLOAT_COLOR of the same name is read the same way.
-_KEYS = {"FLOAT_VECTOR": ("vector", 3), "QUATERNION": ("value", 4), "FLOAT4": ("vector", 4),
-         "FLOAT_COLOR": ("color", 4), "FLOAT": ("value", 1)}
+_KEYS = {"FLOAT_VECTOR": ("vector", 3, np.float32), "QUATERNION": ("value", 4, np.float32),
+         "FLOAT4": ("vector", 4, np.float32), "FLOAT_COLOR": ("color", 4, np.float32),
+         "FLOAT": ("value", 1, np.float32), "BOOLEAN": ("value", 1, np.bool_)}
 HIDE = ".hide"  # hidden points, where this Blender's point cloud Edit Mode records them
 
 
@@ -59,12 +60,13 @@ def attribute_names(data) -> set[str]:
 
 
 def read_attribute(attribute, n: int) -> np.ndarray | None:
-    """A point attribute's values as float32 (n, width), or None for a type we do not read."""
+    """A point attribute's values (n, width), float32 (bool for a BOOLEAN), or None for a type
+    we do not read."""
     spec = _KEYS.get(attribute.data_type)
     if spec is None:
         return None
-    key, width = spec
-    out = np.empty(n * width, np.float32)
+    key, width, dtype = spec
+    out = np.empty(n * width, dtype)
     if n:
         attribute.data.foreach_get(key, out)
     return out.reshape(n, width)
@@ -76,7 +78,12 @@ def point_count(data) -> int:
 
 
 def hidden_mask(data) -> np.ndarray | None:
-    return splat_object.hidden_mask(data, HIDE)
+    """The points hidden in Edit Mode, None where none is."""
+    attribute = data.attributes.get(HIDE)
+    if attribute is None or attribute.domain != "POINT" or attribute.data_type != "BOOLEAN":
+        return None
+    hide = read_attribute(attribute, len(attribute.data))[:, 0]
+    return hide if hide.any() else None
 
 
 def degree_of(data) -> tuple[int, list[str]]:
@@ -114,7 +121,7 @@ def read_conversion(data, *, drop_hidden: bool = True) -> attributes.Conversion:
         if name in attributes.REQUIRED or name.startswith(attributes.SH_PREFIX):
             attribute = data.attributes[name]
             values = read_attribute(attribute, n)
-            if values is None or len(attribute.data) != n:
+            if values is None or values.dtype != np.float32 or len(attribute.data) != n:
                 raise attributes.BlenderSplatError(
                     f"{source}: attribute {name!r} is {attribute.data_type}, not "
                     f"{attributes.REQUIRED.get(name, attributes.SH_TYPE)[0]}")

@@ -204,7 +204,8 @@ class SplatRenderEngine(bpy.types.RenderEngine):
                 prepared = wait_ms = None
             composed = compose(frame.gaussians, frame.camera, mesh_rgba, mesh_depth,
                                out=pass_image(full[1], full[0]), prepared=prepared,
-                               with_depth=bridge.uses_depth(main), **frame.render_options())
+                               with_depth=bridge.uses_depth(main), coverage=frame.coverage,
+                               **frame.render_options())
             mesh_rgba = mesh_depth = None  # not needed any more: a lower peak while writing
             rgba = composed.rgba[origin.slices()]
             depth = None if composed.depth is None else composed.depth[origin.slices()]
@@ -250,7 +251,7 @@ class SplatRenderEngine(bpy.types.RenderEngine):
             depth = np.full((target.height, target.width), FAR, np.float32)
         else:
             layer = splat_layer(frame.gaussians, frame.camera, background=background,
-                                **frame.render_options())
+                                coverage=frame.coverage, **frame.render_options())
             rgba, depth = layer.rgba[target.slices()], layer.depth[target.slices()]
         write_result(self, rgba, depth, target, full, region)
         last_stats.clear()

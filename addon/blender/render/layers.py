@@ -239,7 +239,8 @@ def wants_splat_passes(scene) -> bool:
 
 def splat_passes(frame: FrameSplats, scene, full: tuple[int, int], region: Region):
     """The splat layer alone, over the area of the file Blender writes."""
-    layer = splat_layer(frame.gaussians, frame.camera, **frame.render_options())
+    layer = splat_layer(frame.gaussians, frame.camera, coverage=frame.coverage,
+                        **frame.render_options())
     if scene.render.use_border and scene.render.use_crop_to_border:
         layer.rgba, layer.depth = layer.rgba[region.slices()], layer.depth[region.slices()]
     elif scene.render.use_border:  # Blender leaves the outside of a border empty

@@ -10,7 +10,9 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from ...core.cameras import Camera
+import numpy as np
+
+from ...core.cameras import Camera, image_coverage
 from ...core.gaussians import Gaussians
 from ..sources import gather
 from ..camera_adapter import camera_of, near_of, render_problem
@@ -34,6 +36,8 @@ class FrameSplats:
     gather_ms: float
     warnings: list[str] = field(default_factory=list)
     reused: int = 0              # splat objects whose Gaussians came from the gather cache
+    coverage: np.ndarray | None = None  # the pixels the camera shows (None: all; the camera's
+                                        # image_coverage, found with it)
 
     def render_options(self) -> dict:
         return dict(color_space=self.color_space, antialiased=self.antialiased, near=self.near,
@@ -108,4 +112,5 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
                        camera, antialiased, color_space,
                        min(settings.sh_degree, gaussians.degree), near,
                        render_threads(scene, settings),
-                       1000 * (time.perf_counter() - start), warnings, reused)
+                       1000 * (time.perf_counter() - start), warnings, reused,
+                       None if camera is None else image_coverage(camera))

@@ -68,7 +68,8 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
             *, color_space: str = "SRGB", antialiased: bool = False, near: float = 0.01,
             sh_degree: int | None = None, threads: int = 0,
             out: np.ndarray | None = None, with_depth: bool = True,
-            prepared: Prepared | None = None) -> CompositeResult:
+            prepared: Prepared | None = None,
+            coverage: np.ndarray | None | str = "camera") -> CompositeResult:
     """The exact composite of `gaussians` with a mesh render seen by `camera`.
 
     mesh_rgba: (H, W, 4) premultiplied scene-linear colour, rows top to bottom (float32 with
@@ -82,6 +83,8 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
         `depth` is then None, and the mesh depth is not read where no Gaussian reaches).
     prepared: `prepare(gaussians, camera, ...)` made beforehand with the same options (display
         sRGB only; made here when None).
+    coverage: the pixels the camera shows (`cameras.image_coverage`, None: all), where the
+        caller has it (a render finds it with the camera); by default found here.
     Returns premultiplied scene-linear RGBA (`out`) and the composite's expected depth.
     """
     _check_space(color_space)
@@ -96,7 +99,7 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
                                   antialiased=antialiased, near=near, sh_degree=sh_degree,
                                   threads=threads, out=out, with_depth=with_depth,
                                   prepared=prepared)
-        return _outside_the_image_circle(result, camera, mesh_rgba, mesh_depth)
+        return _outside_the_image_circle(result, camera, coverage, mesh_rgba, mesh_depth)
     layer = np.ascontiguousarray(mesh_rgba)
     if not np.isfinite(layer).all():
         layer = np.nan_to_num(layer, nan=0.0, posinf=0.0, neginf=0.0)
@@ -112,14 +115,15 @@ def compose(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray, mesh_de
     depth[~np.isfinite(depth)] = FAR
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (convert_in + time.perf_counter() - start)
-    return _outside_the_image_circle(CompositeResult(out, depth, stats), camera, mesh_rgba,
-                                     mesh_depth)
+    return _outside_the_image_circle(CompositeResult(out, depth, stats), camera, coverage,
+                                     mesh_rgba, mesh_depth)
 
 
-def _outside_the_image_circle(result, camera: Camera, mesh_rgba, mesh_depth):
-    """Where a fisheye or mirror ball shows nothing (`image_coverage`), Blender's own pixel,
-    with no splats (a composite), or nothing (a splat layer: mesh_rgba None)."""
-    shown = image_coverage(camera)
+def _outside_the_image_circle(result, camera: Camera, coverage, mesh_rgba, mesh_depth):
+    """Where a fisheye or mirror ball shows nothing (`coverage`, "camera": `image_coverage`),
+    Blender's own pixel, with no splats (a composite), or nothing (a splat layer: mesh_rgba
+    None)."""
+    shown = image_coverage(camera) if isinstance(coverage, str) else coverage
     if shown is None:
         return result
     outside = ~shown
@@ -182,11 +186,13 @@ def _compose_display(gaussians: Gaussians, camera: Camera, mesh_rgba: np.ndarray
 
 def splat_layer(gaussians: Gaussians, camera: Camera, *, color_space: str = "SRGB",
                 antialiased: bool = False, near: float = 0.01, sh_degree: int | None = None,
-                threads: int = 0, background: np.ndarray | None = None) -> SplatLayer:
+                threads: int = 0, background: np.ndarray | None = None,
+                coverage: np.ndarray | None | str = "camera") -> SplatLayer:
     """The splats alone, as premultiplied scene-linear RGBA (their own colour, alpha and depth).
 
     background: an optional scene-linear RGB colour behind the splats; the result is then
     opaque (alpha 1), the splats composed over it in the splats' colour space.
+    coverage: as `compose`'s.
     """
     _check_space(color_space)
     bg = None
@@ -205,7 +211,7 @@ def splat_layer(gaussians: Gaussians, camera: Camera, *, color_space: str = "SRG
     depth = np.where(np.isfinite(result.depth), result.depth, np.float32(FAR)).astype(np.float32)
     stats = dict(result.stats)
     stats["colour_ms"] = 1000 * (time.perf_counter() - start)
-    return _outside_the_image_circle(SplatLayer(out, depth, stats), camera, None, None)
+    return _outside_the_image_circle(SplatLayer(out, depth, stats), camera, coverage, None, None)
 
 
 @dataclass(frozen=True)
