@@ -172,12 +172,20 @@ def preparing(context, title: str, stage: str) -> Iterator[Callable[[float, str]
             wm.progress_end()
 
 
-def _tag_redraw(kinds=("STATUSBAR", "VIEW_3D")) -> None:
+def tag_redraw(kinds=("STATUSBAR", "VIEW_3D")) -> None:
+    """Redraw the areas of these types; of a 3D view only its main region (its header, tool
+    bar and sidebar are as many more draws, each costly in software OpenGL)."""
     wm = getattr(bpy.context, "window_manager", None)
     for window in getattr(wm, "windows", ()):
         for area in window.screen.areas:
-            if area.type in kinds:
+            if area.type not in kinds:
+                continue
+            if area.type != "VIEW_3D":
                 area.tag_redraw()
+                continue
+            for region in area.regions:
+                if region.type == "WINDOW":
+                    region.tag_redraw()
 
 
 def draw_status(self, context) -> None:
@@ -302,7 +310,7 @@ class JobOperator:
         self._timer = wm.event_timer_add(TIMER_STEP, window=context.window)
         wm.modal_handler_add(self)
         ensure_status_draw()
-        _tag_redraw(("STATUSBAR",))
+        tag_redraw(("STATUSBAR",))
         return {"RUNNING_MODAL"}
 
     def _stop_timer(self, context) -> None:
@@ -354,7 +362,7 @@ class JobOperator:
         ensure_status_draw()
         # The status bar only: a 3D view redraw costs far more (see SHOW_INTERVAL), and the view
         # redraws by itself when `_show` changes the object.
-        _tag_redraw(("STATUSBAR",))
+        tag_redraw(("STATUSBAR",))
         return {"PASS_THROUGH"}
 
     def _end(self, context, running: OperatorJob) -> set:
@@ -368,7 +376,7 @@ class JobOperator:
                                          f"interface is locked: not updated")
             level, message, obj = running.finish(running, write)
         finally:
-            _tag_redraw()
+            tag_redraw()
         return self._report_end(context, level, message, obj)
 
     def cancel(self, context) -> None:

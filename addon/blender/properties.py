@@ -163,6 +163,7 @@ class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
 
     def draw(self, context):
         from . import splat_object
+        from .sources import live
 
         obj = context.object
         layout = self.layout
@@ -177,6 +178,10 @@ class OBJECT_PT_splat(GaussianSplatsPanel, bpy.types.Panel):
         col = layout.column()
         col.label(text=f"{len(mesh.vertices):,} splats, SH degree "
                        f"{'-' if degree is None else degree}")
+        snapshot = live.shown(obj)
+        if snapshot is not None:  # a running training shows its state in the object's place
+            col.label(text=f"Showing step {snapshot[0]:,} of a training: "
+                           f"{len(snapshot[1]):,} splats", icon="INFO")
         if degree is None and not mesh.is_editmode:
             col.label(text="Missing splat attributes: " +
                       ", ".join(splat_object.missing_attributes(mesh)), icon="ERROR")

@@ -477,10 +477,13 @@ def draw_view(context) -> None:
 
 
 def _redraw_views() -> None:
+    """The 3D views' main regions (the image is drawn there only)."""
     for window in bpy.context.window_manager.windows:
         for area in window.screen.areas:
             if area.type == "VIEW_3D":
-                area.tag_redraw()
+                for region in area.regions:
+                    if region.type == "WINDOW":
+                        region.tag_redraw()
 
 
 def _tick():

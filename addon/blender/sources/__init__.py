@@ -22,6 +22,8 @@ The kinds:
                             BMesh: read through `to_mesh`, hidden flags from the BMesh, no key)
     blender_cloud.BlenderCloud  Blender 5.3's own splat point cloud (type 'GAUSSIAN_SPLAT'),
                             unless handed back to Blender's renderer
+    live.LiveSnapshot       either kind's Gaussians while a running job shows its snapshots
+                            in their place (training's updates, without writing the data)
 
 `source_of(instance, ...)` picks the kind; `gather.gather(depsgraph)` transforms, batches and
 caches what they answer.
@@ -29,13 +31,15 @@ caches what they answer.
 
 from __future__ import annotations
 
+from .. import splat_object
 from ..blender_splats import data as blender_data
 from .base import Source
 from .blender_cloud import BlenderCloud
 from .edit_mesh import EditMesh
+from .live import LiveSnapshot
 from .own import OwnObject
 
-__all__ = ["BlenderCloud", "EditMesh", "OwnObject", "Source", "source_of"]
+__all__ = ["BlenderCloud", "EditMesh", "LiveSnapshot", "OwnObject", "Source", "source_of"]
 
 
 def source_of(instance, *, wanted: set[int] | None = None,
@@ -50,6 +54,10 @@ def source_of(instance, *, wanted: set[int] | None = None,
     if wanted is not None and owner.session_uid not in wanted \
             and evaluated.original.session_uid not in wanted:
         return None
+    snapshot = LiveSnapshot.of(instance, evaluated, owner, splat_object.is_splat_object,
+                               blender_data.is_blender_splat_object)
+    if snapshot is not None:
+        return snapshot
     if evaluated.type == "POINTCLOUD" and blender_data.is_blender_splat_data(evaluated.data):
         return BlenderCloud.of(instance, evaluated, owner, include_blender_rendered)
     kind = EditMesh if evaluated.type == "MESH" and evaluated.data.is_editmode else OwnObject

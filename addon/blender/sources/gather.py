@@ -45,7 +45,7 @@ from bpy.app.handlers import persistent
 
 from ...core.gaussians import Gaussians
 from ...core.transform import transform_gaussians
-from . import base, source_of
+from . import base, live, source_of
 from .base import Source
 
 _world_cache: dict[tuple, tuple[tuple, Gaussians, tuple]] = {}  # key, world, contents
@@ -100,6 +100,7 @@ def _on_depsgraph_update(scene, depsgraph) -> None:
 @persistent
 def _on_load(*_args) -> None:
     clear_cache()
+    live.clear()
 
 
 def clear_cache() -> None:

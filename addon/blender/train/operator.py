@@ -66,6 +66,7 @@ from ...core.train.config import STRATEGY_NAMES
 from .. import dependencies, job_runner, splat_object
 from ..blender_splats import any_splats
 from ..camera_adapter import camera_of
+from ..sources import live
 from ..job_runner import JobOperator, OperatorJob, draw_settings
 from ..registration import module_registration
 
@@ -361,9 +362,17 @@ def training_job(request: TrainRequest) -> OperatorJob:
         return _alive(collection.get(OBJECT_KEY)) if collection is not None else None
 
     def apply(step, gaussians):
-        write_splats(name, gaussians, antialiased=request.config.antialiased, step=step)
+        # The first snapshot of a new object is written (the object exists from then on); the
+        # later ones are shown in its place (`sources.live`: a redraw, not a depsgraph update) until the end.
+        obj = target()
+        if obj is None:
+            write_splats(name, gaussians, antialiased=request.config.antialiased, step=step)
+        else:
+            live.show(obj, gaussians, step)
+            job_runner.tag_redraw(("VIEW_3D",))
 
     def finish(running, write):
+        live.end(target())
         level, message, obj = finish_training(request, running.job, write=write, before=before)
         scene = bpy.context.scene
         if level != "ERROR" and running.job.progress().phase == "done" and scene is not None \

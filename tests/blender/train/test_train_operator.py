@@ -19,6 +19,7 @@ from addon.blender.io import colmap_import
 from addon.blender import job_runner
 from addon.blender.train import operator
 from addon.blender.job_runner import RUNNING, JobOperator
+from addon.blender.sources import gather, live
 from addon.blender.train.operator import (OBJECT_KEY, source_of, train_colmap_collection,
                                           train_request, training_job)
 from addon.core import colmap
@@ -274,17 +275,25 @@ def test_modal_handler_updates_the_object_and_stops_on_esc(demo, monkeypatch) ->
     running.job.start()
     deadline = time.monotonic() + 30
     updates, times = [], []
-    while time.monotonic() < deadline:  # the timer ticks until the object has formed twice
+    while time.monotonic() < deadline:  # the timer ticks until the object has formed thrice
         assert harness.modal(bpy.context, _event("TIMER")) == {"PASS_THROUGH"}
         obj = running.target()
-        if obj is not None and (not updates or obj["splat_trained_steps"] != updates[-1]):
-            updates.append(obj["splat_trained_steps"])
+        snapshot = live.shown(obj)
+        step = None if obj is None else (obj["splat_trained_steps"] if snapshot is None
+                                         else snapshot[0])
+        if step is not None and (not updates or step != updates[-1]):
+            updates.append(step)
             times.append(time.monotonic())
-        if len(updates) >= 2:
+        if len(updates) >= 3:
             break
         time.sleep(0.02)
-    assert len(updates) >= 2 and all(u % 20 == 0 for u in updates)
-    assert times[1] - times[0] >= 0.5  # SHOW_INTERVAL apart, however often snapshots come
+    assert len(updates) >= 3 and all(u % 20 == 0 for u in updates)
+    assert times[1] - times[0] >= 0.5 and times[2] - times[1] >= 0.5  # SHOW_INTERVAL apart
+    # The first update made the object; the later ones are shown in its place, the object's
+    # data untouched (no depsgraph update), and drawn as every gather sees them.
+    assert obj["splat_trained_steps"] == updates[0] and live.shown(obj)[0] == updates[-1]
+    shown = gather.gather(bpy.context.evaluated_depsgraph_get(), objects=[obj]).gaussians
+    assert bpy_support.gaussians_equal(shown, live.shown(obj)[1])
     assert harness.modal(bpy.context, _event("MOUSEMOVE")) == {"PASS_THROUGH"}
     assert harness.modal(bpy.context, _event("ESC", "PRESS")) == {"RUNNING_MODAL"}
     result = None
@@ -294,7 +303,7 @@ def test_modal_handler_updates_the_object_and_stops_on_esc(demo, monkeypatch) ->
     assert result == {"FINISHED"} and running.key not in RUNNING
     obj = demo.collection[OBJECT_KEY]
     trainer = running.job.trainer
-    assert obj["splat_trained_steps"] == trainer.step < 5000
+    assert obj["splat_trained_steps"] == trainer.step < 5000 and live.shown(obj) is None
     # The object holds the trained Gaussians but those no photo's camera renders.
     seen = seen_by_any(trainer.gaussians, trainer.dataset.cameras)
     assert bpy_support.gaussians_equal(bpy_support.mesh_gaussians(obj),
