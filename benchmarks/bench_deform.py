@@ -122,6 +122,48 @@ def native_costs(n: int, repeat: int, rng) -> None:
         print(f"| {name} | {seconds:.3f} |")
 
 
+def blender_costs(n: int, repeat: int, rng) -> None:
+    import bpy
+
+    import bpy_support
+    from addon.blender import splat_object
+    from addon.blender.sources import gather
+    from addon.core.gaussians import Gaussians
+
+    bpy_support.reset_scene()
+    f = np.float32
+    g = Gaussians(rng.normal(size=(n, 3)).astype(f), rng.uniform(-5, -2, (n, 3)).astype(f),
+                  rng.normal(size=(n, 4)).astype(f), rng.normal(size=n).astype(f),
+                  rng.normal(scale=0.3, size=(n, 16, 3)).astype(f))
+    obj = splat_object.create_splat_object(g, "Splats")
+    obj.rotation_euler = (0.3, 0.2, 0.1)  # an object transform: SH rotated in both cases
+    bpy.context.view_layer.update()
+
+    def cold() -> float:
+        gather.clear_cache()
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        return gather.gather(depsgraph).seconds
+
+    rows = [("no modifier, cache cold (read, transform)", min(cold() for _ in range(repeat)))]
+    bend = obj.modifiers.new("Bend", "SIMPLE_DEFORM")
+    bend.deform_method, bend.deform_axis, bend.angle = "BEND", "Z", 1.0
+    bpy.context.view_layer.update()
+    rows.append(("Simple Deform, cache cold, neighbours cold (first frame)", cold()))
+    frames = []
+    for step in range(repeat):  # a new deformation each frame, neighbours cached
+        bend.angle = 1.0 + 0.1 * (step + 1)
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        frames.append(gather.gather(depsgraph).seconds)
+    rows.append(("Simple Deform, a frame whose deformation changed", min(frames)))
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    rows.append(("Simple Deform, a frame whose deformation did not change (cached)",
+                 min(gather.gather(depsgraph).seconds for _ in range(repeat))))
+    print(f"\nGather in bpy, {n:,} Gaussians of SH degree 3, object rotated\n\n"
+          "| gather | seconds |\n| --- | --- |")
+    for name, seconds in rows:
+        print(f"| {name} | {seconds:.3f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=1_000_000)
@@ -133,6 +175,8 @@ def main() -> None:
     if not args.skip_accuracy:
         accuracy(rng)
     native_costs(args.n, args.repeat, rng)
+    if not args.skip_blender:
+        blender_costs(args.n, args.repeat, rng)
 
 
 if __name__ == "__main__":
