@@ -271,6 +271,35 @@ def position_noise(means: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
                                threads=thread_count(threads))
 
 
+def neighbours(points: np.ndarray, out: np.ndarray, *, threads: int) -> None:
+    """The k nearest other points of each of the float32 (N, 3) `points` into int32 `out`
+    (N, k), nearest first, ties to the lower index, -1 where fewer than k others exist."""
+    splatcore().neighbours(points=points, threads=thread_count(threads), out=out)
+
+
+def deformation_jacobians(rest: np.ndarray, deformed: np.ndarray, neighbours: np.ndarray,
+                          out_jacobians: np.ndarray, out_rotations: np.ndarray, *,
+                          undetermined: float, determined: float, threads: int) -> None:
+    """Each point's deformation Jacobian (float64 (N, 3, 3)) fitted to its `neighbours`' rest
+    and deformed offsets (float32 (N, 3) each), and its polar rotation (see
+    `addon.core.deform.jacobians`)."""
+    splatcore().deformation_jacobians(
+        rest=rest, deformed=deformed, neighbours=neighbours, undetermined=float(undetermined),
+        determined=float(determined), threads=thread_count(threads),
+        out_jacobians=out_jacobians, out_rotations=out_rotations)
+
+
+def deform_shapes(log_scales: np.ndarray, quats: np.ndarray, sh: np.ndarray,
+                  jacobians: np.ndarray, rotations: np.ndarray, out_log_scales: np.ndarray,
+                  out_quats: np.ndarray, out_sh: np.ndarray, *, threads: int) -> None:
+    """Log-scales and quaternions of the covariances J Sigma J^T, SH rotated by each
+    Gaussian's orthogonal rotation (float64 (N, 3, 3) each), into the out arrays."""
+    splatcore().deform_shapes(
+        log_scales=log_scales, quats=quats, sh=sh, jacobians=jacobians, rotations=rotations,
+        threads=thread_count(threads), out_log_scales=out_log_scales, out_quats=out_quats,
+        out_sh=out_sh)
+
+
 def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads: int) -> None:
     """Premultiplied float32 RGBA (..., 4), C-contiguous, scene-linear -> display sRGB, or back
     with `decode`, into `out` (`rgba` itself, or a C-contiguous array of its shape)."""

@@ -239,7 +239,7 @@ def transform_gaussians(gaussians: Gaussians, matrix: np.ndarray) -> Gaussians:
         log_scales = gaussians.log_scales.astype(np.float64) + np.log(k)
     else:
         q, _ = polar_decomposition(a)
-        quats, log_scales = _reshape_covariances(gaussians, a)
+        quats, log_scales = reshape_covariances(gaussians, a)
     sh = rotate_sh(gaussians.sh, q)
     return Gaussians(means, log_scales, quats, gaussians.opacity_logits, sh)
 
@@ -251,9 +251,11 @@ def covariances(gaussians: Gaussians) -> np.ndarray:
     return (r * var[:, None, :]) @ np.swapaxes(r, 1, 2)
 
 
-def _reshape_covariances(gaussians: Gaussians, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Quaternions and log-scales of `A Σ A^T`, by eigen-decomposition, in chunks."""
+def reshape_covariances(gaussians: Gaussians, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quaternions and log-scales of `A Σ A^T`, by eigen-decomposition, in chunks; `a` one 3x3
+    matrix, or one per Gaussian (N, 3, 3) (the float64 twin of core/deform's native step)."""
     n = len(gaussians)
+    a = np.asarray(a, np.float64)
     quats = np.empty((n, 4), np.float32)
     log_scales = np.empty((n, 3), np.float32)
     chunk = 1 << 18
@@ -261,7 +263,7 @@ def _reshape_covariances(gaussians: Gaussians, a: np.ndarray) -> tuple[np.ndarra
         part = gaussians.subset(slice(lo, lo + chunk))
         # A R diag(exp(s)): the covariance is L L^T
         r = quat_to_matrix(part.quats)
-        factor = (a @ r) * np.exp(part.log_scales.astype(np.float64))[:, None, :]
+        factor = ((a if a.ndim == 2 else a[lo:lo + chunk]) @ r) * np.exp(part.log_scales.astype(np.float64))[:, None, :]
         cov = factor @ np.swapaxes(factor, 1, 2)
         values, vectors = np.linalg.eigh(cov)
         floor = np.maximum(values[:, -1:] * _VARIANCE_FLOOR_REL, _VARIANCE_FLOOR_ABS)

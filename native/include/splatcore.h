@@ -39,6 +39,12 @@
  *   adam.c                the Adam update
  *   position_noise.c      3DGS-MCMC's noise on the positions of nearly transparent Gaussians
  *
+ * Deformation (modifiers, armatures, shape keys bending Gaussians, not only their centres):
+ *   neighbours.c    k nearest neighbours of every point (a k-d tree)
+ *   deform_fit.c    each Gaussian's deformation Jacobian from its neighbours' rest and
+ *                   deformed positions, and its polar rotation
+ *   deform_apply.c  covariances J Sigma J^T and SH rotated, a matrix per Gaussian
+ *
  * The Python binding, module.c, is no stage: it checks every argument (a table per entry point)
  * and calls the functions declared here.
  */
@@ -390,6 +396,30 @@ void sc_prepared_free(sc_prepared *prepared);
 /* A 256-bit checksum of `bytes` bytes of memory (four 64-bit lanes; checksum.c says what it
  * always detects): for telling whether data changed. */
 void sc_checksum(const void *data, int64_t bytes, uint64_t out[4]);
+
+enum { SC_MAX_NEIGHBOURS = 64 };
+
+/* The k (1..SC_MAX_NEIGHBOURS) nearest of `n` points (n, 3) to each point, itself left out, by
+ * squared distance in double, ties to the lower index: out (n, k), nearest first, -1 where
+ * fewer than k others exist. Returns 0, -1 for a bad k, -2 when memory runs out. */
+int sc_neighbours(const float *points, int64_t n, int k, int32_t *out, int threads);
+
+/* Per point, the deformation Jacobian mapping rest offsets to its neighbours to their deformed
+ * offsets (deform_fit.c: weighted least squares; directions the neighbours span less than
+ * `undetermined` (a variance ratio to the widest) follow a rotation, those above `determined`
+ * are fitted, a ramp between) into jacobians (n, 3, 3) row-major, and its polar rotation into
+ * rotations (n, 3, 3). neighbours (n, k) indices into the points, -1 for none. */
+void sc_deformation_jacobians(const float *rest, const float *deformed, int64_t n,
+                              const int32_t *neighbours, int k, double undetermined,
+                              double determined, double *jacobians, double *rotations,
+                              int threads);
+
+/* n Gaussians' log-scales and quaternions for the covariances J Sigma J^T (jacobians (n, 3, 3))
+ * and their SH (n, sh_coeffs, 3) rotated by the orthogonal rotations (n, 3, 3), into the out
+ * arrays (deform_apply.c). */
+void sc_deform_shapes(const float *log_scales, const float *quats, const float *sh, int64_t n,
+                      int sh_coeffs, const double *jacobians, const double *rotations,
+                      float *out_log_scales, float *out_quats, float *out_sh, int threads);
 
 #ifdef __cplusplus
 }

@@ -173,6 +173,38 @@ static const arg_spec COMPOSITE_MICROBENCH[] = {
     SCALAR("iterations", INT),
 };
 
+/* (N, 3) points; out (N, k), k 1..SC_MAX_NEIGHBOURS. */
+static const arg_spec NEIGHBOURS[] = {
+    {"points", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    SCALAR("threads", THREADS),
+    {"out", 'i', 2, {DIM_N, ANY}, WRITABLE, ARRAY, 0},
+};
+
+/* Rest and deformed centres, each one's neighbours (N, k) (indices, -1 none); the thresholds
+ * are variance ratios, 0 <= undetermined <= determined <= 1. */
+static const arg_spec DEFORMATION_JACOBIANS[] = {
+    {"rest", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    {"deformed", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    {"neighbours", 'i', 2, {DIM_N, ANY}, 0, ARRAY, 0},
+    SCALAR("undetermined", REAL), SCALAR("determined", REAL),
+    SCALAR("threads", THREADS),
+    {"out_jacobians", 'd', 3, {DIM_N, 3, 3}, WRITABLE, ARRAY, 0},
+    {"out_rotations", 'd', 3, {DIM_N, 3, 3}, WRITABLE, ARRAY, 0},
+};
+
+/* The Gaussians' shapes and SH, a finite Jacobian and an orthogonal rotation each. */
+static const arg_spec DEFORM_SHAPES[] = {
+    {"log_scales", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    {"quats", 'f', 2, {DIM_N, 4}, FINITE, ARRAY, 0},
+    {"sh", 'f', 3, {DIM_N, DIM_K, 3}, 0, ARRAY, 0},
+    {"jacobians", 'd', 3, {DIM_N, 3, 3}, 0, ARRAY, 0},
+    {"rotations", 'd', 3, {DIM_N, 3, 3}, 0, ARRAY, 0},
+    SCALAR("threads", THREADS),
+    {"out_log_scales", 'f', 2, {DIM_N, 3}, WRITABLE, ARRAY, 0},
+    {"out_quats", 'f', 2, {DIM_N, 4}, WRITABLE, ARRAY, 0},
+    {"out_sh", 'f', 3, {DIM_N, DIM_K, 3}, WRITABLE, ARRAY, 0},
+};
+
 /* One object each (METH_O): a C-contiguous buffer; what render_train returned. */
 static const arg_spec CHECKSUM[] = {SCALAR("buffer", OBJECT)};
 static const arg_spec TRAIN_STATE_INFO[] = {SCALAR("state", OBJECT)};

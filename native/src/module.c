@@ -608,6 +608,9 @@ static PyObject *py_backward(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_l1_ssim(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_adam(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_position_noise(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_neighbours(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_deformation_jacobians(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_deform_shapes(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject *kwargs);
@@ -629,6 +632,9 @@ static const signature SIGNATURES[] = {
     ENTRY("l1_ssim", L1_SSIM),
     ENTRY("adam", ADAM),
     ENTRY("position_noise", POSITION_NOISE),
+    ENTRY("neighbours", NEIGHBOURS),
+    ENTRY("deformation_jacobians", DEFORMATION_JACOBIANS),
+    ENTRY("deform_shapes", DEFORM_SHAPES),
     ENTRY("srgb_premultiplied", SRGB_PREMULTIPLIED),
     ENTRY("srgb_view", SRGB_VIEW),
     ENTRY("srgb_decode_changed", SRGB_DECODE_CHANGED),
@@ -937,6 +943,91 @@ static PyObject *py_position_noise(PyObject *self, PyObject *args, PyObject *kwa
     const int threads = threads_of(&c);
     Py_BEGIN_ALLOW_THREADS
     sc_position_noise(means, log_scales, quats, logits, noise, n, scale, threads);
+    Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
+/* ---------------------------------------------------------------- deformation */
+
+static PyObject *py_neighbours(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "neighbours");
+    if (check(&c, "points", "out") != 0) return fail(&c);
+    const Py_ssize_t n = SIZE(&c.d, DIM_N), k = view_of(&c, "out")->shape[1];
+    if (k < 1 || k > SC_MAX_NEIGHBOURS) {
+        PyErr_Format(PyExc_ValueError, "out must have shape (N, k) with k in 1..%d, got k=%zd",
+                     (int)SC_MAX_NEIGHBOURS, k);
+        return fail(&c);
+    }
+    const float *points = data_of(&c, "points");
+    int32_t *out = data_of(&c, "out");
+    const int threads = threads_of(&c);
+    int status;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_neighbours(points, n, (int)k, out, threads);
+    Py_END_ALLOW_THREADS
+    if (status != 0) return fail(&c), PyErr_NoMemory();
+    return finish(&c, Py_NewRef(Py_None));
+}
+
+static PyObject *py_deformation_jacobians(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "deformation_jacobians");
+    const double lo = real_of(&c, "undetermined"), hi = real_of(&c, "determined");
+    if (!(lo >= 0.0 && lo <= hi && hi <= 1.0))
+        return value_error("need 0 <= undetermined <= determined <= 1, got %g and %g", lo, hi), NULL;
+    if (check(&c, "rest", "neighbours") != 0 || check(&c, "out_jacobians", "out_rotations") != 0)
+        return fail(&c);
+    const Py_ssize_t n = SIZE(&c.d, DIM_N), k = view_of(&c, "neighbours")->shape[1];
+    if (k < 1 || k > SC_MAX_NEIGHBOURS) {
+        PyErr_Format(PyExc_ValueError, "neighbours must have shape (N, k) with k in 1..%d, got "
+                     "k=%zd", (int)SC_MAX_NEIGHBOURS, k);
+        return fail(&c);
+    }
+    const int32_t *neighbours = data_of(&c, "neighbours");
+    for (Py_ssize_t i = 0; i < n * k; ++i)
+        if (neighbours[i] < -1 || neighbours[i] >= n) {
+            PyErr_Format(PyExc_ValueError, "neighbours[%zd, %zd] is %d, not a point's index (0..%zd) "
+                         "or -1", i / k, i % k, (int)neighbours[i], n - 1);
+            return fail(&c);
+        }
+    const float *rest = data_of(&c, "rest"), *deformed = data_of(&c, "deformed");
+    double *jacobians = data_of(&c, "out_jacobians"), *rotations = data_of(&c, "out_rotations");
+    const int threads = threads_of(&c);
+    Py_BEGIN_ALLOW_THREADS
+    sc_deformation_jacobians(rest, deformed, n, neighbours, (int)k, lo, hi, jacobians, rotations,
+                             threads);
+    Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
+static PyObject *py_deform_shapes(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "deform_shapes");
+    if (check(&c, "log_scales", "rotations") != 0 || check(&c, "out_log_scales", "out_sh") != 0)
+        return fail(&c);
+    const Py_ssize_t n = SIZE(&c.d, DIM_N);
+    const double *jacobians = data_of(&c, "jacobians"), *rotations = data_of(&c, "rotations");
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        const double *q = rotations + 9 * i;
+        if (!all_finite_d(jacobians + 9 * i, 9) || !all_finite_d(q, 9)) {
+            value_error("Gaussian %zd: its Jacobian or rotation is not finite", i);
+            return fail(&c);
+        }
+        for (int a = 0; a < 3; ++a)
+            for (int b = 0; b < 3; ++b) {
+                const double dot = q[3 * a] * q[3 * b] + q[3 * a + 1] * q[3 * b + 1] + q[3 * a + 2] * q[3 * b + 2];
+                if (fabs(dot - (a == b)) > 1e-6) {
+                    value_error("rotations[%zd] is not orthogonal (row %d . row %d = %g)", i, a, b, dot);
+                    return fail(&c);
+                }
+            }
+    }
+    const float *log_scales = data_of(&c, "log_scales"), *quats = data_of(&c, "quats"),
+                *sh = data_of(&c, "sh");
+    float *out_log_scales = data_of(&c, "out_log_scales"), *out_quats = data_of(&c, "out_quats"),
+          *out_sh = data_of(&c, "out_sh");
+    const int coeffs = (int)SIZE(&c.d, DIM_K), threads = threads_of(&c);
+    Py_BEGIN_ALLOW_THREADS
+    sc_deform_shapes(log_scales, quats, sh, n, coeffs, jacobians, rotations, out_log_scales,
+                     out_quats, out_sh, threads);
     Py_END_ALLOW_THREADS
     return finish(&c, Py_NewRef(Py_None));
 }
@@ -1315,6 +1406,16 @@ static PyMethodDef methods[] = {
     {"position_noise", WITH_KEYWORDS(py_position_noise),
      "position_noise(...) -> None\n\n3DGS-MCMC's noise on the means in place "
      "(sc_position_noise), noise standard normal."},
+    {"neighbours", WITH_KEYWORDS(py_neighbours),
+     "neighbours(...) -> None\n\nThe k nearest other points of each point into out (N, k), "
+     "nearest first, ties to the lower index, -1 where fewer exist (sc_neighbours)."},
+    {"deformation_jacobians", WITH_KEYWORDS(py_deformation_jacobians),
+     "deformation_jacobians(...) -> None\n\nEach point's deformation Jacobian from its "
+     "neighbours' rest and deformed positions, and its polar rotation "
+     "(sc_deformation_jacobians)."},
+    {"deform_shapes", WITH_KEYWORDS(py_deform_shapes),
+     "deform_shapes(...) -> None\n\nLog-scales and quaternions of J Sigma J^T and SH rotated, "
+     "a Jacobian and a rotation per Gaussian (sc_deform_shapes)."},
     {"srgb_premultiplied", WITH_KEYWORDS(py_srgb_premultiplied),
      "srgb_premultiplied(...) -> None\n\nPremultiplied RGBA (..., 4) scene-linear -> display "
      "sRGB (decode False) or back (True), into out (rgba itself, or an array of its shape)."},

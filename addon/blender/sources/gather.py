@@ -45,7 +45,7 @@ from bpy.app.handlers import persistent
 
 from ...core.gaussians import Gaussians
 from ...core.transform import transform_gaussians
-from . import base, live, source_of
+from . import base, live, own, source_of
 from .base import Source
 
 _world_cache: dict[tuple, tuple[tuple, Gaussians, tuple]] = {}  # key, world, contents
@@ -104,6 +104,7 @@ def _on_load(*_args) -> None:
 
 
 def clear_cache() -> None:
+    own.clear_neighbours()
     _world_cache.clear()
     _combined_cache.clear()
     _edit_cache.clear()

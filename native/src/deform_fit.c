@@ -1,0 +1,144 @@
+/* Each Gaussian's deformation Jacobian from its neighbours (sc_deformation_jacobians,
+ * splatcore.h): the J that maps rest offsets to deformed offsets best, in weighted least
+ * squares, with the directions the neighbourhood does not span filled in by a rotation.
+ *
+ * For Gaussian i with rest centre p, deformed centre x and neighbours j: a_j = p_j - p,
+ * b_j = x_j - x, w_j = exp(-|a_j|^2 / max |a|^2). A = sum w a a^T (the neighbourhood's spread),
+ * B = sum w b a^T. With A's eigenpairs (l_m, e_m), l_1 >= l_2 >= l_3, e_3 = e_1 x e_2, and
+ * f_m = B e_m / l_m (where J sends e_m, as far as the data says):
+ *
+ *   J = sum_m (c_m f_m + (1 - c_m) R e_m) e_m^T,   c_m = ramp(l_m / l_1)
+ *
+ * c_m is 0 below `undetermined`, 1 above `determined`, linear between: a direction the
+ * neighbours span (thick enough against the widest) is fitted, one they do not (a row's
+ * sides, a sheet's normal) follows R, and J changes continuously between. R is the rotation
+ * the data determines best: d_1 = f_1 / |f_1|; R_1 the smallest rotation taking e_1 to d_1;
+ * when the second direction counts (c_2 > 0), d_2 is u_2 = c_2 f_2/|f_2| + (1 - c_2) R_1 e_2
+ * made orthogonal to d_1, d_3 = d_1 x d_2, R = sum d_m e_m^T; else R = R_1. So:
+ *   - a neighbourhood spanning 3D (every c_m = 1) gives J = B A^-1, exactly the linear part
+ *     of an affine deformation;
+ *   - a rigid motion gives its rotation exactly (to rounding) whenever the neighbours span at
+ *     least a plane (f_m = R e_m), and its smallest rotation for a row (a turn about the row
+ *     itself is invisible in it);
+ *   - a row's sides and a sheet's normal turn with it rather than keeping their rest
+ *     direction (the ladder of dashes an unchanged J draws along a bent row).
+ * The rotation written beside J is J's polar rotation (SH follow it), or R where J is
+ * singular. No neighbours (or all at the centre): J = R = identity. */
+#include "internal.h"
+#include "mat3.h"
+
+enum { GRAIN = 4096 };
+
+typedef struct {
+    const float *rest, *deformed;
+    const int32_t *neighbours;
+    int k;
+    double undetermined, determined;
+    double *jacobians, *rotations;
+} job;
+
+/* A spread ratio at rounding level (an exactly flat neighbourhood) says nothing: 0 whatever
+ * `lo` is. */
+static const double FLAT = 1e-12;
+
+static double ramp(double ratio, double lo, double hi) {
+    return ratio <= lo || ratio <= FLAT ? 0.0 : ratio >= hi ? 1.0 : (ratio - lo) / (hi - lo);
+}
+
+static void unit(double v[3]) {
+    const double n = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    for (int a = 0; a < 3; ++a) v[a] /= n;
+}
+
+static void fit_one(const job *j, int64_t i, double jac[9], double rot[9]) {
+    const float *p = j->rest + 3 * i, *x = j->deformed + 3 * i;
+    const int32_t *nb = j->neighbours + (int64_t)j->k * i;
+    double reach2 = 0.0;
+    for (int m = 0; m < j->k; ++m) {
+        if (nb[m] < 0) continue;
+        const float *q = j->rest + 3 * (int64_t)nb[m];
+        double d2 = 0.0;
+        for (int a = 0; a < 3; ++a) d2 += ((double)q[a] - p[a]) * ((double)q[a] - p[a]);
+        reach2 = d2 > reach2 ? d2 : reach2;
+    }
+    sc_m3_identity(jac);
+    sc_m3_identity(rot);
+    if (!(reach2 > 0.0)) return;
+    double A[9] = {0}, B[9] = {0};
+    for (int m = 0; m < j->k; ++m) {
+        if (nb[m] < 0) continue;
+        const float *q = j->rest + 3 * (int64_t)nb[m], *y = j->deformed + 3 * (int64_t)nb[m];
+        double a[3], b[3], d2 = 0.0;
+        for (int c = 0; c < 3; ++c) {
+            a[c] = (double)q[c] - p[c], b[c] = (double)y[c] - x[c];
+            d2 += a[c] * a[c];
+        }
+        const double w = exp(-d2 / reach2);
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) A[3 * r + c] += w * a[r] * a[c], B[3 * r + c] += w * b[r] * a[c];
+    }
+    double values[3], vectors[9];
+    sc_sym3_eigen(A, values, vectors);
+    const double l[3] = {values[2], values[1], values[0]};
+    double e[3][3];
+    for (int a = 0; a < 3; ++a) e[0][a] = vectors[3 * a + 2], e[1][a] = vectors[3 * a + 1];
+    sc_cross(e[0], e[1], e[2]);
+    double c[3] = {1.0, 0.0, 0.0}, f[3][3] = {{0}};
+    for (int m = 1; m < 3; ++m) c[m] = ramp(l[m] / l[0], j->undetermined, j->determined);
+    for (int m = 0; m < 3; ++m) {
+        if (c[m] <= 0.0) continue;
+        for (int r = 0; r < 3; ++r)
+            f[m][r] = (B[3 * r] * e[m][0] + B[3 * r + 1] * e[m][1] + B[3 * r + 2] * e[m][2]) / l[m];
+    }
+    double R[9];
+    sc_m3_identity(R);
+    const double f1 = sqrt(f[0][0] * f[0][0] + f[0][1] * f[0][1] + f[0][2] * f[0][2]);
+    if (f1 > 0.0) {
+        double d[3][3] = {{f[0][0] / f1, f[0][1] / f1, f[0][2] / f1}};
+        sc_rotation_between(e[0], d[0], R);
+        if (c[1] > 0.0) {
+            double turned[3], u[3];
+            for (int r = 0; r < 3; ++r) turned[r] = R[3 * r] * e[1][0] + R[3 * r + 1] * e[1][1] + R[3 * r + 2] * e[1][2];
+            const double f2 = sqrt(f[1][0] * f[1][0] + f[1][1] * f[1][1] + f[1][2] * f[1][2]);
+            for (int r = 0; r < 3; ++r) u[r] = (f2 > 0.0 ? c[1] * f[1][r] / f2 : 0.0) + (1.0 - c[1]) * turned[r];
+            double along = u[0] * d[0][0] + u[1] * d[0][1] + u[2] * d[0][2];
+            for (int r = 0; r < 3; ++r) u[r] -= along * d[0][r];
+            if (!(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] > 1e-24)) { /* f_2 along f_1: fold */
+                along = turned[0] * d[0][0] + turned[1] * d[0][1] + turned[2] * d[0][2];
+                for (int r = 0; r < 3; ++r) u[r] = turned[r] - along * d[0][r];
+            }
+            unit(u);
+            memcpy(d[1], u, sizeof u);
+            sc_cross(d[0], d[1], d[2]);
+            for (int r = 0; r < 3; ++r)
+                for (int s = 0; s < 3; ++s)
+                    R[3 * r + s] = d[0][r] * e[0][s] + d[1][r] * e[1][s] + d[2][r] * e[2][s];
+        }
+    }
+    for (int r = 0; r < 3; ++r)
+        for (int s = 0; s < 3; ++s) {
+            double v = 0.0;
+            for (int m = 0; m < 3; ++m) {
+                const double re = R[3 * r] * e[m][0] + R[3 * r + 1] * e[m][1] + R[3 * r + 2] * e[m][2];
+                v += (c[m] * f[m][r] + (1.0 - c[m]) * re) * e[m][s];
+            }
+            jac[3 * r + s] = v;
+        }
+    if (!sc_polar_rotation(jac, rot)) memcpy(rot, R, sizeof R);
+}
+
+static void fit_rows(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    const job *j = ctx;
+    for (int64_t i = begin; i < end; ++i) fit_one(j, i, j->jacobians + 9 * i, j->rotations + 9 * i);
+}
+
+void sc_deformation_jacobians(const float *rest, const float *deformed, int64_t n,
+                              const int32_t *neighbours, int k, double undetermined,
+                              double determined, double *jacobians, double *rotations,
+                              int threads) {
+    job j = {.rest = rest, .deformed = deformed, .neighbours = neighbours, .k = k,
+             .undetermined = undetermined, .determined = determined, .jacobians = jacobians,
+             .rotations = rotations};
+    sc_parallel_for(threads < 1 ? 1 : threads, n, GRAIN, fit_rows, &j);
+}

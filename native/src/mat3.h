@@ -1,0 +1,159 @@
+/* 3x3 matrices in double, row-major (m[3 * row + col]): the symmetric eigen-decomposition, the
+ * polar rotation, a rotation's quaternion and the smallest rotation between two directions,
+ * for the deformation stages (deform_fit.c, deform_apply.c). Only src/ files include this. */
+#ifndef SC_MAT3_H
+#define SC_MAT3_H
+
+#include <math.h>
+#include <string.h>
+
+static inline void sc_m3_identity(double m[9]) {
+    memset(m, 0, 9 * sizeof(double));
+    m[0] = m[4] = m[8] = 1.0;
+}
+
+static inline double sc_m3_frobenius(const double m[9]) {
+    double s = 0.0;
+    for (int i = 0; i < 9; ++i) s += m[i] * m[i];
+    return sqrt(s);
+}
+
+static inline double sc_m3_det(const double m[9]) {
+    return m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) +
+           m[2] * (m[3] * m[7] - m[4] * m[6]);
+}
+
+static inline void sc_cross(const double a[3], const double b[3], double out[3]) {
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+/* Eigenvalues (ascending) and unit eigenvectors (the columns of `vectors`) of the symmetric
+ * `a`, by cyclic Jacobi rotations: accurate to rounding relative to each eigenvalue's size
+ * for the graded matrices thin Gaussians make, where a closed-form cubic is not. */
+static inline void sc_sym3_eigen(const double a_in[9], double values[3], double vectors[9]) {
+    double a[9];
+    memcpy(a, a_in, sizeof a);
+    sc_m3_identity(vectors);
+    static const int PQ[3][3] = {{0, 1, 2}, {0, 2, 1}, {1, 2, 0}}; /* p, q, the third */
+    for (int sweep = 0; sweep < 50; ++sweep) {
+        const double off = a[1] * a[1] + a[2] * a[2] + a[5] * a[5];
+        const double diag = a[0] * a[0] + a[4] * a[4] + a[8] * a[8];
+        if (!(off > 1e-36 * diag)) break;
+        for (int r = 0; r < 3; ++r) {
+            const int p = PQ[r][0], q = PQ[r][1], o = PQ[r][2];
+            const double apq = a[3 * p + q];
+            if (apq == 0.0) continue;
+            const double theta = (a[3 * q + q] - a[3 * p + p]) / (2.0 * apq);
+            const double t = (theta >= 0.0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
+            const double c = 1.0 / sqrt(t * t + 1.0), s = t * c;
+            a[3 * p + p] -= t * apq;
+            a[3 * q + q] += t * apq;
+            a[3 * p + q] = a[3 * q + p] = 0.0;
+            const double aop = a[3 * o + p], aoq = a[3 * o + q];
+            a[3 * o + p] = a[3 * p + o] = c * aop - s * aoq;
+            a[3 * o + q] = a[3 * q + o] = s * aop + c * aoq;
+            for (int k = 0; k < 3; ++k) {
+                const double vp = vectors[3 * k + p], vq = vectors[3 * k + q];
+                vectors[3 * k + p] = c * vp - s * vq;
+                vectors[3 * k + q] = s * vp + c * vq;
+            }
+        }
+    }
+    double d[3] = {a[0], a[4], a[8]};
+    int order[3] = {0, 1, 2};
+    for (int i = 1; i < 3; ++i) /* insertion sort, ascending */
+        for (int j = i; j > 0 && d[order[j]] < d[order[j - 1]]; --j) {
+            const int swap = order[j];
+            order[j] = order[j - 1], order[j - 1] = swap;
+        }
+    double v[9];
+    memcpy(v, vectors, sizeof v);
+    for (int i = 0; i < 3; ++i) {
+        values[i] = d[order[i]];
+        for (int k = 0; k < 3; ++k) vectors[3 * k + i] = v[3 * k + order[i]];
+    }
+}
+
+/* The orthogonal factor Q of the polar decomposition m = Q P (det Q = sign det m) by Higham's
+ * scaled Newton iteration Q <- (g Q + Q^-T / g) / 2; returns 0 (q untouched) when m is singular
+ * to 1e-12 of its size, where Q is not unique. */
+static inline int sc_polar_rotation(const double m[9], double q[9]) {
+    const double size = sc_m3_frobenius(m);
+    if (!(size > 0.0) || !(fabs(sc_m3_det(m)) > 1e-12 * size * size * size)) return 0;
+    double x[9];
+    memcpy(x, m, sizeof x);
+    for (int it = 0; it < 60; ++it) {
+        const double det = sc_m3_det(x);
+        double inv_t[9]; /* the inverse transposed: cofactors / det */
+        inv_t[0] = (x[4] * x[8] - x[5] * x[7]) / det, inv_t[1] = (x[5] * x[6] - x[3] * x[8]) / det;
+        inv_t[2] = (x[3] * x[7] - x[4] * x[6]) / det, inv_t[3] = (x[2] * x[7] - x[1] * x[8]) / det;
+        inv_t[4] = (x[0] * x[8] - x[2] * x[6]) / det, inv_t[5] = (x[1] * x[6] - x[0] * x[7]) / det;
+        inv_t[6] = (x[1] * x[5] - x[2] * x[4]) / det, inv_t[7] = (x[2] * x[3] - x[0] * x[5]) / det;
+        inv_t[8] = (x[0] * x[4] - x[1] * x[3]) / det;
+        const double g = sqrt(sc_m3_frobenius(inv_t) / sc_m3_frobenius(x));
+        double change = 0.0;
+        for (int i = 0; i < 9; ++i) {
+            const double next = 0.5 * (g * x[i] + inv_t[i] / g);
+            change += (next - x[i]) * (next - x[i]);
+            x[i] = next;
+        }
+        if (!isfinite(change)) return 0;
+        if (change <= 1e-30) break; /* quadratic: the step after this is below rounding */
+    }
+    memcpy(q, x, sizeof x);
+    return 1;
+}
+
+/* The unit quaternion (w, x, y, z), w >= 0, of a proper rotation (Shepperd's method: the
+ * largest of the four pivots), as addon/core/transform.py's matrix_to_quat. */
+static inline void sc_rotation_quat(const double m[9], double q[4]) {
+    const double trace = m[0] + m[4] + m[8];
+    if (trace >= m[0] && trace >= m[4] && trace >= m[8]) {
+        const double s = 2.0 * sqrt(fmax(1.0 + trace, 0.0));
+        q[0] = 0.25 * s, q[1] = (m[7] - m[5]) / s, q[2] = (m[2] - m[6]) / s, q[3] = (m[3] - m[1]) / s;
+    } else if (m[0] >= m[4] && m[0] >= m[8]) {
+        const double s = 2.0 * sqrt(fmax(1.0 + m[0] - m[4] - m[8], 0.0));
+        q[0] = (m[7] - m[5]) / s, q[1] = 0.25 * s, q[2] = (m[1] + m[3]) / s, q[3] = (m[2] + m[6]) / s;
+    } else if (m[4] >= m[8]) {
+        const double s = 2.0 * sqrt(fmax(1.0 - m[0] + m[4] - m[8], 0.0));
+        q[0] = (m[2] - m[6]) / s, q[1] = (m[1] + m[3]) / s, q[2] = 0.25 * s, q[3] = (m[5] + m[7]) / s;
+    } else {
+        const double s = 2.0 * sqrt(fmax(1.0 - m[0] - m[4] + m[8], 0.0));
+        q[0] = (m[3] - m[1]) / s, q[1] = (m[2] + m[6]) / s, q[2] = (m[5] + m[7]) / s, q[3] = 0.25 * s;
+    }
+    const double norm = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    const double sign = q[0] < 0.0 ? -1.0 : 1.0;
+    for (int i = 0; i < 4; ++i) q[i] *= sign / norm;
+}
+
+/* The smallest rotation taking the unit direction e to the unit direction d (about e x d);
+ * for opposite directions, the half turn about an axis perpendicular to e. */
+static inline void sc_rotation_between(const double e[3], const double d[3], double r[9]) {
+    double v[3];
+    sc_cross(e, d, v);
+    const double c = e[0] * d[0] + e[1] * d[1] + e[2] * d[2];
+    if (c > -1.0 + 1e-12) {
+        const double k = 1.0 / (1.0 + c);
+        const double vx[9] = {0, -v[2], v[1], v[2], 0, -v[0], -v[1], v[0], 0};
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) {
+                double vv = 0.0;
+                for (int m = 0; m < 3; ++m) vv += vx[3 * i + m] * vx[3 * m + j];
+                r[3 * i + j] = (i == j) + vx[3 * i + j] + k * vv;
+            }
+        return;
+    }
+    /* u: e's least component's axis made perpendicular to e */
+    const int axis = fabs(e[0]) <= fabs(e[1]) && fabs(e[0]) <= fabs(e[2]) ? 0
+                     : fabs(e[1]) <= fabs(e[2])                            ? 1 : 2;
+    double u[3] = {-e[axis] * e[0], -e[axis] * e[1], -e[axis] * e[2]};
+    u[axis] += 1.0;
+    const double n = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    for (int i = 0; i < 3; ++i) u[i] /= n;
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) r[3 * i + j] = 2.0 * u[i] * u[j] - (i == j);
+}
+
+#endif
