@@ -19,7 +19,8 @@ API, with the settings its job type evaluates in the artist's Blender), and ever
   every frame differs from the others. Injected: the same job with frame 4's file missing
   must fail that frame's task with a message naming it, and write no frame 4.
 - no extension / broken native module: a worker without the extension, and one whose native
-  module cannot load, must fail their tasks with a message and write no frame.
+  module cannot load, must fail their tasks with a message and write no frame; the one
+  without the extension before it renders the scene's meshes.
 - saved scene (before the farm starts, `blender -b -y FILE -f 1` as a worker runs it): the splat
   object hidden, disabled in viewports or deleted, the helper data taken away in turn
   (tests/farm/damage.py), and the add-on absent (--factory-startup): never a crash, each frame
@@ -285,7 +286,8 @@ def main() -> int:
         farm.stop_worker("w1")
         farm.stop_worker("w2")
         run_bad_worker(farm, blender, homes, "noext", anim_blend, anim_eval, storage, results,
-                       r"Engine 'SPLAT_GAUSSIANS' not available for scene '[^']*Gaussian Splatting extension")
+                       r"Engine 'SPLAT_GAUSSIANS' not available for scene '[^']*Gaussian Splatting extension",
+                       before_the_meshes=True)
         run_bad_worker(farm, blender, homes, "broken", anim_blend, anim_eval, storage, results,
                        r"splatcore")
         run_splats53(farm, rb, wrapper, farm_dir, homes, inputs["splats_ply"], storage, zip_path,
@@ -581,9 +583,10 @@ def run_worker_without_extension53(farm, blender, homes, blend, evaluated, stora
 
 
 def run_bad_worker(farm, blender, homes, worker, blend, evaluated, storage, results,
-                   expected: str) -> None:
+                   expected: str, *, before_the_meshes: bool = False) -> None:
     """A job on a worker that cannot compose splats: its tasks must fail, with a message, and
-    leave no frame."""
+    leave no frame; `before_the_meshes`: without rendering the scene's meshes first (Blender
+    logs "Start rendering" when it starts the scene's own render)."""
     farm.start_worker(worker, blender.env(homes / worker))
     name = f"on-{worker}"
     settings = job_settings({**evaluated, "frames": "1-2"}, blend, storage / "render", name)
@@ -593,14 +596,17 @@ def run_bad_worker(farm, blender, homes, worker, blend, evaluated, storage, resu
     written = frames_in(job_output(record))
     statuses, tasks = task_summary(farm, job["id"])
     failed = [f for f, s in statuses.items() if s == "failed"]
-    message = ""
+    message, meshes_rendered = "", False
     for frame in failed:
         text = farm.api.task_log(tasks[frame]["id"])
+        meshes_rendered |= "Start rendering" in text
         found = re.search(rf".*(?:{expected}).*", text)
         if found:
             message = found.group(0).strip()
-            break
-    ok = bool(failed) and not written and bool(message)
+    ok = bool(failed) and not written and bool(message) and not (before_the_meshes
+                                                                  and meshes_rendered)
+    if before_the_meshes:
+        message = f"{'meshes rendered first; ' if meshes_rendered else 'before the meshes; '}{message}"
     results.add(name, ok, f"{len(written)}/2", "-",
                 f"1 ({worker}: tasks {sorted(statuses.values())})",
                 f"job {record['status']}; log: {message[:110]}")

@@ -13,7 +13,8 @@ compositor runs. The bridge uses this:
   files are saved without it (`detach_cameras`, from save_pre), so that a Blender without the
   add-on (a render farm worker that lacks it) fails the render ("no camera") instead of
   writing frames without splats; the add-on attaches it again when a file loads, a scene
-  changes or a render starts;
+  changes or a render starts. The bridged scenes' view layers are saved switched off
+  (`switch_off_layers`), so that such a Blender fails at once, not after the scene's meshes;
 - in the scene's compositor, a Render Layers node for the helper scene (named "Splat
   Composite"), wired where the scene's own Render Layers "Image", "Alpha" and "Depth" outputs
   were wired (for a scene without a compositor: a new node tree, Render Layers -> Group Output).
@@ -46,6 +47,7 @@ ENGINE_ID = "SPLAT_GAUSSIANS"          # the add-on's RenderEngine (hooks.SplatR
 HELPER_SCENE = ".Splat Composite (Gaussian Splatting extension)"
 HELPER_CAMERA = ".Splat Composite Camera"
 HELPER_FLAG = "splat_composite_helper"  # ID property marking the helper scene
+LAYERS_FLAG = "splat_layers_off_in_file"  # ID property: view layers switched off in the file
 BRIDGE_NODE = "Splat Composite"
 BRIDGE_FLAG = "splat_bridge"            # ID property on the bridge node: JSON of what it rewired
 TREE_FLAG = "splat_bridge_created"      # ID property on a node tree the bridge created
@@ -109,6 +111,31 @@ def detach_cameras() -> None:
     for scene in bpy.data.scenes:
         if is_helper(scene) and scene.camera is not None:
             scene.camera = None
+
+
+def switch_off_layers(scene) -> None:
+    """Before a bridged scene is saved: its view layers are saved with Use for Rendering off
+    (the names in LAYERS_FLAG). A Blender without the add-on then renders nothing of the scene
+    itself and goes straight to the helper scene, which has no camera: the render fails within
+    a second, instead of after a whole frame of meshes (Blender renders a compositor's other
+    scenes after the scene's own). `switch_on_layers` puts them back (save_post, load_post)."""
+    names = [layer.name for layer in scene.view_layers if layer.use]
+    if names:
+        for layer in scene.view_layers:
+            layer.use = False
+        scene[LAYERS_FLAG] = names
+
+
+def switch_on_layers(scene) -> None:
+    """The view layers `switch_off_layers` switched off for the file, on again."""
+    names = scene.get(LAYERS_FLAG)
+    if names is None:
+        return
+    for name in names:
+        layer = scene.view_layers.get(name)
+        if layer is not None:
+            layer.use = True
+    del scene[LAYERS_FLAG]
 
 
 def tidy_legacy_helpers() -> None:

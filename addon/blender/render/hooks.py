@@ -471,6 +471,7 @@ def _on_load_post(*_args) -> None:
         traceback.print_exc()
     for scene in list(bpy.data.scenes):
         if not bridge.is_helper(scene):
+            bridge.switch_on_layers(scene)
             set_up_bridge_later(scene.name)
 
 
@@ -480,8 +481,9 @@ _unbridged: list[str] = []         # scenes saved without their bridge (Blender'
 
 @persistent
 def _on_save_pre(*_args) -> None:
-    """Files are saved with their bridge, with Compositing on and without the helpers' borrowed
-    cameras (see `compositor_bridge`): a Blender without the add-on then refuses to render them.
+    """Files are saved with their bridge, with Compositing on, their view layers switched off
+    and without the helpers' borrowed cameras (see `compositor_bridge`): a Blender without the
+    add-on then refuses to render them, at once.
     Blender up to 5.0 sets the bridge up only when a render starts, so a file a script saves
     right after adding splats gets it here (5.1+ has it from the scene's update). Compositing
     switched off by hand would let such a Blender skip the compositor, and with it the helper
@@ -505,9 +507,11 @@ def _on_save_pre(*_args) -> None:
                 continue
             if _SET_UP_AT_RENDER and bridge.bridge_node(scene) is None:
                 bridge.ensure_bridge(scene)
-            if bridge.bridge_node(scene) is not None and not scene.render.use_compositing:
-                scene.render.use_compositing = True
-                _compositing_off.append(scene.name)
+            if bridge.bridge_node(scene) is not None:
+                if not scene.render.use_compositing:
+                    scene.render.use_compositing = True
+                    _compositing_off.append(scene.name)
+                bridge.switch_off_layers(scene)
         except Exception:   # never keep a file from being saved
             traceback.print_exc()
     bridge.detach_cameras()
@@ -518,6 +522,8 @@ def _on_save_post(*_args) -> None:
     for scene in bpy.data.scenes:
         if bridge.is_helper(scene):
             bridge.attach_camera(scene)
+        else:
+            bridge.switch_on_layers(scene)
     for name in _compositing_off:
         if name in bpy.data.scenes:
             bpy.data.scenes[name].render.use_compositing = False

@@ -150,6 +150,29 @@ def test_files_are_saved_with_compositing_on(rng, tmp_path):
     assert not plain.render.use_compositing
 
 
+def test_files_are_saved_with_their_view_layers_off(rng, tmp_path):
+    """In the file, a bridged scene's view layers are off (a Blender without the add-on goes
+    straight to the helper scene's "no camera" instead of rendering the meshes first); in the
+    session, and when the add-on opens the file, they are as the user left them."""
+    scene = _scene(rng)
+    kept_off = scene.view_layers.new("Kept Off")
+    kept_off.use = False
+    path = str(tmp_path / "layers.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
+    assert [layer.use for layer in scene.view_layers] == [True, False]  # given back
+    assert bridge.LAYERS_FLAG not in scene
+    with bpy.data.libraries.load(path, link=True) as (source, target):
+        target.scenes = [scene.name]
+    linked = next(s for s in bpy.data.scenes if s.library is not None and s.name == scene.name)
+    assert not any(layer.use for layer in linked.view_layers)
+    assert list(linked[bridge.LAYERS_FLAG]) == [scene.view_layers[0].name]
+    name = scene.name
+    bpy.ops.wm.open_mainfile(filepath=path)   # load_post switches them back on
+    scene = bpy.data.scenes[name]
+    assert [layer.use for layer in scene.view_layers] == [True, False]
+    assert bridge.LAYERS_FLAG not in scene
+
+
 def test_an_older_files_helper_camera_goes_on_load(rng, tmp_path):
     _scene(rng)
     helper = bridge.helper_scene(create=False)
