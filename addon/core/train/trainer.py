@@ -48,6 +48,7 @@ from ..gaussians import Gaussians, sh_count
 from .optimizer import GaussianParameters, logit
 from ..render.renderer import render
 from ..sh import SH_C0
+from .free_space import FreeSpace
 from .strategies import StepInfo, Strategy, make_strategy
 from .config import TrainConfig
 
@@ -168,7 +169,9 @@ class Trainer:
         self.coarse_until = (min(config.coarse_until, config.steps // 2) if config.steps
                              else config.coarse_until)
         pixels = max((c.width * c.height for c in dataset.train_cameras), default=0)
-        self.strategy = strategy or make_strategy(config, self.extent, self.rng, pixels)
+        self.strategy = strategy or make_strategy(
+            config, self.extent, self.rng, pixels,
+            FreeSpace.around(dataset.train_cameras, dataset.points.xyz, config.free_space_fraction))
         self._sparse_adam = (self.strategy.sparse_adam if config.sparse_adam is None
                              else config.sparse_adam)
         if gaussians is None:

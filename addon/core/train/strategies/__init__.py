@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import TrainConfig
+from ..free_space import FreeSpace
 from .auto import AutoStrategy, LargeImageStrategy
 from .base import StepInfo, Strategy
 from .default import DefaultStrategy
@@ -19,10 +20,11 @@ STRATEGIES: dict[str, type[Strategy]] = {"auto": AutoStrategy, "default": Defaul
 
 
 def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator,
-                  pixels: int = 0) -> Strategy:
+                  pixels: int = 0, free_space: FreeSpace | None = None) -> Strategy:
     """The strategy `config.strategy` names, for a scene of radius `extent` whose largest
     training image has `pixels` pixels ("auto" on images above
-    `auto_reference_above_pixels`: `LargeImageStrategy`, the reference's densification)."""
+    `auto_reference_above_pixels`: `LargeImageStrategy`, the reference's densification),
+    pruning what enters `free_space`."""
     try:
         kind = STRATEGIES[config.strategy]
     except KeyError:
@@ -30,7 +32,7 @@ def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator,
                          f"choose one of {', '.join(STRATEGIES)}") from None
     if kind is AutoStrategy and 0 < config.auto_reference_above_pixels < pixels:
         kind = LargeImageStrategy
-    return kind(config, extent, rng)
+    return kind(config, extent, rng, free_space)
 
 
 __all__ = ["STRATEGIES", "AutoStrategy", "DefaultStrategy", "LargeImageStrategy", "MCMCStrategy",

@@ -31,6 +31,7 @@ from ...cameras import Camera
 from ...gaussians import Gaussians
 from ..optimizer import GaussianParameters
 from ..config import TrainConfig
+from ..free_space import FreeSpace
 from ..kernels import Gradients, TrainState
 
 
@@ -54,10 +55,18 @@ class Strategy:
     # Whether Adam moves only the Gaussians a step drew, unless `TrainConfig.sparse_adam` says.
     sparse_adam = False
 
-    def __init__(self, config: TrainConfig, extent: float, rng: np.random.Generator) -> None:
+    def __init__(self, config: TrainConfig, extent: float, rng: np.random.Generator,
+                 free_space: FreeSpace | None = None) -> None:
         self.config = config
         self.extent = extent  # the scene's radius (`train.scene_extent`)
         self.rng = rng
+        self.free_space = free_space  # where no Gaussian belongs (None: anywhere may hold one)
+
+    def in_free_space(self, params: GaussianParameters) -> np.ndarray:
+        """(N,) bool: the Gaussians whose centres lie in `free_space` (to prune)."""
+        if self.free_space is None:
+            return np.zeros(len(params), bool)
+        return self.free_space.contains(params.params["means"])
 
     def prepare_initial(self, gaussians: Gaussians) -> Gaussians:
         return gaussians

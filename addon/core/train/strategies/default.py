@@ -3,7 +3,8 @@
 - from `densify_from` to `densify_until`, every `densify_every` steps: clone small and split
   large Gaussians whose average screen-space gradient (NDC units, over the views that drew them)
   reaches `densify_grad_threshold`; "small" is at most `percent_dense` of the scene extent;
-- then prune those under `prune_opacity`, and after the first opacity reset those larger than
+- then prune those under `prune_opacity`, those in the cameras' free space (`free_space`, not
+  in the reference), and after the first opacity reset those larger than
   `prune_large_fraction` of the scene extent (the reference's 10 % deletes background
   Gaussians the views need; see `TrainConfig.prune_large_fraction`);
 - every `opacity_reset_every` steps (before `densify_until`) the opacities are reset to at most
@@ -85,7 +86,7 @@ class DefaultStrategy(Strategy):
         params.append_and_keep(new_rows, keep)
 
         opacity = params.opacities()
-        prune = opacity < c.prune_opacity
+        prune = (opacity < c.prune_opacity) | self.in_free_space(params)
         if prune_large:
             prune |= np.exp(params.params["log_scales"].max(axis=1)) > c.prune_large_fraction * self.extent
         if prune.all():  # never prune to nothing

@@ -2,7 +2,8 @@
 Chain Monte Carlo"), with the reference parameters (its code and gsplat's `MCMCStrategy`):
 
 - no cloning by gradient and no pruning: from `densify_from` to `densify_until`, every
-  `densify_every` steps, Gaussians with opacity at most `prune_opacity` ("dead") are
+  `densify_every` steps, Gaussians with opacity at most `prune_opacity` or in the cameras'
+  free space (`free_space`, not in the paper) ("dead") are
   **relocated** onto live ones drawn with probability proportional to opacity, and then
   `mcmc_growth` (5 %) more are **added** the same way, up to the budget `max_gaussians`;
   a Gaussian sampled n - 1 times becomes n copies whose opacity and scale are chosen so that
@@ -118,7 +119,7 @@ class MCMCStrategy(Strategy):
 
     def relocate(self, params: GaussianParameters) -> int:
         """Move the dead Gaussians onto live ones. Returns how many moved."""
-        dead_mask = params.opacities() <= self.config.prune_opacity
+        dead_mask = (params.opacities() <= self.config.prune_opacity) | self.in_free_space(params)
         dead, alive = np.flatnonzero(dead_mask), np.flatnonzero(~dead_mask)
         if len(dead) == 0 or len(alive) == 0:
             return 0
