@@ -50,9 +50,10 @@ from .registration import register_classes, unregister_classes
 TIMER_STEP = 0.25  # seconds between polls of a background job
 STAGE_BUDGET = 0.1  # seconds of main-thread work per poll for a StagedJob
 # Seconds between two updates of a job's object on screen, at least, whatever its step interval:
-# each update redraws the 3D view several times (Workbench's anti-aliasing samples, the add-on's
-# new image), ~0.15 s a time in software OpenGL (Blender 4.3 under Xvfb), and a UI busy
-# redrawing answers late.
+# each update redraws the 3D view (once per Workbench anti-aliasing sample when it writes the
+# object's data, once for the add-on's new image when training shows a snapshot in its place),
+# 0.2-0.5 s a time in software OpenGL (Blender 4.3 under Xvfb), and a UI busy redrawing answers
+# late.
 SHOW_INTERVAL = 3.0
 # ... and paced by what they cost: the main thread's stalls (over STALL seconds) in the
 # COST_WINDOW seconds after an update, the object's write included, are at most this share of
@@ -360,8 +361,8 @@ class JobOperator:
             self.report({"ERROR"}, f"{running.title}: {error}")
             return {"CANCELLED"}
         ensure_status_draw()
-        # The status bar only: a 3D view redraw costs far more (see SHOW_INTERVAL), and the view
-        # redraws by itself when `_show` changes the object.
+        # The status bar only: a 3D view redraw costs far more (see SHOW_INTERVAL); a job's
+        # `apply` redraws the view when it shows a snapshot.
         tag_redraw(("STATUSBAR",))
         return {"PASS_THROUGH"}
 

@@ -362,8 +362,9 @@ def training_job(request: TrainRequest) -> OperatorJob:
         return _alive(collection.get(OBJECT_KEY)) if collection is not None else None
 
     def apply(step, gaussians):
-        # The first snapshot of a new object is written (the object exists from then on); the
-        # later ones are shown in its place (`sources.live`: a redraw, not a depsgraph update) until the end.
+        # The first snapshot of a new object is written (the object exists from then on), the
+        # later ones shown in its place until the end (`sources.live`: a redraw of the view,
+        # not a depsgraph update and its redraw per anti-aliasing sample).
         obj = target()
         if obj is None:
             write_splats(name, gaussians, antialiased=request.config.antialiased, step=step)

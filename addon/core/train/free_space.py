@@ -1,14 +1,13 @@
 """The empty space around the training cameras, where no Gaussian belongs.
 
-A camera stands in air: nothing it photographed is nearer to it than the nearest thing it, or
-any other camera, saw. Around each training camera's centre, a ball of `fraction` times the
-distance to the nearest sparse point (any direction) is empty. A Gaussian there is a floater
-that only cameras far away see, painting their background (the demo's sky, seen across the
-ring of cameras, drew haze right in front of the held-out cameras between two training ones:
-held-out PSNR 25.6 dB where the views it spared reach 30; docs/benchmarks/reconstruction.md).
-Nothing a training camera sees close up is lost: the nearest sparse point bounds each ball, so
-no surface the reconstruction found is inside one.
-"""
+A camera stands in air. Around each training camera's centre, a ball reaching `fraction` of the
+way to the nearest sparse point (in any direction) is taken as empty: the reconstruction found
+no surface nearer, and the camera, and whoever held it, was there. A Gaussian inside is a
+floater that only cameras far away see, painting their background: on the demo scene, splats
+painting the sky for the cameras across the ring gathered right in front of the held-out
+cameras between two training ones, a haze over those views alone
+(docs/benchmarks/reconstruction.md). The nearest sparse point bounds each ball, so no surface
+the reconstruction found is inside one."""
 
 from __future__ import annotations
 
