@@ -12,7 +12,8 @@ rotation and the true one, for the default thresholds and two others (the varian
 below which a direction follows the rotation, above which it is fitted).
 
 Cost (wall clock, best of --repeat): the native stages on N Gaussians of SH degree 3 (the rest
-neighbours, cold, then cached; the fit; the shapes and SH), then in bpy the gather of a splat
+neighbours, cold, then cached; the fit; the shapes and SH; the neighbours' spatial layout; the
+one pass a frame runs: fit, shapes and SH per Gaussian), then in bpy the gather of a splat
 object of N Gaussians without a modifier and with a Simple Deform (bend), cache cold (each
 frame of an animation whose deformation changes), and cached (a frame whose deformation did
 not change).
@@ -117,6 +118,10 @@ def native_costs(n: int, repeat: int, rng) -> None:
     rows.append(("fit: J and its polar rotation", t))
     t, _ = timed(lambda: deform.deform_gaussians(g, jac, rot), repeat)
     rows.append(("shapes (J Sigma J^T) and SH degree 3 rotated", t))
+    t, hoods = timed(lambda: deform.neighbourhoods(rest, neighbours=nbrs), 1)
+    rows.append(("spatial layout of the neighbours (once per rest shape, cached)", t))
+    t, _ = timed(lambda: deform.deform(g, hoods), repeat)
+    rows.append(("one pass: fit, shapes and SH per Gaussian over the spatial rows (a frame)", t))
     print(f"\nNative stages, {n:,} Gaussians\n\n| stage | seconds |\n| --- | --- |")
     for name, seconds in rows:
         print(f"| {name} | {seconds:.3f} |")

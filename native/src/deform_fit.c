@@ -24,16 +24,13 @@
  *     direction (the ladder of dashes an unchanged J draws along a bent row).
  * The rotation written beside J is J's polar rotation (SH follow it), or R where J is
  * singular. No neighbours (or all at the centre): J = R = identity. */
-#include "internal.h"
+#include "deform.h"
 #include "mat3.h"
 
 enum { GRAIN = 4096 };
 
 typedef struct {
-    const float *rest, *deformed;
-    const int32_t *neighbours;
-    int k;
-    double undetermined, determined;
+    sc_fit_input in;
     double *jacobians, *rotations;
 } job;
 
@@ -50,7 +47,7 @@ static void unit(double v[3]) {
     for (int a = 0; a < 3; ++a) v[a] /= n;
 }
 
-static void fit_one(const job *j, int64_t i, double jac[9], double rot[9]) {
+void sc_fit_point(const sc_fit_input *j, int64_t i, double jac[9], double rot[9]) {
     const float *p = j->rest + 3 * i, *x = j->deformed + 3 * i;
     const int32_t *nb = j->neighbours + (int64_t)j->k * i;
     double reach2 = 0.0;
@@ -130,15 +127,15 @@ static void fit_one(const job *j, int64_t i, double jac[9], double rot[9]) {
 static void fit_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     const job *j = ctx;
-    for (int64_t i = begin; i < end; ++i) fit_one(j, i, j->jacobians + 9 * i, j->rotations + 9 * i);
+    for (int64_t i = begin; i < end; ++i) sc_fit_point(&j->in, i, j->jacobians + 9 * i, j->rotations + 9 * i);
 }
 
 void sc_deformation_jacobians(const float *rest, const float *deformed, int64_t n,
                               const int32_t *neighbours, int k, double undetermined,
                               double determined, double *jacobians, double *rotations,
                               int threads) {
-    job j = {.rest = rest, .deformed = deformed, .neighbours = neighbours, .k = k,
-             .undetermined = undetermined, .determined = determined, .jacobians = jacobians,
-             .rotations = rotations};
+    job j = {.in = {.rest = rest, .deformed = deformed, .neighbours = neighbours, .k = k,
+                    .undetermined = undetermined, .determined = determined},
+             .jacobians = jacobians, .rotations = rotations};
     sc_parallel_for(threads < 1 ? 1 : threads, n, GRAIN, fit_rows, &j);
 }

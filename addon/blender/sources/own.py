@@ -98,8 +98,8 @@ class OwnObject(Source):
         if rest_data is not None:
             rest = _positions(rest_data)
             if not np.array_equal(rest, gaussians.means):
-                neighbours = _neighbours.get(self.evaluated.original.session_uid, rest)
-                gaussians = deform(gaussians, rest, neighbours)
+                hoods = _neighbours.get(self.evaluated.original.session_uid, rest)
+                gaussians = deform(gaussians, hoods)
         hide = splat_object.hidden_mask(self.data)
         if hide is not None and len(hide) == len(gaussians):
             gaussians = gaussians.subset(~hide)
