@@ -207,7 +207,8 @@ static const arg_spec DEFORM_SHAPES[] = {
 
 /* Both in one pass: the rest centres and each one's neighbours in the rows of a spatial order
  * (neighbours as rows), order (N,) the Gaussian in each row (a permutation); the deformed
- * centres, shapes and SH by Gaussian. */
+ * centres, shapes and SH by Gaussian. The outputs may be log_scales, quats and sh themselves
+ * (each Gaussian's are read before its own are written). */
 static const arg_spec DEFORM_FRAME[] = {
     {"rest", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
     {"deformed", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},

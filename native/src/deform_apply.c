@@ -18,6 +18,12 @@
 
 enum { GRAIN = 2048, DIRECTIONS = SC_SH_DIRECTIONS };
 
+/* The covariance's eigen-decomposition in closed form unless its smallest variance is below
+ * this of the largest (a Gaussian flatter than 1:30000): there the closed form's rounding,
+ * 1e-16 of the largest, would reach 1e-7 of the smallest, and Jacobi keeps it relative.
+ * Close eigenvalues need no fallback here: only the covariance they make back is kept. */
+static const double GRADED = 1e-9;
+
 typedef struct {
     sc_shapes shapes;
     const double *jacobians, *rotations;
@@ -78,7 +84,7 @@ static void shape_one(const sc_shapes *j, int64_t i, const double J[9]) {
         for (int b = 0; b < 3; ++b)
             C[3 * a + b] = L[3 * a] * L[3 * b] + L[3 * a + 1] * L[3 * b + 1] + L[3 * a + 2] * L[3 * b + 2];
     double values[3], vectors[9], q[4];
-    sc_sym3_eigen(C, values, vectors);
+    sc_sym3_eigen(C, values, vectors, GRADED, 0.0);
     const double floor = fmax(values[2] * 1e-24, 1e-36);
     if (sc_m3_det(vectors) < 0.0)
         for (int a = 0; a < 3; ++a) vectors[3 * a] = -vectors[3 * a];

@@ -38,6 +38,13 @@ typedef struct {
  * `lo` is. */
 static const double FLAT = 1e-12;
 
+/* The spread's eigen-decomposition in closed form where its eigenvalues are this far apart and
+ * from 0 (relative to the largest), by Jacobi elsewhere (a row, a sheet, a lattice's nearly
+ * round neighbourhood): f_m divides by l_m, so each l_m and e_m must hold to rounding relative
+ * to l_m itself, which the closed form gives only for well-separated eigenvalues (its vectors
+ * move by about 1e-16 / separation^2: 1e-10 here). */
+static const double SEPARATED = 1e-3;
+
 static double ramp(double ratio, double lo, double hi) {
     return ratio <= lo || ratio <= FLAT ? 0.0 : ratio >= hi ? 1.0 : (ratio - lo) / (hi - lo);
 }
@@ -75,7 +82,7 @@ void sc_fit_point(const sc_fit_input *j, int64_t i, double jac[9], double rot[9]
             for (int c = 0; c < 3; ++c) A[3 * r + c] += w * a[r] * a[c], B[3 * r + c] += w * b[r] * a[c];
     }
     double values[3], vectors[9];
-    sc_sym3_eigen(A, values, vectors);
+    sc_sym3_eigen(A, values, vectors, SEPARATED, SEPARATED);
     const double l[3] = {values[2], values[1], values[0]};
     double e[3][3];
     for (int a = 0; a < 3; ++a) e[0][a] = vectors[3 * a + 2], e[1][a] = vectors[3 * a + 1];

@@ -12,7 +12,8 @@
  * then scattered (read and written whole: a few cache lines each), asked for AHEAD rows early.
  * Every Gaussian's result is computed by the same code from the same numbers whichever thread
  * takes its row, so it is the same for every thread count, and bit for bit what the two
- * stages give one after the other. */
+ * stages give one after the other. The outputs may be the inputs (sc_shapes_point reads a
+ * Gaussian's shape and SH whole before writing its own). */
 #include <stdlib.h>
 
 #include "deform.h"

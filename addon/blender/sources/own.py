@@ -99,7 +99,7 @@ class OwnObject(Source):
             rest = _positions(rest_data)
             if not np.array_equal(rest, gaussians.means):
                 hoods = _neighbours.get(self.evaluated.original.session_uid, rest)
-                gaussians = deform(gaussians, hoods)
+                gaussians = deform(gaussians, hoods, in_place=True)  # a fresh read
         hide = splat_object.hidden_mask(self.data)
         if hide is not None and len(hide) == len(gaussians):
             gaussians = gaussians.subset(~hide)

@@ -39,20 +39,32 @@ __all__ = ["DETERMINED", "NEIGHBOURS", "UNDETERMINED", "Neighbourhoods", "RestNe
            "rest_neighbours", "spatial_order"]
 
 
-def deform(gaussians: Gaussians, hoods: Neighbourhoods, *, threads: int = 0) -> Gaussians:
+def deform(gaussians: Gaussians, hoods: Neighbourhoods, *, in_place: bool = False,
+           threads: int = 0) -> Gaussians:
     """`gaussians` (centres deformed, everything else as stored at rest) with each shape and
     SH turned by the deformation's Jacobian at its centre, estimated from the rest centres and
-    their neighbours in `hoods` (`neighbourhoods(rest)`)."""
-    if len(hoods) != len(gaussians):
-        raise ValueError(f"neighbourhoods of {len(hoods)} rest centres for {len(gaussians)} "
-                         "Gaussians")
+    their neighbours in `hoods` (`neighbourhoods(rest)`). `in_place` writes the new shapes and
+    SH over `gaussians`' own arrays (a fresh read no one else holds: no new 200 MB of SH to
+    fault in per million Gaussians) and returns `gaussians`."""
+    n = len(gaussians)
+    if len(hoods) != n:
+        raise ValueError(f"neighbourhoods of {len(hoods)} rest centres for {n} Gaussians")
     deformed = np.ascontiguousarray(gaussians.means, np.float32)
-    if deformed.shape != (len(gaussians), 3):
+    if deformed.shape != (n, 3):
         raise ValueError(f"need (N, 3) centres, got {deformed.shape}")
-    log_scales = np.empty((len(gaussians), 3), np.float32)
-    quats = np.empty((len(gaussians), 4), np.float32)
-    sh = np.empty_like(gaussians.sh)
+    if in_place:
+        arrays = (gaussians.log_scales, gaussians.quats, gaussians.sh)
+        if any(a.dtype != np.float32 or not a.flags.c_contiguous or not a.flags.writeable
+               for a in arrays):
+            raise ValueError("deforming in place needs writable C-contiguous float32 arrays")
+        log_scales, quats, sh = arrays
+    else:
+        log_scales = np.empty((n, 3), np.float32)
+        quats = np.empty((n, 4), np.float32)
+        sh = np.empty_like(gaussians.sh)
     native.deform_frame(hoods.rest, deformed, hoods.neighbours, hoods.order,
                         gaussians.log_scales, gaussians.quats, gaussians.sh, log_scales, quats, sh,
                         undetermined=UNDETERMINED, determined=DETERMINED, threads=threads)
+    if in_place:
+        return gaussians
     return Gaussians(gaussians.means, log_scales, quats, gaussians.opacity_logits, sh)

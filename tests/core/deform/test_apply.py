@@ -119,6 +119,10 @@ def test_one_pass_is_the_two_stages_for_every_thread_count(rng, degree):
         for name in ("log_scales", "quats", "sh"):
             assert np.array_equal(getattr(out, name), getattr(want, name)), (threads, name)
         assert out.means is g.means and out.opacity_logits is g.opacity_logits
+    copy = Gaussians(*(a.copy() for a in g.arrays().values()))
+    assert deform(copy, hoods, in_place=True) is copy  # over its own arrays: the same numbers
+    for name in ("log_scales", "quats", "sh"):
+        assert np.array_equal(getattr(copy, name), getattr(want, name)), name
 
 
 def test_one_pass_checks_its_inputs(rng):
