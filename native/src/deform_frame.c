@@ -13,8 +13,11 @@
  * Every Gaussian's result is computed by the same code from the same numbers whichever thread
  * takes its row, so it is the same for every thread count, and bit for bit what the two
  * stages give one after the other. The outputs may be the inputs (sc_shapes_point reads a
- * Gaussian's shape and SH whole before writing its own). */
+ * Gaussian's shape and SH whole before writing its own). An object's matrix may follow the
+ * deformation (linear, and its polar rotation for the SH): the gather then turns each SH once,
+ * not once here and again for the object. */
 #include <stdlib.h>
+#include <string.h>
 
 #include "deform.h"
 
@@ -40,7 +43,16 @@ typedef struct {
     sc_fit_input fit;
     sc_shapes shapes;
     const int32_t *order;
+    const double *linear, *linear_rotation; /* both or NULL */
 } frame_job;
+
+static void then(const double l[9], double m[9]) { /* m <- l m */
+    double out[9];
+    for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+            out[3 * r + c] = l[3 * r] * m[c] + l[3 * r + 1] * m[3 + c] + l[3 * r + 2] * m[6 + c];
+    memcpy(m, out, sizeof out);
+}
 
 static void prefetch(const frame_job *j, int64_t i) {
     const int64_t coeffs = 3 * (int64_t)j->shapes.coeffs;
@@ -62,13 +74,15 @@ static void frame_rows(void *ctx, int64_t begin, int64_t end, int thread) {
         if (row + AHEAD < end) prefetch(j, j->order[row + AHEAD]);
         double jac[9], rot[9];
         sc_fit_point(&j->fit, row, jac, rot);
+        if (j->linear) then(j->linear, jac), then(j->linear_rotation, rot);
         sc_shapes_point(&j->shapes, j->order[row], jac, rot);
     }
 }
 
 int sc_deform_frame(const float *rest, const float *deformed, int64_t n,
                     const int32_t *neighbours, int k, const int32_t *order,
-                    double undetermined, double determined, const float *log_scales,
+                    double undetermined, double determined, const double *linear,
+                    const double *linear_rotation, const float *log_scales,
                     const float *quats, const float *sh, int sh_coeffs, float *out_log_scales,
                     float *out_quats, float *out_sh, int threads) {
     threads = threads < 1 ? 1 : threads;
@@ -81,7 +95,7 @@ int sc_deform_frame(const float *rest, const float *deformed, int64_t n,
                    .shapes = {.log_scales = log_scales, .quats = quats, .sh = sh,
                               .coeffs = sh_coeffs, .out_log_scales = out_log_scales,
                               .out_quats = out_quats, .out_sh = out_sh},
-                   .order = order};
+                   .order = order, .linear = linear, .linear_rotation = linear_rotation};
     sc_shapes_prepare(&j.shapes);
     sc_parallel_for(threads, n, GRAIN, frame_rows, &j);
     free(rows);

@@ -1066,6 +1066,20 @@ static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwarg
         seen[i] = 1;
     }
     free(seen);
+    const double *linear = data_of(&c, "linear"), *linear_rotation = data_of(&c, "linear_rotation");
+    if ((linear == NULL) != (linear_rotation == NULL)) {
+        value_error("linear and linear_rotation go together: give both or neither");
+        return fail(&c);
+    }
+    for (int a = 0; linear_rotation != NULL && a < 3; ++a)
+        for (int b = 0; b < 3; ++b) {
+            const double *q = linear_rotation;
+            const double dot = q[3 * a] * q[3 * b] + q[3 * a + 1] * q[3 * b + 1] + q[3 * a + 2] * q[3 * b + 2];
+            if (fabs(dot - (a == b)) > 1e-6) {
+                value_error("linear_rotation is not orthogonal (row %d . row %d = %g)", a, b, dot);
+                return fail(&c);
+            }
+        }
     const float *rest = data_of(&c, "rest"), *deformed = data_of(&c, "deformed"),
                 *log_scales = data_of(&c, "log_scales"), *quats = data_of(&c, "quats"),
                 *sh = data_of(&c, "sh");
@@ -1075,8 +1089,9 @@ static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwarg
     const int coeffs = (int)SIZE(&c.d, DIM_K), threads = threads_of(&c);
     int status;
     Py_BEGIN_ALLOW_THREADS
-    status = sc_deform_frame(rest, deformed, n, neighbours, (int)k, order, lo, hi, log_scales,
-                             quats, sh, coeffs, out_log_scales, out_quats, out_sh, threads);
+    status = sc_deform_frame(rest, deformed, n, neighbours, (int)k, order, lo, hi, linear,
+                             linear_rotation, log_scales, quats, sh, coeffs, out_log_scales,
+                             out_quats, out_sh, threads);
     Py_END_ALLOW_THREADS
     if (status != 0) return fail(&c), PyErr_NoMemory();
     return finish(&c, Py_NewRef(Py_None));

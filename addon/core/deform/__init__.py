@@ -29,6 +29,7 @@ import numpy as np
 
 from .. import native
 from ..gaussians import Gaussians
+from ..transform import affine_parts, polar_decomposition
 from .apply import deform_gaussians
 from .jacobians import DETERMINED, UNDETERMINED, deformation_jacobians
 from .neighbours import (NEIGHBOURS, Neighbourhoods, RestNeighbours, neighbourhoods,
@@ -39,19 +40,33 @@ __all__ = ["DETERMINED", "NEIGHBOURS", "UNDETERMINED", "Neighbourhoods", "RestNe
            "rest_neighbours", "spatial_order"]
 
 
-def deform(gaussians: Gaussians, hoods: Neighbourhoods, *, in_place: bool = False,
-           threads: int = 0) -> Gaussians:
+def deform(gaussians: Gaussians, hoods: Neighbourhoods, *, matrix: np.ndarray | None = None,
+           in_place: bool = False, threads: int = 0) -> Gaussians:
     """`gaussians` (centres deformed, everything else as stored at rest) with each shape and
     SH turned by the deformation's Jacobian at its centre, estimated from the rest centres and
-    their neighbours in `hoods` (`neighbourhoods(rest)`). `in_place` writes the new shapes and
-    SH over `gaussians`' own arrays (a fresh read no one else holds: no new 200 MB of SH to
-    fault in per million Gaussians) and returns `gaussians`."""
+    their neighbours in `hoods` (`neighbourhoods(rest)`).
+
+    `matrix` (4x4 affine): then taken by it, as `core.transform.transform_gaussians` takes
+    Gaussians (the shapes by its linear part A, the SH by A's polar rotation, the centres by
+    A x + t), folded into the one pass: each SH is turned once. `in_place` writes the new
+    shapes and SH over `gaussians`' own arrays (a fresh read no one else holds: no new 200 MB
+    of SH to fault in per million Gaussians) and returns them in a new `Gaussians`."""
     n = len(gaussians)
     if len(hoods) != n:
         raise ValueError(f"neighbourhoods of {len(hoods)} rest centres for {n} Gaussians")
     deformed = np.ascontiguousarray(gaussians.means, np.float32)
     if deformed.shape != (n, 3):
         raise ValueError(f"need (N, 3) centres, got {deformed.shape}")
+    linear = rotation = None
+    means = gaussians.means
+    if matrix is not None:
+        linear, shift = affine_parts(matrix)
+        means = (deformed.astype(np.float64) @ linear.T + shift).astype(np.float32)
+        if np.array_equal(linear, np.eye(3)):
+            linear = None
+        else:
+            rotation = np.ascontiguousarray(polar_decomposition(linear)[0])
+            linear = np.ascontiguousarray(linear)
     if in_place:
         arrays = (gaussians.log_scales, gaussians.quats, gaussians.sh)
         if any(a.dtype != np.float32 or not a.flags.c_contiguous or not a.flags.writeable
@@ -64,7 +79,6 @@ def deform(gaussians: Gaussians, hoods: Neighbourhoods, *, in_place: bool = Fals
         sh = np.empty_like(gaussians.sh)
     native.deform_frame(hoods.rest, deformed, hoods.neighbours, hoods.order,
                         gaussians.log_scales, gaussians.quats, gaussians.sh, log_scales, quats, sh,
-                        undetermined=UNDETERMINED, determined=DETERMINED, threads=threads)
-    if in_place:
-        return gaussians
-    return Gaussians(gaussians.means, log_scales, quats, gaussians.opacity_logits, sh)
+                        undetermined=UNDETERMINED, determined=DETERMINED, linear=linear,
+                        linear_rotation=rotation, threads=threads)
+    return Gaussians(means, log_scales, quats, gaussians.opacity_logits, sh)

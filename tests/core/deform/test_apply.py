@@ -17,7 +17,7 @@ import reference_deform
 from addon.core.deform import (Neighbourhoods, deform, deform_gaussians, deformation_jacobians,
                               neighbourhoods, rest_neighbours)
 from addon.core.gaussians import Gaussians
-from addon.core.transform import covariances, quat_to_matrix
+from addon.core.transform import covariances, quat_to_matrix, transform_gaussians
 from reference import eval_sh
 from scenes import random_gaussians
 
@@ -120,9 +120,41 @@ def test_one_pass_is_the_two_stages_for_every_thread_count(rng, degree):
             assert np.array_equal(getattr(out, name), getattr(want, name)), (threads, name)
         assert out.means is g.means and out.opacity_logits is g.opacity_logits
     copy = Gaussians(*(a.copy() for a in g.arrays().values()))
-    assert deform(copy, hoods, in_place=True) is copy  # over its own arrays: the same numbers
+    out = deform(copy, hoods, in_place=True)  # over its own arrays: the same numbers
     for name in ("log_scales", "quats", "sh"):
+        assert getattr(out, name) is getattr(copy, name), name
         assert np.array_equal(getattr(copy, name), getattr(want, name)), name
+
+
+@pytest.mark.parametrize("kind", ["rotation", "similarity", "shear", "mirror"])
+def test_an_object_matrix_folds_into_the_one_pass(rng, kind):
+    """`deform(..., matrix=M)` is `transform_gaussians(deform(...), M)` (the gather's object
+    matrix after the deformation), with each SH turned once: the centres bit for bit, the
+    covariances and SH to float32 rounding (as test_native_shapes_and_sh_are_the_reference)."""
+    n = 3000
+    rest = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    moved = (rest + 0.2 * np.sin(2.0 * rest[:, [1, 2, 0]])).astype(np.float32)
+    g = random_gaussians(rng, n, 3)
+    g = Gaussians(moved, g.log_scales, g.quats, g.opacity_logits, g.sh)
+    linear = quat_to_matrix(rng.normal(size=(1, 4)))[0]
+    if kind == "similarity":
+        linear = 2.5 * linear
+    elif kind == "shear":
+        linear = linear @ (np.eye(3) + np.triu(rng.normal(scale=0.5, size=(3, 3)), 1))
+    elif kind == "mirror":
+        linear = linear @ np.diag([1.0, -1.0, 1.0])
+    matrix = np.eye(4)
+    matrix[:3, :3], matrix[:3, 3] = linear, rng.normal(size=3)
+    hoods = neighbourhoods(rest)
+    out = deform(g, hoods, matrix=matrix, threads=2)
+    want = transform_gaussians(deform(g, hoods), matrix)
+    assert np.array_equal(out.means, want.means)
+    cov, cov_want = covariances(out), covariances(want)
+    scale = np.abs(cov_want).max(axis=(1, 2), keepdims=True)
+    assert (np.abs(cov - cov_want) / scale).max() <= 1e-5
+    assert np.abs(out.sh - want.sh).max() <= 1e-5
+    with pytest.raises(ValueError, match="affine"):
+        deform(g, hoods, matrix=np.ones((4, 4)))
 
 
 def test_one_pass_checks_its_inputs(rng):
