@@ -4,6 +4,8 @@ frame changes, gather, F12 animation renders, export back, with bounded memory."
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import bpy_support as bs
@@ -19,6 +21,7 @@ from addon.core.transform import covariances
 from scenes import random_gaussians
 from standard_view import read_png
 
+ROOT = Path(__file__).resolve().parents[3]
 COUNTS = {1: 120, 2: 200, 3: 60}  # frame number -> Gaussians in its file
 
 
@@ -253,7 +256,8 @@ def test_a_deformed_animation_exports_as_a_sequence_that_comes_back(rng, tmp_pat
     """A splat object bent by a keyframed Simple Deform (issue 35: shapes and SH follow the
     deformation) exported over a frame range, one file per frame, and imported back as a
     sequence: at each frame the imported object gathers the Gaussians the deformed one
-    gathered (float32 rounding of the files' axis conversion), and the frames differ."""
+    gathered (float32 rounding of the files' axis conversion), and the frames differ. The
+    command line's `export --frames` writes the same files from the saved .blend."""
     g = random_gaussians(rng, 300, 1, radius=1.0, stray=0.0)
     obj = bs.splat_object.create_splat_object(g, "Bent")
     bend = obj.modifiers.new("Bend", "SIMPLE_DEFORM")
@@ -272,6 +276,16 @@ def test_a_deformed_animation_exports_as_a_sequence_that_comes_back(rng, tmp_pat
                                            frame_end=4) == {"FINISHED"}
     assert sorted(p.name for p in out.iterdir()) == [f"bent_{n:04d}.ply" for n in (2, 3, 4)]
     assert scene.frame_current == 7
+    # the command line writes the same files from the saved .blend
+    blend = tmp_path / "rig.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    result = subprocess.run([sys.executable, "-m", "addon", "export", str(blend), "--object",
+                             "Bent", "--out", str(tmp_path / "cli.ply"), "--frames", "2-4"],
+                            capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 0, result.stderr
+    for n in (2, 3, 4):
+        assert bs.gaussians_equal(file_gaussians(tmp_path / f"cli_{n:04d}.ply"),
+                                  file_gaussians(out / f"bent_{n:04d}.ply")), n
     gathered = {}
     for frame in (2, 3, 4):
         scene.frame_set(frame)
