@@ -142,7 +142,8 @@ static inline void sc_sym3_vector_in_plane(const double a[9], const double w[3],
  * its largest entry, the most separated eigenvalue's vector as a cross product of rows, the
  * second in its complement, the third their cross product: Eberly's robust scheme), about
  * three times faster than Jacobi; by Jacobi rotations (sc_sym3_eigen_jacobi) where the closed
- * form is not accurate enough: a diagonal or non-finite a, the smallest eigenvalue's size
+ * form is not accurate enough: a diagonal or non-finite a (or vectors that come out
+ * non-finite), the smallest eigenvalue's size
  * below `graded` of the largest (the cubic's rounding is absolute, about 1e-16 of the largest:
  * a thin Gaussian's smallest variance would lose its relative accuracy), or two eigenvalues
  * closer than `gap` of the largest (a double root moves by the square root of the rounding,
@@ -185,6 +186,12 @@ static inline void sc_sym3_eigen(const double a_in[9], double values[3], double 
         sc_sym3_vector(a, value[0], v[0]);
         sc_sym3_vector_in_plane(a, v[0], value[1], v[1]);
         sc_cross(v[0], v[1], v[2]);
+    }
+    double check = 0.0; /* NaN if a cross product underflowed to 0 (rows at 1e-160 of 1) */
+    for (int i = 0; i < 3; ++i) check += v[i][0] + v[i][1] + v[i][2];
+    if (!isfinite(check)) {
+        sc_sym3_eigen_jacobi(a_in, values, vectors);
+        return;
     }
     for (int i = 0; i < 3; ++i) {
         values[i] = value[i] * scale;

@@ -16,7 +16,8 @@ from addon.core.images import files
 from addon.core.transform import transform_gaussians
 
 ROOT = Path(__file__).resolve().parents[2]
-VERBS = ("reconstruct", "import-colmap", "train", "render", "convert-to-mesh", "convert")
+VERBS = ("reconstruct", "import-colmap", "train", "render", "export", "convert-to-mesh",
+         "convert")
 
 
 def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
