@@ -8,6 +8,7 @@ Verbs (each has `--help`):
     import-colmap FOLDER --out scene.blend             COLMAP cameras, photos and points
     train FOLDER|scene.blend --out out.ply|out.blend   train Gaussians on the CPU
     render scene.blend --out /tmp/frame_ [--frames 1-24]
+    export scene.blend --out rig.ply [--frames 1-48]   a splat object (posed, deformed) to files
     convert-to-mesh in.ply|scene.blend --out mesh.blend
     convert in.ply out.spz [--forward Z --up -Y]       splat file to splat file
 
@@ -212,6 +213,23 @@ def _export(bpy, obj, out: Path, forward: str, up: str) -> None:
     for warning in operators.export_splats(obj, out, forward_axis=forward, up_axis=up):
         print(f"warning: {warning}", file=sys.stderr)
     print(f"wrote {out}", flush=True)
+
+
+def _export_verb(args: argparse.Namespace) -> None:
+    """The splat object as the scene shows it at the current frame, or at each of --frames to
+    one file per frame (the sequence the importer reads back)."""
+    from .blender.io import operators, sequence
+
+    bpy = _blender()
+    obj = _splat_object(bpy, Path(args.blend), args.object, args.forward, args.up)
+    if args.frames is None:
+        _export(bpy, obj, Path(args.out), args.forward, args.up)
+        return
+    first, last = args.frames
+    pattern = sequence.sequence_pattern(Path(args.out).resolve())
+    written = operators.export_sequence(obj, pattern, range(first, last + 1),
+                                        forward_axis=args.forward, up_axis=args.up)
+    print(f"wrote {len(written)} frames to {pattern}", flush=True)
 
 
 def _render(args: argparse.Namespace) -> None:
@@ -456,6 +474,22 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--engine", help="render engine id (default: the scene's)")
     p.set_defaults(run=_render)
 
+    p = verbs.add_parser("export", help="a splat object of a .blend to splat files",
+                         description="Write a splat object of a .blend as the scene shows it "
+                                     "(modifiers, shape keys, an armature: the Gaussians "
+                                     "deformed) at the current frame, or with --frames at each "
+                                     "frame to one file per frame: the numbered sequence web "
+                                     "viewers and Import as Sequence read.")
+    p.add_argument("blend", help="the .blend holding the splat object")
+    p.add_argument("--out", required=True, help="splat file to write; with --frames, # (or "
+                   "%%04d) where the frame number goes (_#### is added before the extension "
+                   "when missing)")
+    p.add_argument("--object", help="the splat object (default: the only one)")
+    p.add_argument("--frames", type=_frames, help="N or FIRST-LAST: one file per frame "
+                   "(default: one file, the current frame)")
+    _add_axes(p, what="the written splat files")
+    p.set_defaults(run=_export_verb)
+
     p = verbs.add_parser("convert-to-mesh", help="splats to a textured mesh in a .blend",
                          description="Convert splats (a splat file, or a splat object in a "
                                      ".blend) to a textured triangle mesh and save a .blend "
@@ -530,6 +564,10 @@ def _output_errors(args: argparse.Namespace) -> str | None:
             return _splat_extension(args.out, write=True)
     elif args.verb == "convert":
         return _splat_extension(args.output, write=True)
+    elif args.verb == "export":
+        return _splat_extension(args.out, write=True) or (
+            None if Path(args.blend).suffix.lower() == ".blend"
+            else f"{args.blend}: expected a .blend file")
     return None
 
 

@@ -11,8 +11,10 @@ percentile of |J - J_true| / |J_true| (Frobenius), and the median angle between 
 rotation and the true one, for the default thresholds and two others (the variance ratios
 below which a direction follows the rotation, above which it is fitted).
 
-Cost (wall clock, best of --repeat): the native stages on N Gaussians of SH degree 3 (the rest
-neighbours, cold, then cached; the fit; the shapes and SH), then in bpy the gather of a splat
+Cost (wall clock, best of --repeat, with the CPU seconds of all threads of that run: on a
+machine other work loads, the CPU time varies less): the native stages on N Gaussians of SH degree 3 (the rest
+neighbours, cold, then cached; the fit; the shapes and SH; the neighbours' spatial layout; the
+one pass a frame runs: fit, shapes and SH per Gaussian), then in bpy the gather of a splat
 object of N Gaussians without a modifier and with a Simple Deform (bend), cache cold (each
 frame of an animation whose deformation changes), and cached (a frame whose deformation did
 not change).
@@ -88,13 +90,19 @@ def accuracy(rng) -> None:
                       + " |")
 
 
-def timed(function, repeat: int) -> tuple[float, object]:
-    best, result = np.inf, None
+def timed(function, repeat: int) -> tuple[tuple[float, float], object]:
+    """((wall seconds, CPU seconds of every thread), result) of the run with the least wall
+    time of `repeat`."""
+    best, result = (np.inf, np.inf), None
     for _ in range(repeat):
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         result = function()
-        best = min(best, time.perf_counter() - start)
+        best = min(best, (time.perf_counter() - start, time.process_time() - cpu))
     return best, result
+
+
+def cells(seconds: tuple[float, float]) -> str:
+    return f"{seconds[0]:.3f} | {seconds[1]:.3f}"
 
 
 def native_costs(n: int, repeat: int, rng) -> None:
@@ -117,9 +125,16 @@ def native_costs(n: int, repeat: int, rng) -> None:
     rows.append(("fit: J and its polar rotation", t))
     t, _ = timed(lambda: deform.deform_gaussians(g, jac, rot), repeat)
     rows.append(("shapes (J Sigma J^T) and SH degree 3 rotated", t))
-    print(f"\nNative stages, {n:,} Gaussians\n\n| stage | seconds |\n| --- | --- |")
+    if hasattr(deform, "neighbourhoods"):  # not before the one pass (a baseline's checkout)
+        t, hoods = timed(lambda: deform.neighbourhoods(rest, neighbours=nbrs), 1)
+        rows.append(("spatial layout of the neighbours (once per rest shape, cached)", t))
+        t, _ = timed(lambda: deform.deform(g, hoods), repeat)
+        rows.append(("one pass: fit, shapes and SH per Gaussian over the spatial rows (a "
+                     "frame)", t))
+    print(f"\nNative stages, {n:,} Gaussians\n\n| stage | seconds | CPU seconds |\n"
+          "| --- | --- | --- |")
     for name, seconds in rows:
-        print(f"| {name} | {seconds:.3f} |")
+        print(f"| {name} | {cells(seconds)} |")
 
 
 def blender_costs(n: int, repeat: int, rng) -> None:
@@ -139,10 +154,15 @@ def blender_costs(n: int, repeat: int, rng) -> None:
     obj.rotation_euler = (0.3, 0.2, 0.1)  # an object transform: SH rotated in both cases
     bpy.context.view_layer.update()
 
-    def cold() -> float:
-        gather.clear_cache()
+    def gathered() -> tuple[float, float]:
         depsgraph = bpy.context.evaluated_depsgraph_get()
-        return gather.gather(depsgraph).seconds
+        cpu = time.process_time()
+        seconds = gather.gather(depsgraph).seconds
+        return seconds, time.process_time() - cpu
+
+    def cold() -> tuple[float, float]:
+        gather.clear_cache()
+        return gathered()
 
     rows = [("no modifier, cache cold (read, transform)", min(cold() for _ in range(repeat)))]
     bend = obj.modifiers.new("Bend", "SIMPLE_DEFORM")
@@ -152,16 +172,14 @@ def blender_costs(n: int, repeat: int, rng) -> None:
     frames = []
     for step in range(repeat):  # a new deformation each frame, neighbours cached
         bend.angle = 1.0 + 0.1 * (step + 1)
-        depsgraph = bpy.context.evaluated_depsgraph_get()
-        frames.append(gather.gather(depsgraph).seconds)
+        frames.append(gathered())
     rows.append(("Simple Deform, a frame whose deformation changed", min(frames)))
-    depsgraph = bpy.context.evaluated_depsgraph_get()
     rows.append(("Simple Deform, a frame whose deformation did not change (cached)",
-                 min(gather.gather(depsgraph).seconds for _ in range(repeat))))
+                 min(gathered() for _ in range(repeat))))
     print(f"\nGather in bpy, {n:,} Gaussians of SH degree 3, object rotated\n\n"
-          "| gather | seconds |\n| --- | --- |")
+          "| gather | seconds | CPU seconds |\n| --- | --- | --- |")
     for name, seconds in rows:
-        print(f"| {name} | {seconds:.3f} |")
+        print(f"| {name} | {cells(seconds)} |")
 
 
 def main() -> None:

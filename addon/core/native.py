@@ -300,6 +300,24 @@ def deform_shapes(log_scales: np.ndarray, quats: np.ndarray, sh: np.ndarray,
         out_sh=out_sh)
 
 
+def deform_frame(rest: np.ndarray, deformed: np.ndarray, neighbours: np.ndarray,
+                 order: np.ndarray, log_scales: np.ndarray, quats: np.ndarray, sh: np.ndarray,
+                 out_log_scales: np.ndarray, out_quats: np.ndarray, out_sh: np.ndarray, *,
+                 undetermined: float, determined: float, linear: np.ndarray | None,
+                 linear_rotation: np.ndarray | None, threads: int) -> None:
+    """`deformation_jacobians` then `deform_shapes` in one pass, the maps never stored: rest
+    centres (float32 (N, 3)) and neighbours (int32 (N, k), as rows) in the rows of a spatial
+    order, `order` (int32 (N,)) the Gaussian in each row; the deformed centres, shapes, SH and
+    outputs by Gaussian (see `addon.core.deform`). `linear` and its orthogonal
+    `linear_rotation` (float64 (3, 3) each, or None): a map after the deformation."""
+    splatcore().deform_frame(
+        rest=rest, deformed=deformed, neighbours=neighbours, order=order,
+        undetermined=float(undetermined), determined=float(determined), linear=linear,
+        linear_rotation=linear_rotation, log_scales=log_scales,
+        quats=quats, sh=sh, threads=thread_count(threads), out_log_scales=out_log_scales,
+        out_quats=out_quats, out_sh=out_sh)
+
+
 def srgb_premultiplied(rgba: np.ndarray, out: np.ndarray, decode: bool, threads: int) -> None:
     """Premultiplied float32 RGBA (..., 4), C-contiguous, scene-linear -> display sRGB, or back
     with `decode`, into `out` (`rgba` itself, or a C-contiguous array of its shape)."""

@@ -213,6 +213,13 @@ def _check_matrix(matrix: np.ndarray) -> np.ndarray:
     return m
 
 
+def affine_parts(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A, t): the linear part (3, 3) and translation (3,) of the affine 4x4 `matrix`, float64;
+    ValueError for anything else (not 4x4, not finite, a last row other than 0 0 0 1)."""
+    m = _check_matrix(matrix)
+    return m[:3, :3].copy(), m[:3, 3].copy()
+
+
 def transform_gaussians(gaussians: Gaussians, matrix: np.ndarray) -> Gaussians:
     """The Gaussians as seen after applying the affine 4x4 `matrix` (see the module docstring).
 

@@ -421,6 +421,20 @@ void sc_deform_shapes(const float *log_scales, const float *quats, const float *
                       int sh_coeffs, const double *jacobians, const double *rotations,
                       float *out_log_scales, float *out_quats, float *out_sh, int threads);
 
+/* Both of the above for n Gaussians in one pass (deform_frame.c): rest (n, 3) the rest centres
+ * in the rows of a spatial order, order (n,) the Gaussian in each row (a permutation),
+ * neighbours (n, k) each row's neighbours as rows (-1 none); deformed (n, 3) and the shapes,
+ * SH and outputs by Gaussian. The same numbers as sc_deformation_jacobians (in Gaussian order)
+ * then sc_deform_shapes. linear and linear_rotation (3, 3) row-major, both or NULL: a map
+ * after the deformation (an object's matrix): the shapes go through linear J, the SH through
+ * linear_rotation Q. Returns 0, or -2 when memory runs out. */
+int sc_deform_frame(const float *rest, const float *deformed, int64_t n,
+                    const int32_t *neighbours, int k, const int32_t *order,
+                    double undetermined, double determined, const double *linear,
+                    const double *linear_rotation, const float *log_scales,
+                    const float *quats, const float *sh, int sh_coeffs, float *out_log_scales,
+                    float *out_quats, float *out_sh, int threads);
+
 #ifdef __cplusplus
 }
 #endif

@@ -205,6 +205,29 @@ static const arg_spec DEFORM_SHAPES[] = {
     {"out_sh", 'f', 3, {DIM_N, DIM_K, 3}, WRITABLE, ARRAY, 0},
 };
 
+/* Both in one pass: the rest centres and each one's neighbours in the rows of a spatial order
+ * (neighbours as rows), order (N,) the Gaussian in each row (a permutation); the deformed
+ * centres, shapes and SH by Gaussian. The outputs may be log_scales, quats and sh themselves
+ * (each Gaussian's are read before its own are written). linear and linear_rotation (both or
+ * neither; the second orthogonal): a map after the deformation (an object's matrix), applied
+ * as L J to the shapes and as linear_rotation Q to the SH. */
+static const arg_spec DEFORM_FRAME[] = {
+    {"rest", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    {"deformed", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    {"neighbours", 'i', 2, {DIM_N, ANY}, 0, ARRAY, 0},
+    {"order", 'i', 1, {DIM_N}, 0, ARRAY, 0},
+    SCALAR("undetermined", REAL), SCALAR("determined", REAL),
+    {"linear", 'd', 2, {3, 3}, OPTIONAL | FINITE, ARRAY, 0},
+    {"linear_rotation", 'd', 2, {3, 3}, OPTIONAL | FINITE, ARRAY, 0},
+    {"log_scales", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    {"quats", 'f', 2, {DIM_N, 4}, FINITE, ARRAY, 0},
+    {"sh", 'f', 3, {DIM_N, DIM_K, 3}, 0, ARRAY, 0},
+    SCALAR("threads", THREADS),
+    {"out_log_scales", 'f', 2, {DIM_N, 3}, WRITABLE, ARRAY, 0},
+    {"out_quats", 'f', 2, {DIM_N, 4}, WRITABLE, ARRAY, 0},
+    {"out_sh", 'f', 3, {DIM_N, DIM_K, 3}, WRITABLE, ARRAY, 0},
+};
+
 /* One object each (METH_O): a C-contiguous buffer; what render_train returned. */
 static const arg_spec CHECKSUM[] = {SCALAR("buffer", OBJECT)};
 static const arg_spec TRAIN_STATE_INFO[] = {SCALAR("state", OBJECT)};

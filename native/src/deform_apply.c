@@ -12,23 +12,25 @@
  *     least-squares inverse of the band's basis at them (exact: each band is invariant under
  *     O(3), as transform.py's sh_rotation_matrices solves it). Band 0 is copied bit for bit.
  * Opacity is not touched (as transform.py). */
-#include "internal.h"
+#include "deform.h"
 #include "mat3.h"
 #include "sh_basis.h"
 
-enum { GRAIN = 2048, DIRECTIONS = 9 };
+enum { GRAIN = 2048, DIRECTIONS = SC_SH_DIRECTIONS };
+
+/* The covariance's eigen-decomposition in closed form unless its smallest variance is below
+ * this of the largest (a Gaussian flatter than 1:30000): there the closed form's rounding,
+ * 1e-16 of the largest, would reach 1e-7 of the smallest, and Jacobi keeps it relative.
+ * Close eigenvalues need no fallback here: only the covariance they make back is kept. */
+static const double GRADED = 1e-9;
 
 typedef struct {
-    const float *log_scales, *quats, *sh;
+    sc_shapes shapes;
     const double *jacobians, *rotations;
-    int coeffs;
-    float *out_log_scales, *out_quats, *out_sh;
-    double fixed[DIRECTIONS][3];
-    double project[16][DIRECTIONS]; /* rows 1..15: each band's least-squares inverse */
 } job;
 
 /* Nine directions of a Fibonacci sphere, and P_l = (Y_l^T Y_l)^-1 Y_l^T per band. */
-static void prepare(job *j) {
+void sc_shapes_prepare(sc_shapes *j) {
     double basis[DIRECTIONS][16];
     for (int k = 0; k < DIRECTIONS; ++k) {
         const double z = 1.0 - 2.0 * (k + 0.5) / DIRECTIONS, r = sqrt(1.0 - z * z);
@@ -70,8 +72,7 @@ static void prepare(job *j) {
     }
 }
 
-static void shape_one(const job *j, int64_t i) {
-    const double *J = j->jacobians + 9 * i;
+static void shape_one(const sc_shapes *j, int64_t i, const double J[9]) {
     double unit_q[4], r[9], s[3];
     sc_quat_rotation(j->quats + 4 * i, unit_q, r);
     for (int a = 0; a < 3; ++a) s[a] = exp((double)j->log_scales[3 * i + a]);
@@ -83,7 +84,7 @@ static void shape_one(const job *j, int64_t i) {
         for (int b = 0; b < 3; ++b)
             C[3 * a + b] = L[3 * a] * L[3 * b] + L[3 * a + 1] * L[3 * b + 1] + L[3 * a + 2] * L[3 * b + 2];
     double values[3], vectors[9], q[4];
-    sc_sym3_eigen(C, values, vectors);
+    sc_sym3_eigen(C, values, vectors, GRADED, 0.0);
     const double floor = fmax(values[2] * 1e-24, 1e-36);
     if (sc_m3_det(vectors) < 0.0)
         for (int a = 0; a < 3; ++a) vectors[3 * a] = -vectors[3 * a];
@@ -92,13 +93,12 @@ static void shape_one(const job *j, int64_t i) {
     for (int a = 0; a < 3; ++a) j->out_log_scales[3 * i + a] = (float)(0.5 * log(fmax(values[a], floor)));
 }
 
-static void colour_one(const job *j, int64_t i) {
+static void colour_one(const sc_shapes *j, int64_t i, const double Q[9]) {
     const int coeffs = j->coeffs;
     const float *sh = j->sh + (int64_t)3 * coeffs * i;
     float *out = j->out_sh + (int64_t)3 * coeffs * i;
     out[0] = sh[0], out[1] = sh[1], out[2] = sh[2];
     if (coeffs == 1) return;
-    const double *Q = j->rotations + 9 * i;
     const int degree = coeffs == 4 ? 1 : coeffs == 9 ? 2 : 3;
     static const int BAND[4] = {1, 4, 9, 16};
     double values[DIRECTIONS][3][3] = {{{0}}}; /* [direction][band][channel] */
@@ -121,21 +121,25 @@ static void colour_one(const job *j, int64_t i) {
             }
 }
 
+void sc_shapes_point(const sc_shapes *s, int64_t i, const double J[9], const double Q[9]) {
+    shape_one(s, i, J);
+    colour_one(s, i, Q);
+}
+
 static void deform_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     const job *j = ctx;
-    for (int64_t i = begin; i < end; ++i) {
-        shape_one(j, i);
-        colour_one(j, i);
-    }
+    for (int64_t i = begin; i < end; ++i)
+        sc_shapes_point(&j->shapes, i, j->jacobians + 9 * i, j->rotations + 9 * i);
 }
 
 void sc_deform_shapes(const float *log_scales, const float *quats, const float *sh, int64_t n,
                       int sh_coeffs, const double *jacobians, const double *rotations,
                       float *out_log_scales, float *out_quats, float *out_sh, int threads) {
-    job j = {.log_scales = log_scales, .quats = quats, .sh = sh, .jacobians = jacobians,
-             .rotations = rotations, .coeffs = sh_coeffs, .out_log_scales = out_log_scales,
-             .out_quats = out_quats, .out_sh = out_sh};
-    prepare(&j);
+    job j = {.shapes = {.log_scales = log_scales, .quats = quats, .sh = sh, .coeffs = sh_coeffs,
+                        .out_log_scales = out_log_scales, .out_quats = out_quats,
+                        .out_sh = out_sh},
+             .jacobians = jacobians, .rotations = rotations};
+    sc_shapes_prepare(&j.shapes);
     sc_parallel_for(threads < 1 ? 1 : threads, n, GRAIN, deform_rows, &j);
 }

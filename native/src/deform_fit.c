@@ -24,22 +24,26 @@
  *     direction (the ladder of dashes an unchanged J draws along a bent row).
  * The rotation written beside J is J's polar rotation (SH follow it), or R where J is
  * singular. No neighbours (or all at the centre): J = R = identity. */
-#include "internal.h"
+#include "deform.h"
 #include "mat3.h"
 
 enum { GRAIN = 4096 };
 
 typedef struct {
-    const float *rest, *deformed;
-    const int32_t *neighbours;
-    int k;
-    double undetermined, determined;
+    sc_fit_input in;
     double *jacobians, *rotations;
 } job;
 
 /* A spread ratio at rounding level (an exactly flat neighbourhood) says nothing: 0 whatever
  * `lo` is. */
 static const double FLAT = 1e-12;
+
+/* The spread's eigen-decomposition in closed form where its eigenvalues are this far apart and
+ * from 0 (relative to the largest), by Jacobi elsewhere (a row, a sheet, a lattice's nearly
+ * round neighbourhood): f_m divides by l_m, so each l_m and e_m must hold to rounding relative
+ * to l_m itself, which the closed form gives only for well-separated eigenvalues (its vectors
+ * move by about 1e-16 / separation^2: 1e-10 here). */
+static const double SEPARATED = 1e-3;
 
 static double ramp(double ratio, double lo, double hi) {
     return ratio <= lo || ratio <= FLAT ? 0.0 : ratio >= hi ? 1.0 : (ratio - lo) / (hi - lo);
@@ -50,7 +54,7 @@ static void unit(double v[3]) {
     for (int a = 0; a < 3; ++a) v[a] /= n;
 }
 
-static void fit_one(const job *j, int64_t i, double jac[9], double rot[9]) {
+void sc_fit_point(const sc_fit_input *j, int64_t i, double jac[9], double rot[9]) {
     const float *p = j->rest + 3 * i, *x = j->deformed + 3 * i;
     const int32_t *nb = j->neighbours + (int64_t)j->k * i;
     double reach2 = 0.0;
@@ -78,7 +82,7 @@ static void fit_one(const job *j, int64_t i, double jac[9], double rot[9]) {
             for (int c = 0; c < 3; ++c) A[3 * r + c] += w * a[r] * a[c], B[3 * r + c] += w * b[r] * a[c];
     }
     double values[3], vectors[9];
-    sc_sym3_eigen(A, values, vectors);
+    sc_sym3_eigen(A, values, vectors, SEPARATED, SEPARATED);
     const double l[3] = {values[2], values[1], values[0]};
     double e[3][3];
     for (int a = 0; a < 3; ++a) e[0][a] = vectors[3 * a + 2], e[1][a] = vectors[3 * a + 1];
@@ -130,15 +134,15 @@ static void fit_one(const job *j, int64_t i, double jac[9], double rot[9]) {
 static void fit_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     const job *j = ctx;
-    for (int64_t i = begin; i < end; ++i) fit_one(j, i, j->jacobians + 9 * i, j->rotations + 9 * i);
+    for (int64_t i = begin; i < end; ++i) sc_fit_point(&j->in, i, j->jacobians + 9 * i, j->rotations + 9 * i);
 }
 
 void sc_deformation_jacobians(const float *rest, const float *deformed, int64_t n,
                               const int32_t *neighbours, int k, double undetermined,
                               double determined, double *jacobians, double *rotations,
                               int threads) {
-    job j = {.rest = rest, .deformed = deformed, .neighbours = neighbours, .k = k,
-             .undetermined = undetermined, .determined = determined, .jacobians = jacobians,
-             .rotations = rotations};
+    job j = {.in = {.rest = rest, .deformed = deformed, .neighbours = neighbours, .k = k,
+                    .undetermined = undetermined, .determined = determined},
+             .jacobians = jacobians, .rotations = rotations};
     sc_parallel_for(threads < 1 ? 1 : threads, n, GRAIN, fit_rows, &j);
 }

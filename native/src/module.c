@@ -611,6 +611,7 @@ static PyObject *py_position_noise(PyObject *self, PyObject *args, PyObject *kwa
 static PyObject *py_neighbours(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_deformation_jacobians(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_deform_shapes(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject *kwargs);
@@ -635,6 +636,7 @@ static const signature SIGNATURES[] = {
     ENTRY("neighbours", NEIGHBOURS),
     ENTRY("deformation_jacobians", DEFORMATION_JACOBIANS),
     ENTRY("deform_shapes", DEFORM_SHAPES),
+    ENTRY("deform_frame", DEFORM_FRAME),
     ENTRY("srgb_premultiplied", SRGB_PREMULTIPLIED),
     ENTRY("srgb_view", SRGB_VIEW),
     ENTRY("srgb_decode_changed", SRGB_DECODE_CHANGED),
@@ -969,6 +971,23 @@ static PyObject *py_neighbours(PyObject *self, PyObject *args, PyObject *kwargs)
     return finish(&c, Py_NewRef(Py_None));
 }
 
+/* The neighbour lists (n, k): k in 1..SC_MAX_NEIGHBOURS, each entry a row or -1. */
+static int check_neighbours(const call *c, Py_ssize_t n, Py_ssize_t k) {
+    if (k < 1 || k > SC_MAX_NEIGHBOURS) {
+        PyErr_Format(PyExc_ValueError, "neighbours must have shape (N, k) with k in 1..%d, got "
+                     "k=%zd", (int)SC_MAX_NEIGHBOURS, k);
+        return -1;
+    }
+    const int32_t *neighbours = data_of(c, "neighbours");
+    for (Py_ssize_t i = 0; i < n * k; ++i)
+        if (neighbours[i] < -1 || neighbours[i] >= n) {
+            PyErr_Format(PyExc_ValueError, "neighbours[%zd, %zd] is %d, not a point's index (0..%zd) "
+                         "or -1", i / k, i % k, (int)neighbours[i], n - 1);
+            return -1;
+        }
+    return 0;
+}
+
 static PyObject *py_deformation_jacobians(PyObject *self, PyObject *args, PyObject *kwargs) {
     BEGIN(c, "deformation_jacobians");
     const double lo = real_of(&c, "undetermined"), hi = real_of(&c, "determined");
@@ -977,18 +996,8 @@ static PyObject *py_deformation_jacobians(PyObject *self, PyObject *args, PyObje
     if (check(&c, "rest", "neighbours") != 0 || check(&c, "out_jacobians", "out_rotations") != 0)
         return fail(&c);
     const Py_ssize_t n = SIZE(&c.d, DIM_N), k = view_of(&c, "neighbours")->shape[1];
-    if (k < 1 || k > SC_MAX_NEIGHBOURS) {
-        PyErr_Format(PyExc_ValueError, "neighbours must have shape (N, k) with k in 1..%d, got "
-                     "k=%zd", (int)SC_MAX_NEIGHBOURS, k);
-        return fail(&c);
-    }
+    if (check_neighbours(&c, n, k) != 0) return fail(&c);
     const int32_t *neighbours = data_of(&c, "neighbours");
-    for (Py_ssize_t i = 0; i < n * k; ++i)
-        if (neighbours[i] < -1 || neighbours[i] >= n) {
-            PyErr_Format(PyExc_ValueError, "neighbours[%zd, %zd] is %d, not a point's index (0..%zd) "
-                         "or -1", i / k, i % k, (int)neighbours[i], n - 1);
-            return fail(&c);
-        }
     const float *rest = data_of(&c, "rest"), *deformed = data_of(&c, "deformed");
     double *jacobians = data_of(&c, "out_jacobians"), *rotations = data_of(&c, "out_rotations");
     const int threads = threads_of(&c);
@@ -1029,6 +1038,62 @@ static PyObject *py_deform_shapes(PyObject *self, PyObject *args, PyObject *kwar
     sc_deform_shapes(log_scales, quats, sh, n, coeffs, jacobians, rotations, out_log_scales,
                      out_quats, out_sh, threads);
     Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
+static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "deform_frame");
+    const double lo = real_of(&c, "undetermined"), hi = real_of(&c, "determined");
+    if (!(lo >= 0.0 && lo <= hi && hi <= 1.0)) {
+        value_error("need 0 <= undetermined <= determined <= 1, got %g and %g", lo, hi);
+        return fail(&c);
+    }
+    if (check(&c, "rest", "sh") != 0 || check(&c, "out_log_scales", "out_sh") != 0)
+        return fail(&c);
+    const Py_ssize_t n = SIZE(&c.d, DIM_N), k = view_of(&c, "neighbours")->shape[1];
+    if (check_neighbours(&c, n, k) != 0) return fail(&c);
+    const int32_t *order = data_of(&c, "order");
+    uint8_t *seen = calloc((size_t)(n > 0 ? n : 1), 1);
+    if (seen == NULL) return fail(&c), PyErr_NoMemory();
+    for (Py_ssize_t row = 0; row < n; ++row) {
+        const int32_t i = order[row];
+        if (i < 0 || i >= n || seen[i]) {
+            free(seen);
+            value_error("order must be a permutation of 0..%zd: order[%zd] is %d%s", n - 1, row,
+                        (int)i, i >= 0 && i < n ? ", again" : "");
+            return fail(&c);
+        }
+        seen[i] = 1;
+    }
+    free(seen);
+    const double *linear = data_of(&c, "linear"), *linear_rotation = data_of(&c, "linear_rotation");
+    if ((linear == NULL) != (linear_rotation == NULL)) {
+        value_error("linear and linear_rotation go together: give both or neither");
+        return fail(&c);
+    }
+    for (int a = 0; linear_rotation != NULL && a < 3; ++a)
+        for (int b = 0; b < 3; ++b) {
+            const double *q = linear_rotation;
+            const double dot = q[3 * a] * q[3 * b] + q[3 * a + 1] * q[3 * b + 1] + q[3 * a + 2] * q[3 * b + 2];
+            if (fabs(dot - (a == b)) > 1e-6) {
+                value_error("linear_rotation is not orthogonal (row %d . row %d = %g)", a, b, dot);
+                return fail(&c);
+            }
+        }
+    const float *rest = data_of(&c, "rest"), *deformed = data_of(&c, "deformed"),
+                *log_scales = data_of(&c, "log_scales"), *quats = data_of(&c, "quats"),
+                *sh = data_of(&c, "sh");
+    float *out_log_scales = data_of(&c, "out_log_scales"), *out_quats = data_of(&c, "out_quats"),
+          *out_sh = data_of(&c, "out_sh");
+    const int32_t *neighbours = data_of(&c, "neighbours");
+    const int coeffs = (int)SIZE(&c.d, DIM_K), threads = threads_of(&c);
+    int status;
+    Py_BEGIN_ALLOW_THREADS
+    status = sc_deform_frame(rest, deformed, n, neighbours, (int)k, order, lo, hi, linear,
+                             linear_rotation, log_scales, quats, sh, coeffs, out_log_scales,
+                             out_quats, out_sh, threads);
+    Py_END_ALLOW_THREADS
+    if (status != 0) return fail(&c), PyErr_NoMemory();
     return finish(&c, Py_NewRef(Py_None));
 }
 
@@ -1416,6 +1481,9 @@ static PyMethodDef methods[] = {
     {"deform_shapes", WITH_KEYWORDS(py_deform_shapes),
      "deform_shapes(...) -> None\n\nLog-scales and quaternions of J Sigma J^T and SH rotated, "
      "a Jacobian and a rotation per Gaussian (sc_deform_shapes)."},
+    {"deform_frame", WITH_KEYWORDS(py_deform_frame),
+     "deform_frame(...) -> None\n\nThe deformation Jacobians fitted and the Gaussians' shapes "
+     "and SH through them, in one pass over rows in a spatial order (sc_deform_frame)."},
     {"srgb_premultiplied", WITH_KEYWORDS(py_srgb_premultiplied),
      "srgb_premultiplied(...) -> None\n\nPremultiplied RGBA (..., 4) scene-linear -> display "
      "sRGB (decode False) or back (True), into out (rgba itself, or an array of its shape)."},

@@ -16,7 +16,8 @@ from addon.core.images import files
 from addon.core.transform import transform_gaussians
 
 ROOT = Path(__file__).resolve().parents[2]
-VERBS = ("reconstruct", "import-colmap", "train", "render", "convert-to-mesh", "convert")
+VERBS = ("reconstruct", "import-colmap", "train", "render", "export", "convert-to-mesh",
+         "convert")
 
 
 def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -54,6 +55,10 @@ def test_bad_arguments_and_bad_input_are_clear(tmp_path, capsys):
     assert "none.ply" in capsys.readouterr().err
     assert cli.main(["convert", "a.ply", "b.ply", "--up", "W"]) == 2
     assert cli.main(["render", "x.blend", "--frames", "5-2"]) == 2
+    assert cli.main(["export", "x.blend", "--out", "rig.txt"]) == 2
+    assert "rig.txt" in capsys.readouterr().err
+    assert cli.main(["export", "x.ply", "--out", "rig.ply"]) == 2
+    assert "expected a .blend" in capsys.readouterr().err
     assert cli.main(["nonsense"]) == 2
 
 

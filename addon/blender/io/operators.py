@@ -420,13 +420,34 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
     forward_axis: _axis_prop("Forward", "+Y")
     up_axis: _axis_prop("Up", "+Z")
     sequence: _sequence_prop(
-        "Export as Sequence", "One file per frame of the scene's frame range; the name's # (or "
-                              "%04d) takes the frame number (added before the extension when "
-                              "missing)")
+        "Export as Sequence", "One file per frame (the object as it is at that frame: "
+                              "animated, deformed, a sequence); the name's # (or %04d) takes "
+                              "the frame number (added before the extension when missing)")
+    use_scene_range: BoolProperty(
+        name="Scene Frame Range",
+        description="Export the scene's frame range; off: the frames from Start to End",
+        default=True)
+    frame_start: IntProperty(name="Start", description="First frame exported (Scene Frame "
+                                                       "Range off)", default=1)
+    frame_end: IntProperty(name="End", description="Last frame exported (Scene Frame Range "
+                                                   "off)", default=250)
 
     @classmethod
     def poll(cls, context):
         return any_splats.is_splat_source(context.active_object)
+
+    def invoke(self, context, event):
+        if not self.properties.is_property_set("frame_start"):
+            self.frame_start = context.scene.frame_start
+        if not self.properties.is_property_set("frame_end"):
+            self.frame_end = context.scene.frame_end
+        return super().invoke(context, event)
+
+    def frames(self, scene) -> range:
+        """The frames a sequence export writes."""
+        if self.use_scene_range:
+            return range(scene.frame_start, scene.frame_end + 1)
+        return range(self.frame_start, self.frame_end + 1)
 
     def check(self, context):
         # Keep any ending a format writes (".sog", "meta.json", ...); add .ply otherwise.
@@ -444,9 +465,14 @@ class SPLAT_OT_export_splats(bpy.types.Operator, ExportHelper):
             return {"CANCELLED"}
         if self.sequence:
             target = sequence.sequence_pattern(self.filepath)
+            frames = self.frames(context.scene)
+            if not frames:
+                self.report({"ERROR"}, f"Cannot export: no frames from {self.frame_start} to "
+                                       f"{self.frame_end}")
+                return {"CANCELLED"}
 
             def write() -> tuple[list[str], str]:
-                written = export_sequence(obj, target, scene=context.scene,
+                written = export_sequence(obj, target, frames, scene=context.scene,
                                           world_space=self.world_space,
                                           forward_axis=self.forward_axis, up_axis=self.up_axis)
                 return [], f"Exported {len(written)} frames of {obj.name} to {target}"

@@ -157,6 +157,13 @@ class Source:
         out; what the reading leaves out is added to `warnings`."""
         raise NotImplementedError
 
+    def read_world(self, matrix: np.ndarray, sh_degree: int,
+                   warnings: list[str]) -> Gaussians | None:
+        """Its Gaussians taken by `matrix` (4x4) and cut to `sh_degree` in one step, for a
+        source that does that for less than `read` then `transform_gaussians` (a deformed
+        splat object turns each SH once); None: read, then transform."""
+        return None
+
 
 def settings_of(evaluated, owner, is_one, or_one):
     """`obj.splat` of the splat object the geometry belongs to: the evaluated object's original

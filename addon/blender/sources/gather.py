@@ -8,7 +8,9 @@ cloud), asks it for its Gaussians in object space (SH bands limited to the objec
 `sh_degree` option) and transforms them by the matrix it renders with
 (`addon.core.transform.transform_gaussians`: centres, rotations, scales and SH bands 1-3; a
 non-uniform scale re-decomposes each covariance exactly and rotates the SH by the polar
-rotation), then batches and caches them. Render options come from the splat object the
+rotation; a source that does both for less, a deformed splat object turning each SH once,
+gives them in world space itself: `Source.read_world`), then batches and caches them. Render
+options come from the splat object the
 geometry belongs to: the evaluated object itself when it is a splat object, else the instancer
 (`obj.splat`), else the defaults.
 
@@ -184,13 +186,15 @@ def _world(source: Source, matrix: np.ndarray, sh_degree: int, use_cache: bool,
         return cached, True
     local_key = (fingerprint, sh_degree) if fingerprint is not None else None
     local = local_this_call.get(local_key) if local_key is not None else None
-    if local is None:
-        local = source.read(warnings)
-        if sh_degree < local.degree:
-            local = local.with_degree(sh_degree)
-        if local_key is not None:
-            local_this_call[local_key] = local
-    world = transform_gaussians(local, matrix)
+    world = source.read_world(matrix, sh_degree, warnings) if local is None else None
+    if world is None:
+        if local is None:
+            local = source.read(warnings)
+            if sh_degree < local.degree:
+                local = local.with_degree(sh_degree)
+            if local_key is not None:
+                local_this_call[local_key] = local
+        world = transform_gaussians(local, matrix)
     if use_cache and not source.keyed:
         previous = _edit_cache.get(identity)
         if previous is not None and previous[0] == world_key \

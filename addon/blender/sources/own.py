@@ -7,8 +7,10 @@ parent) moves the vertices, which are the Gaussians' centres, and passes every o
 through as stored. When the evaluated geometry has the original's point count and its centres
 moved, each Gaussian's shape and SH follow the deformation too (`core.deform`: the Jacobian at
 its centre from its neighbours, rest positions read from the original data, their neighbour
-lists cached while those stay the same). An object with none of these reads as it always did, at
-no extra cost; one whose stack moves nothing costs one comparison of the positions.
+lists cached while those stay the same), the object's matrix folded into that one pass
+(`read_world`: each SH turned once, not for the deformation and again by the gather). An object
+with none of these reads as it always did, at no extra cost; one whose stack moves nothing costs
+one comparison of the positions.
 
 A splat sequence's frame is one of these: `io/sequence.py` rewrites the object's mesh with the
 frame's file before Blender evaluates the frame, so its key and contents follow the frame."""
@@ -20,6 +22,7 @@ import numpy as np
 from ...core import native
 from ...core.deform import RestNeighbours, deform
 from ...core.gaussians import Gaussians
+from ...core.transform import transform_gaussians
 from .. import splat_object
 from ..blender_splats import data as blender_data
 from .base import Source, settings_of
@@ -93,13 +96,32 @@ class OwnObject(Source):
         return own if rest is None else (own, native.checksum(_positions(rest)))
 
     def read(self, warnings: list[str]) -> Gaussians:
+        return self._read(None, None)
+
+    def read_world(self, matrix: np.ndarray, sh_degree: int,
+                   warnings: list[str]) -> Gaussians | None:
+        """Deformed: the object's matrix folded into the deformation's one pass (each SH
+        turned once, not for the deformation and again for the object); else None (read, then
+        transform, as any source)."""
+        if self.rest_data() is None:
+            return None
+        return self._read(matrix, sh_degree)
+
+    def _read(self, matrix: np.ndarray | None, sh_degree: int | None) -> Gaussians:
         gaussians = splat_object.gaussians_from_data(self.data, drop_hidden=False)
+        if sh_degree is not None and sh_degree < gaussians.degree:
+            gaussians = gaussians.with_degree(sh_degree)
         rest_data = self.rest_data()
+        deformed = False
         if rest_data is not None:
             rest = _positions(rest_data)
             if not np.array_equal(rest, gaussians.means):
-                neighbours = _neighbours.get(self.evaluated.original.session_uid, rest)
-                gaussians = deform(gaussians, rest, neighbours)
+                hoods = _neighbours.get(self.evaluated.original.session_uid, rest)
+                # over a fresh read no one else holds
+                gaussians = deform(gaussians, hoods, matrix=matrix, in_place=True)
+                deformed = True
+        if matrix is not None and not deformed:
+            gaussians = transform_gaussians(gaussians, matrix)
         hide = splat_object.hidden_mask(self.data)
         if hide is not None and len(hide) == len(gaussians):
             gaussians = gaussians.subset(~hide)

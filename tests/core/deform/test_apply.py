@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 import reference_deform
-from addon.core.deform import deform, deform_gaussians, rest_neighbours
+from addon.core.deform import (Neighbourhoods, deform, deform_gaussians, deformation_jacobians,
+                              neighbourhoods, rest_neighbours)
 from addon.core.gaussians import Gaussians
-from addon.core.transform import covariances, quat_to_matrix
+from addon.core.transform import covariances, quat_to_matrix, transform_gaussians
 from reference import eval_sh
 from scenes import random_gaussians
 
@@ -90,9 +91,83 @@ def test_deform_follows_an_analytic_twist(rng):
     g = random_gaussians(rng, len(rest), 2)
     moved, jac = reference_deform.twist(rest, 2.0)
     g = Gaussians(moved, g.log_scales, g.quats, g.opacity_logits, g.sh)
-    out = deform(g, rest, rest_neighbours(rest))
+    out = deform(g, neighbourhoods(rest))
     want = reference_deform.deformed(g, jac, np.stack([reference_deform.polar(j) for j in jac]))
     cov, cov_want = covariances(out), covariances(want)
     scale = np.abs(cov_want).max(axis=(1, 2), keepdims=True)
     assert np.median((np.abs(cov - cov_want) / scale).max(axis=(1, 2))) < 0.02
     assert np.median(np.abs(out.sh - want.sh).max(axis=(1, 2))) < 0.02
+
+
+@pytest.mark.parametrize("degree", [0, 3])
+def test_one_pass_is_the_two_stages_for_every_thread_count(rng, degree):
+    """`deform` (native deform_frame: fit and shapes per Gaussian over the rows of a spatial
+    order) gives bit for bit what the fit in the Gaussians' order then the shapes give, with 1,
+    2 or 5 threads; a hidden-free random cloud under a smooth random deformation."""
+    n = int(rng.integers(5000, 9000))  # more than one grain of rows per thread
+    rest = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    a = np.eye(3) + rng.normal(scale=0.3, size=(3, 3))
+    moved = (rest @ a.T + 0.3 * np.sin(rest @ rng.normal(scale=1.5, size=(3, 3)))) \
+        .astype(np.float32)
+    g = random_gaussians(rng, n, degree)
+    g = Gaussians(moved, g.log_scales, g.quats, g.opacity_logits, g.sh)
+    jac, rot = deformation_jacobians(rest, moved, rest_neighbours(rest))
+    want = deform_gaussians(g, jac, rot)
+    hoods = neighbourhoods(rest)
+    for threads in (1, 2, 5):
+        out = deform(g, hoods, threads=threads)
+        for name in ("log_scales", "quats", "sh"):
+            assert np.array_equal(getattr(out, name), getattr(want, name)), (threads, name)
+        assert out.means is g.means and out.opacity_logits is g.opacity_logits
+    copy = Gaussians(*(a.copy() for a in g.arrays().values()))
+    out = deform(copy, hoods, in_place=True)  # over its own arrays: the same numbers
+    for name in ("log_scales", "quats", "sh"):
+        assert getattr(out, name) is getattr(copy, name), name
+        assert np.array_equal(getattr(copy, name), getattr(want, name)), name
+
+
+@pytest.mark.parametrize("kind", ["rotation", "similarity", "shear", "mirror"])
+def test_an_object_matrix_folds_into_the_one_pass(rng, kind):
+    """`deform(..., matrix=M)` is `transform_gaussians(deform(...), M)` (the gather's object
+    matrix after the deformation), with each SH turned once: the centres bit for bit, the
+    covariances and SH to float32 rounding (as test_native_shapes_and_sh_are_the_reference)."""
+    n = 3000
+    rest = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    moved = (rest + 0.2 * np.sin(2.0 * rest[:, [1, 2, 0]])).astype(np.float32)
+    g = random_gaussians(rng, n, 3)
+    g = Gaussians(moved, g.log_scales, g.quats, g.opacity_logits, g.sh)
+    linear = quat_to_matrix(rng.normal(size=(1, 4)))[0]
+    if kind == "similarity":
+        linear = 2.5 * linear
+    elif kind == "shear":
+        linear = linear @ (np.eye(3) + np.triu(rng.normal(scale=0.5, size=(3, 3)), 1))
+    elif kind == "mirror":
+        linear = linear @ np.diag([1.0, -1.0, 1.0])
+    matrix = np.eye(4)
+    matrix[:3, :3], matrix[:3, 3] = linear, rng.normal(size=3)
+    hoods = neighbourhoods(rest)
+    out = deform(g, hoods, matrix=matrix, threads=2)
+    want = transform_gaussians(deform(g, hoods), matrix)
+    assert np.array_equal(out.means, want.means)
+    cov, cov_want = covariances(out), covariances(want)
+    scale = np.abs(cov_want).max(axis=(1, 2), keepdims=True)
+    assert (np.abs(cov - cov_want) / scale).max() <= 1e-5
+    assert np.abs(out.sh - want.sh).max() <= 1e-5
+    with pytest.raises(ValueError, match="affine"):
+        deform(g, hoods, matrix=np.ones((4, 4)))
+
+
+def test_one_pass_checks_its_inputs(rng):
+    rest = rng.normal(size=(50, 3)).astype(np.float32)
+    g = random_gaussians(rng, 50, 1)
+    hoods = neighbourhoods(rest, 4)
+    with pytest.raises(ValueError, match="neighbourhoods of 50 rest centres for 49"):
+        deform(g.subset(np.arange(49)), hoods)
+    order = hoods.order.copy()
+    order[3] = order[4]
+    with pytest.raises(ValueError, match="permutation"):
+        deform(g, Neighbourhoods(hoods.rest, hoods.neighbours, order))
+    bad = hoods.neighbours.copy()
+    bad[2, 1] = 50
+    with pytest.raises(ValueError, match="not a point's index"):
+        deform(g, Neighbourhoods(hoods.rest, bad, hoods.order))

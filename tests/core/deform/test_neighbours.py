@@ -1,7 +1,7 @@
-"""addon.core.deform.neighbours (native uniform grid) against the brute-force float64 twin
+"""addon.core.deform.neighbours (native k-d tree) against the brute-force float64 twin
 (tests/reference_deform.py): the same lists, index for index, on random clouds of every kind
 the grid finds hard (uniform, clustered with far outliers, a row, a sheet, duplicates, exact
-ties on a dyadic lattice, fewer points than k), and the cache."""
+ties on a dyadic lattice, fewer points than k), their spatial layout and the cache."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import reference_deform
-from addon.core.deform import RestNeighbours, rest_neighbours
+from addon.core.deform import RestNeighbours, neighbourhoods, rest_neighbours, spatial_order
 
 
 def clouds(rng) -> dict[str, np.ndarray]:
@@ -67,7 +67,35 @@ def test_the_cache_keeps_lists_while_the_rest_positions_hold(rng):
     moved[17, 2] += 0.5
     again = cache.get("a", moved)
     assert again is not first
-    assert np.array_equal(again, reference_deform.neighbours(moved, 8))
+    assert np.array_equal(again.lists(), reference_deform.neighbours(moved, 8))
     cache.get("b", points)
     cache.keep_only({"b"})
     assert len(cache) == 1
+
+
+def test_the_spatial_layout_holds_the_same_lists(rng):
+    """`neighbourhoods` lays the rest positions out in Z-order; the rows it gives hold every
+    Gaussian once, the rest positions and neighbour lists unchanged (`lists` gives them back
+    by Gaussian), and neighbours lie closer in that order than in a random one."""
+    for name, points in clouds(rng).items():
+        points = points.astype(np.float32)
+        hoods = neighbourhoods(points, 8)
+        n = len(points)
+        assert np.array_equal(np.sort(hoods.order), np.arange(n)), name
+        assert np.array_equal(hoods.rest, points[hoods.order]), name
+        assert np.array_equal(hoods.lists(), rest_neighbours(points, 8)), name
+    points = rng.normal(size=(5000, 3)).astype(np.float32)
+    hoods = neighbourhoods(points, 8)
+    rows = np.arange(len(points))[:, None]
+    assert np.median(np.abs(hoods.neighbours - rows)) < 100  # a random order: ~1700
+    assert len(neighbourhoods(np.zeros((0, 3), np.float32))) == 0
+
+
+def test_the_order_is_z_order(rng):
+    """Points on an 8^3 lattice come out in Morton order of their cells."""
+    cells = rng.permutation(np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1)
+                            .reshape(-1, 3))
+    order = spatial_order(cells.astype(np.float32))
+    codes = [sum(((int(c[a]) >> b) & 1) << (3 * b + a) for a in range(3) for b in range(3))
+             for c in cells[order]]
+    assert codes == sorted(codes) and len(set(codes)) == 512
