@@ -2,9 +2,9 @@
 # The native module under sanitizers (Linux, gcc or clang):
 #   1. splatcore built with AddressSanitizer + UndefinedBehaviorSanitizer (any report aborts),
 #      running the native tests (forward, backward, training kernels, bad input, hard cases,
-#      threads) and the fuzz test;
+#      threads, deformation) and the fuzz test;
 #   2. splatcore built with ThreadSanitizer, running the threaded tests (the thread pool, renders
-#      from several Python threads, thread counts).
+#      from several Python threads, thread counts, the deformation pass on 1, 2 and 5 threads).
 # The sanitized builds go to build/sanitize/ and are put first on PYTHONPATH; .venv's own
 # splatcore is untouched. Python itself is not instrumented, so the sanitizer runtime is
 # preloaded (with libstdc++, so that pycolmap's C++ exceptions still work); leak checking is off
@@ -45,7 +45,8 @@ run() {  # run <name> <sanitizer runtime> <pytest arguments...>: the tests on bu
 }
 
 NATIVE_TESTS=(tests/core/render/test_render_reference.py tests/core/train/test_backward.py tests/core/train/test_train_kernels.py
-              tests/core/render/test_bad_arguments.py tests/core/render/test_hard_cases.py tests/core/render/test_threads.py)
+              tests/core/render/test_bad_arguments.py tests/core/render/test_hard_cases.py tests/core/render/test_threads.py
+              tests/core/deform)
 
 if [ "$which" = all ] || [ "$which" = asan ]; then
     echo "sanitize: AddressSanitizer + UndefinedBehaviorSanitizer"
@@ -55,6 +56,7 @@ fi
 if [ "$which" = all ] || [ "$which" = tsan ]; then
     echo "sanitize: ThreadSanitizer"
     build tsan "-fsanitize=thread"
-    run tsan libtsan.so tests/core/render/test_threads.py tests/core/train/test_train_kernels.py
+    run tsan libtsan.so tests/core/render/test_threads.py tests/core/train/test_train_kernels.py \
+        tests/core/deform/test_apply.py
 fi
 echo "sanitize: clean"
