@@ -35,6 +35,7 @@ run() {  # run <name> <sanitizer runtime> <pytest arguments...>: the tests on bu
     local options="halt_on_error=1:log_path=$out/report"
     (
         export PYTHONPATH="$out"
+        export OPENBLAS_NUM_THREADS=1  # numpy's BLAS threads are not instrumented: false races
         export LD_PRELOAD="$($CC -print-file-name="$runtime") $($CC -print-file-name=libstdc++.so.6)"
         export ASAN_OPTIONS="$options:detect_leaks=0:abort_on_error=1:allocator_may_return_null=1"
         export UBSAN_OPTIONS="$options:print_stacktrace=1"

@@ -89,7 +89,7 @@ static const char DIM_LETTER[NAMED_DIMS] = {'N', 'K', 'H', 'W', 'N'};
 enum {
     WRITABLE = 1, /* an output: the array must be writable */
     OPTIONAL = 2, /* None is allowed (its view is NULL) */
-    FINITE = 4,   /* float32 values that must all be finite */
+    FINITE = 4,   /* values (float32 or float64) that must all be finite */
     STRIDED = 8,  /* any strides (otherwise C-contiguous) */
     ANY_RANK = 16, /* any shape (ndim and shape unused): later LIKE arguments must have it */
     LIKE = 32,    /* the shape of the ANY_RANK argument before it (ndim and shape unused) */
@@ -182,7 +182,7 @@ static const Py_buffer *get_array(buffers *b, PyObject *obj, const char *name, c
     return view;
 }
 
-static int check_finite_array(const float *v, int64_t n, const char *name);
+static int check_finite(const Py_buffer *view, const char *name);
 
 /* A named size just bound: N and K have limits of their own. */
 static int check_bound(int dim, Py_ssize_t size) {
@@ -245,9 +245,7 @@ static int check_args(buffers *b, arg_dims *d, const arg_spec *specs, int count,
             }
         }
         if (s->flags & ANY_RANK) d->like = view;
-        if ((s->flags & FINITE) &&
-            check_finite_array(view->buf, (int64_t)(view->len / view->itemsize), s->name) != 0)
-            return -1;
+        if ((s->flags & FINITE) && check_finite(view, s->name) != 0) return -1;
         views[i] = view;
     }
     return 0;
@@ -578,6 +576,12 @@ static int check_mesh(const float *rgba, const float *depth, int64_t pixels) {
     return 0;
 }
 
+static int non_finite_at(const char *name, int64_t i) {
+    PyErr_Format(PyExc_ValueError, "%s has a non-finite value (NaN or Inf) at flat index %lld",
+                 name, (long long)i);
+    return -1;
+}
+
 static int check_finite_array(const float *v, int64_t n, const char *name) {
     /* One branch-free pass (it vectorises: these arrays are whole images and gradients); the
      * index is looked for only when there is something to report. */
@@ -589,11 +593,17 @@ static int check_finite_array(const float *v, int64_t n, const char *name) {
     }
     if (!bad) return 0;
     for (int64_t i = 0; i < n; ++i)
-        if (!isfinite(v[i])) {
-            PyErr_Format(PyExc_ValueError, "%s has a non-finite value (NaN or Inf) at flat index %lld",
-                         name, (long long)i);
-            return -1;
-        }
+        if (!isfinite(v[i])) return non_finite_at(name, i);
+    return 0;
+}
+
+/* A FINITE argument's values, float32 or float64 as its spec says (itemsize). */
+static int check_finite(const Py_buffer *view, const char *name) {
+    const int64_t n = (int64_t)(view->len / view->itemsize);
+    if (view->itemsize == (Py_ssize_t)sizeof(float)) return check_finite_array(view->buf, n, name);
+    const double *v = view->buf;
+    for (int64_t i = 0; i < n; ++i)
+        if (!isfinite(v[i])) return non_finite_at(name, i);
     return 0;
 }
 

@@ -171,3 +171,19 @@ def test_one_pass_checks_its_inputs(rng):
     bad[2, 1] = 50
     with pytest.raises(ValueError, match="not a point's index"):
         deform(g, Neighbourhoods(hoods.rest, bad, hoods.order))
+
+
+def test_float64_maps_are_checked_as_float64(rng):
+    """The object matrix's parts are float64 (FINITE): checked as such. Read as float32 (a
+    binding declared them finite as if float32 once), a finite double whose low half has a NaN's
+    bits was refused about one run in six."""
+    rest = rng.normal(size=(50, 3)).astype(np.float32)
+    g = random_gaussians(rng, 50, 1)
+    hoods = neighbourhoods(rest, 4)
+    scale = np.frombuffer(np.array([0x3FF000007FC00000], np.uint64).tobytes(), np.float64)[0]
+    assert np.isfinite(scale) and np.isnan(np.array([scale]).view(np.float32)[0])
+    matrix = np.diag([scale, scale, scale, 1.0])
+    out = deform(g, hoods, matrix=matrix)
+    assert np.isfinite(out.log_scales).all()
+    with pytest.raises(ValueError, match="non-finite"):
+        deform(g, hoods, matrix=np.diag([np.inf, 1.0, 1.0, 1.0]))
