@@ -120,7 +120,7 @@ def switch_off_layers(scene) -> None:
     a second, instead of after a whole frame of meshes (Blender renders a compositor's other
     scenes after the scene's own). `switch_on_layers` puts them back (save_post, load_post)."""
     names = [layer.name for layer in scene.view_layers if layer.use]
-    if names:
+    if names and scene.library is None:  # a linked scene is its library's to save
         for layer in scene.view_layers:
             layer.use = False
         scene[LAYERS_FLAG] = names
@@ -129,7 +129,7 @@ def switch_off_layers(scene) -> None:
 def switch_on_layers(scene) -> None:
     """The view layers `switch_off_layers` switched off for the file, on again."""
     names = scene.get(LAYERS_FLAG)
-    if names is None:
+    if names is None or scene.library is not None:  # linked: read-only, its file's own state
         return
     for name in names:
         layer = scene.view_layers.get(name)

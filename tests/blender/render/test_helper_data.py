@@ -166,6 +166,8 @@ def test_files_are_saved_with_their_view_layers_off(rng, tmp_path):
     linked = next(s for s in bpy.data.scenes if s.library is not None and s.name == scene.name)
     assert not any(layer.use for layer in linked.view_layers)
     assert list(linked[bridge.LAYERS_FLAG]) == [scene.view_layers[0].name]
+    bridge.switch_on_layers(linked)   # a linked scene stays as its file holds it
+    assert not any(layer.use for layer in linked.view_layers) and bridge.LAYERS_FLAG in linked
     name = scene.name
     bpy.ops.wm.open_mainfile(filepath=path)   # load_post switches them back on
     scene = bpy.data.scenes[name]
