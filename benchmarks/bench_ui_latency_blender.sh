@@ -25,7 +25,7 @@ blender --command extension install-file -r user_default -e $t/extension.zip > "
     || { echo "bench_ui_latency_blender: install failed (see $io/install.log)"; exit 1; }
 blender -b --python-expr "import bpy; bpy.ops.wm.read_homefile(); \
 bpy.ops.wm.save_as_mainfile(filepath='$t/start.blend')" > "$io/start.log" 2>&1
-timeout $((4 * SECONDS_EACH + 300)) "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user sh -c \
+timeout $((6 * SECONDS_EACH + 300)) "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user sh -c \
     "xvfb-run -a -s '-screen 0 1600x900x24' blender $t/start.blend \
      --python $t/ui_latency.py -- $t/colmap $t/latency.json $SECONDS_EACH > $t/ui.log 2>&1"
 [ -f "$io/latency.json" ] || { echo "bench_ui_latency_blender: no result (see $io/ui.log)"; exit 1; }

@@ -47,6 +47,8 @@ from bpy.app.handlers import persistent
 from ..core import colour
 from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
+from ..core.jobs import ui_kernel_threads
+from ..core.priority import at_background_priority
 from ..core.render.renderer import render
 from .sources import gather
 from .splat_object import BOUNDS_FLAG, drawn_by_addon, needs_sync, sync_display  # noqa: F401
@@ -355,9 +357,15 @@ class ViewportRenderer:
                 region, _ = next(k for k in self._jobs if k[1] == coarse)
                 job = self._jobs.pop((region, coarse))
                 self._running += 1
+            # Threads 0: every core but the UI's. On the UI's cores (one kernel thread) the
+            # render yields to the UI's own redraws.
+            threads = job.options["threads"] or ui_kernel_threads()
+
+            def draw() -> ViewportImage:
+                return render_view(job.gaussians, job.camera, job.window_matrix, key=job.key,
+                                   coarse=job.coarse, **{**job.options, "threads": threads})
             try:
-                image = render_view(job.gaussians, job.camera, job.window_matrix, key=job.key,
-                                    coarse=job.coarse, **job.options)
+                image = at_background_priority(draw) if threads == 1 else draw()
             except Exception as error:  # a bad frame must not kill the worker
                 image = None
                 self.errors.append(str(error))

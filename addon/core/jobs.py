@@ -45,6 +45,7 @@ from typing import Callable, Generator, Sequence
 
 from .gaussians import Gaussians
 from .native import cpu_count
+from .priority import at_background_priority
 from .train.trainer import CompactionReport, Evaluation, Trainer, compact
 
 PHASES = ("waiting", "loading", "working", "training", "compacting", "evaluating", "saving", "done",
@@ -306,7 +307,11 @@ class TrainingJob:
             if self._thread is not None and threads == 0:  # beside a UI: leave it a core
                 trainer.config.threads = ui_kernel_threads()
             try:
-                self._train(trainer, total)
+                if self._thread is not None and trainer.config.threads == 1:
+                    # The kernels run on the training's own thread, beside the UI: it yields.
+                    at_background_priority(lambda: self._train(trainer, total))
+                else:
+                    self._train(trainer, total)
             finally:
                 trainer.config.threads = threads
             if self.after_training is not None:

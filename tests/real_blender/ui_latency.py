@@ -5,7 +5,8 @@ status bar, the splat object updated as it trains and drawn by the add-on's view
     blender START.blend --python ui_latency.py -- COLMAP_DIR OUT.json [SECONDS]
 
 Phases of SECONDS each, in order: nothing running (Blender's own lateness); the 3D view
-redrawn every 0.25 s (what one redraw costs here); Train Gaussians with its defaults; the same
+redrawn every 0.25 s (what one redraw costs here); a cube added with Add > Mesh > Cube (what
+Blender's own redraws after an object appears cost here); Train Gaussians with its defaults; the same
 with the add-on's viewport drawing off; then training again with no updates of the object
 (`Update Every` 0). OUT.json holds each phase's lateness in ms (every tick), the 3D view draws
 counted (the add-on's draw handler), the training steps done, and a timeline of its stalls
@@ -157,6 +158,20 @@ def redraws(on: bool):
     return step
 
 
+def add_a_cube_soon():
+    """Blender's own cost of an update that adds an object (Add > Mesh > Cube, 1 s into the
+    next phase): the floor under the update that makes the splat object."""
+    def add():
+        with override():
+            bpy.ops.mesh.primitive_cube_add(location=(0.0, 0.0, -100.0))
+        record["cube"] = bpy.context.active_object.name
+    bpy.app.timers.register(add, first_interval=1.0)
+
+
+def remove_the_cube():
+    bpy.data.objects.remove(bpy.data.objects[record.pop("cube")])
+
+
 def viewport(on: bool):
     def step():
         bpy.context.scene.splat_render.viewport = on
@@ -172,6 +187,8 @@ def finish():
 ui_kit.run_steps(bpy, [
     count_draws, import_scene, ticker.measure("idle"),
     redraws(True), ticker.measure("3D view redrawn every 0.25 s"), redraws(False),
+    add_a_cube_soon, ticker.measure("a cube added (Blender's own update), then idle"),
+    remove_the_cube,
     start_training(), ticker.measure("training", training_steps),
     viewport(False), ticker.measure("training, splats not in the viewport", training_steps),
     stop_training, wait_until_stopped, viewport(True),

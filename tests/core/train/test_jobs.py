@@ -4,6 +4,8 @@ never one per step."""
 
 from __future__ import annotations
 
+import sys
+
 import pytest
 
 from addon.core.jobs import Progress, ProgressPrinter, StagedJob, status_line
@@ -119,3 +121,37 @@ def test_a_training_job_on_a_worker_leaves_the_ui_a_core(monkeypatch) -> None:
         assert trainer.config.threads == 0  # as configured afterwards (checkpoints say so)
     monkeypatch.setattr(jobs, "cpu_count", lambda: 1)
     assert jobs.ui_kernel_threads() == 1
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice: Linux")
+def test_a_training_whose_kernels_share_the_uis_cores_yields_to_it(monkeypatch) -> None:
+    """On 2 cores the kernels run on the training's own thread, beside the UI's redraws: its
+    steps run at a lowered priority; what follows (compaction, evaluation, on all cores and so
+    through the native thread pool) does not, so the pool never inherits it."""
+    import os
+    import threading
+    from pathlib import Path
+
+    from addon.core import jobs
+    from addon.core.colmap import read_colmap
+    from addon.core.jobs import TrainingJob
+    from addon.core.priority import BACKGROUND_NICE
+    from addon.core.train.dataset import ColmapDataset
+    from addon.core.train.trainer import Trainer, TrainConfig
+
+    def nice() -> int:
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    demo = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap"
+    dataset = ColmapDataset(read_colmap(demo), downscale=8)
+    monkeypatch.setattr(jobs, "cpu_count", lambda: 2)
+    for start in (True, False):
+        trainer = Trainer(dataset, TrainConfig(steps=3, sh_degree=0, threads=0))
+        seen: dict[str, set[int]] = {}
+        job = TrainingJob(trainer, evaluate=True, on_progress=lambda p: seen.setdefault(
+            "steps" if p.phase == "training" and p.step else p.phase, set()).add(nice()))
+        (job.start().join() if start else job.run())
+        assert job.done and job.error is None
+        base = nice()  # this thread's, which the worker inherited
+        assert seen["steps"] == ({max(base, BACKGROUND_NICE)} if start else {base})
+        assert seen["evaluating"] == {base}
