@@ -213,3 +213,23 @@ def test_hidden_points_of_a_bent_cloud_stay_hidden(rng):
     shown = _world("Cloud")
     assert len(shown) == int((~hide).sum())
     assert bs.gaussians_equal(shown, full.subset(~hide))  # each shape bent with all neighbours
+
+
+def test_a_point_left_out_for_nan_leaves_the_others_bent_as_without_it(rng):
+    """A point holding NaN is dropped when read; the others bend with the rest positions of
+    the points kept, as a cloud that never had it."""
+    g = random_gaussians(rng, 150, 1, radius=0.5, stray=0.0)
+    broken = splat_cloud(g, "Broken")
+    rotation = broken.data.attributes[attributes.ROTATION]
+    quats = g.quats.copy()
+    quats[5] = np.nan
+    rotation.data.foreach_set("value", quats.ravel())
+    follow_mesh(broken, bent_helper(g.means, 1.0))
+    keep = np.arange(len(g)) != 5
+    whole = splat_cloud(g.subset(keep), "Whole")
+    follow_mesh(whole, bent_helper(g.means[keep], 1.0))
+    for obj in (broken, whole):
+        obj.location = (0.2, 0.1, -0.3)
+    got, want = _world("Broken"), _world("Whole")
+    assert len(got) == len(g) - 1
+    assert bs.gaussians_equal(got, want)
