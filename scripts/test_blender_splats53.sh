@@ -11,7 +11,8 @@ ZIP=${1:-$(ls "$HERE"/dist/gaussian_splatting-*-linux_x64.zip | head -1)}
 IO="$("$SHARED/real-blender/root.sh" py313)/io/splats53"
 rm -rf "$IO/work" && mkdir -p "$IO"
 cp -r "$SHARED/data/splats" "$IO/" 2>/dev/null || true
-cp "$HERE/tests/real_blender/splats53.py" "$HERE/tests/real_blender/extension_kit.py" \
+cp "$HERE/tests/real_blender/splats53.py" "$HERE/tests/real_blender/deform53.py" \
+    "$HERE/tests/real_blender/extension_kit.py" \
     "$HERE/tests/real_blender/scene_kit.py" "$IO/"
 cp "$ZIP" "$IO/extension.zip"
 exec "$SHARED/real-blender/bpy313.sh" 5.3.0 python /io/splats53/splats53.py \

@@ -14,6 +14,11 @@ API, with the settings its job type evaluates in the artist's Blender), and ever
   frame equals the artist's `blender -b -a` frame within 1/255, and differs from the same frame
   rendered without splats. Injected: worker w1 is killed (SIGKILL, with its Blender) in the middle
   of a task and restarted, as a service manager would; the job must still complete.
+- rig: the anim splats parented to a two-bone armature (vertex groups weighted by height), the
+  upper bone turning over the 6 frames, a still camera: every farm frame equals the artist's
+  `-a` frame within 1/255, the frames differ from each other (the rig moves), and the posed
+  frames differ from the same frames rendered with the Gaussians' shapes and SH left at rest
+  (the centres alone following the bones): the farm bends the splats themselves.
 - sequence: a splat sequence (one file per frame) in a `frames/` folder beside the .blend in
   shared storage, referenced relative to the .blend; each farm frame equals the local one and
   every frame differs from the others. Injected: the same job with frame 4's file missing
@@ -121,7 +126,13 @@ def frames_in(folder: Path) -> dict[int, Path]:
 
 
 def worst_difference(a: Path, b: Path) -> int:
-    x, y = read_png(a), read_png(b)
+    """The largest difference of two frames, 0-255; 255 when either is no image (a worker
+    killed while writing leaves an empty file: a failed frame, not a crash of this test)."""
+    try:
+        x, y = read_png(a), read_png(b)
+    except OSError as error:
+        log(f"unreadable frame: {error}")
+        return 255
     if x.shape != y.shape:
         return 255
     return int(np.abs(x - y).max())
@@ -247,7 +258,9 @@ def main() -> int:
     inputs = make_inputs(farm_dir)
     anim_blend = storage / "projects" / "anim" / "anim.blend"
     seq_blend = storage / "projects" / "sequence" / "sequence.blend"
+    rig_blend = storage / "projects" / "rig" / "rig.blend"
     anim_eval = build_scene(blender, homes / "artist", "anim", inputs["splats"], anim_blend)
+    rig_eval = build_scene(blender, homes / "artist", "rig", inputs["splats"], rig_blend)
     seq_eval = build_scene(blender, homes / "artist", "sequence", inputs["sequence"], seq_blend)
     # The missing-frame case: the same project with frame 4's file not delivered.
     missing_dir = storage / "projects" / "sequence_missing"
@@ -266,6 +279,11 @@ def main() -> int:
                 "import bpy; bpy.context.scene.splat_render.enabled = False",
                 "-o", str(local / "anim_nosplats" / "######"), "-a")
     t0 = time.monotonic()
+    blender.run(homes / "artist", "-b", str(rig_blend), "-o", str(local / "rig" / "######"), "-a")
+    timings["local_rig_s"] = time.monotonic() - t0
+    blender.run(homes / "artist", "-b", str(rig_blend), "--python-expr", RIG_AT_REST,
+                "-o", str(local / "rig_at_rest" / "######"), "-a")
+    t0 = time.monotonic()
     blender.run(homes / "artist", "-b", str(seq_blend), "-o", str(local / "sequence" / "######"),
                 "-a")
     timings["local_sequence_s"] = time.monotonic() - t0
@@ -281,6 +299,7 @@ def main() -> int:
             farm.start_worker(name, blender.env(homes / name))
         log(f"manager on {farm.api.url}, workers w1 and w2 awake")
         run_anim(farm, blender, homes, anim_blend, anim_eval, storage, local, results, timings)
+        run_rig(farm, rig_blend, rig_eval, storage, local, results, timings)
         run_sequence(farm, seq_blend, seq_eval, storage, local, results, timings)
         run_missing_frame(farm, missing_dir / "sequence.blend", seq_eval, storage, results)
         farm.stop_worker("w1")
@@ -299,7 +318,7 @@ def main() -> int:
     print(f"farm test ({args.suite}), {time.monotonic() - start_time:.0f} s:")
     for line in results.lines:
         print(line)
-    for job in ("sequence", "anim"):
+    for job in ("sequence", "anim", "rig"):
         if f"farm_{job}_s" in timings:
             print(f"{job}: frames per minute: farm (2 workers) "
                   f"{60 * len(FRAMES) / timings[f'farm_{job}_s']:.1f}, local -a "
@@ -431,6 +450,45 @@ def run_anim(farm, blender, homes, blend, evaluated, storage, local, results, ti
     results.add(name, ok, f"{len(written)}/{len(FRAMES)}", f"{worst}/255",
                 f"1 (w1 killed in {killed[0]}; job completed)" if killed else "0 (kill not done)",
                 detail)
+
+
+# Run before `-a`: the splat object's Gaussians keep their rest shapes and SH, only their
+# centres follow the bones (how the add-on read a deformed object before issue 35).
+RIG_AT_REST = ("import importlib; importlib.import_module('bl_ext.user_default.gaussian_splatting"
+               ".blender.sources.deformed').Deformable.rest_data = lambda self: None")
+
+
+def run_rig(farm, blend, evaluated, storage, local, results, timings) -> None:
+    """The armature-deformed splats on the farm (w1 and w2), frame for frame as locally."""
+    name = "rig"
+    submitted = time.monotonic()
+    job = farm.api.submit(name, job_settings(evaluated, blend, storage / "render", name))
+    first: list[float] = []
+
+    def on_poll(job_record, _tasks):
+        if not first and frames_in(job_output(job_record)):
+            first.append(time.monotonic() - submitted)
+
+    record, tasks = farm.wait_job(job["id"], timeout=300, on_poll=on_poll)
+    timings["farm_rig_s"] = time.monotonic() - submitted
+    timings["rig_first_frame_s"] = first[0] if first else float("nan")
+    written = frames_in(job_output(record))
+    missing, worst = compare_frames(written, frames_in(local / "rig"), FRAMES)
+    same = [(a, b) for a in FRAMES for b in FRAMES if a < b and a in written and b in written
+            and worst_difference(written[a], written[b]) <= 1]
+    at_rest = frames_in(local / "rig_at_rest")
+    bent = {f: worst_difference(written[f], at_rest[f]) for f in FRAMES
+            if f != FRAMES[0] and f in written and f in at_rest}
+    unbent = [f for f, difference in bent.items() if difference <= 1]
+    ok = (_render_tasks_completed(tasks) and not missing and worst <= 1 and not same
+          and len(bent) == len(FRAMES) - 1 and not unbent)
+    detail = (f"render tasks {_statuses(tasks)}, {timings['farm_rig_s']:.0f} s; against the "
+              f"shapes left at rest: frames 2-{FRAMES[-1]} differ by up to "
+              f"{max(bent.values(), default=0)}/255"
+              + (f"; frames {unbent} as at rest" if unbent else "")
+              + (f"; identical frames {same}" if same else "")
+              + (f"; frames {missing} missing" if missing else ""))
+    results.add(name, ok, f"{len(written)}/{len(FRAMES)}", f"{worst}/255", "0", detail)
 
 
 def _render_tasks(tasks) -> list[dict]:

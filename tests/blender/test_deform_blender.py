@@ -1,5 +1,5 @@
-"""Splats that move with Blender's deform stack (addon/blender/sources/own.py through
-addon/core/deform): shapes and SH follow the deformation, not only the centres.
+"""Splats that move with Blender's deform stack (addon/blender/sources/own.py, deformed.py
+through addon/core/deform): shapes and SH follow the deformation, not only the centres.
 
 - The issue's bent row: 41 splats elongated along x (scale 0.08 x 0.012 x 0.012), a Simple
   Deform bending the row by 180 degrees about Z, an orthographic camera from above: with the
@@ -23,7 +23,7 @@ import pytest
 
 import reference_deform
 from addon.blender import splat_object
-from addon.blender.sources import gather, own
+from addon.blender.sources import deformed, gather, own
 from addon.core.gaussians import Gaussians
 from addon.core.render.renderer import render
 from scenes import random_gaussians
@@ -77,7 +77,7 @@ def test_no_deformation_reads_the_object_as_before(rng, monkeypatch):
     bs.reset_scene()
     g = random_gaussians(rng, 200, 2)
     obj = splat_object.create_splat_object(g, "Splats")
-    monkeypatch.setattr(own, "deform", lambda *a, **k: pytest.fail("deformed without a stack"))
+    monkeypatch.setattr(deformed, "deform", lambda *a, **k: pytest.fail("deformed without a stack"))
     result = gather.gather(bpy.context.evaluated_depsgraph_get(), use_cache=False)
     assert bs.gaussians_equal(result.gaussians, g)
     obj.modifiers.new("Nothing", "SIMPLE_DEFORM").angle = 0.0

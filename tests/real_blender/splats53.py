@@ -4,7 +4,8 @@ Runs inside a bpy 5.3 Python with nothing but bpy; the add-on comes from the ext
 
     ROOT=$(../shared/real-blender/root.sh py313); mkdir -p $ROOT/io/splats53
     cp -r ../shared/data/splats $ROOT/io/splats53/ && cp tests/real_blender/splats53.py \\
-        tests/real_blender/extension_kit.py tests/real_blender/scene_kit.py \\
+        tests/real_blender/deform53.py tests/real_blender/extension_kit.py \\
+        tests/real_blender/scene_kit.py \\
         dist/gaussian_splatting-*-linux_x64.zip $ROOT/io/splats53/
     ../shared/real-blender/bpy313.sh 5.3.0 python /io/splats53/splats53.py \\
         --zip /io/splats53/gaussian_splatting-0.1.0-linux_x64.zip --data /io/splats53/splats \\
@@ -31,6 +32,8 @@ folder is `--work`/user, fresh unless kept.) Each check prints `PASS name: figur
   saved        a file saved with the add-on, opened in this bpy without it: Blender's import
                as Blender made it (no add-on modifier, rays on, its display), and F12 with Cycles
                draws the splats; back with the add-on, the session owns the cloud again.
+  deform       a cloud bent by a stack (geometry nodes following a Simple Deform's helper mesh,
+               a bone): shapes and SH follow the deformation (deform53.py, issue 35).
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ import sys
 import time
 from pathlib import Path
 
-import scene_kit  # staged beside this file, as extension_kit
+import deform53  # staged beside this file, as extension_kit and scene_kit
+import scene_kit
 from extension_kit import EXTENSION, FAILURES, check, ext, install_zip
 
 WIDTH, HEIGHT = 200, 150
@@ -490,7 +494,8 @@ def main() -> int:
                  f12=lambda: check_f12(bpy, args.data, args.work),
                  edit=lambda: check_edit(bpy, args.data),
                  drop=lambda: check_drop(bpy),
-                 saved=lambda: check_saved(bpy, args.data, args.work))
+                 saved=lambda: check_saved(bpy, args.data, args.work),
+                 deform=lambda: deform53.check_deform(bpy, args.work))
     for name, step in steps.items():
         if args.only is None or name in args.only:
             step()

@@ -22,6 +22,9 @@ The kinds:
                             BMesh: read through `to_mesh`, hidden flags from the BMesh, no key)
     blender_cloud.BlenderCloud  Blender 5.3's own splat point cloud (type 'GAUSSIAN_SPLAT'),
                             unless handed back to Blender's renderer
+    deformed.Deformable     what the two kinds that read evaluated points share: their
+                            Gaussians' shapes and SH follow a deform stack (one rule: the
+                            stack moved the points and kept their count)
     live.LiveSnapshot       either kind's Gaussians while a running job shows its snapshots
                             in their place (training's updates, without writing the data)
 

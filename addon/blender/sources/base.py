@@ -161,7 +161,7 @@ class Source:
                    warnings: list[str]) -> Gaussians | None:
         """Its Gaussians taken by `matrix` (4x4) and cut to `sh_degree` in one step, for a
         source that does that for less than `read` then `transform_gaussians` (a deformed
-        splat object turns each SH once); None: read, then transform."""
+        splat object or cloud turns each SH once); None: read, then transform."""
         return None
 
 

@@ -2,16 +2,24 @@
 `core.blender_splats.attributes` holds the convention). One the add-on renders through its
 empty render modifier is read from its own data (`ownership.reads_original`: a render
 evaluates it empty); one handed back to Blender's renderer (`Object.splat.render_by_blender`)
-is no source unless export asks for it."""
+is no source unless export asks for it.
+
+One with modifiers of its own (geometry nodes that set positions, and whatever else this
+Blender lets deform a point cloud) is read evaluated, and its Gaussians' shapes and SH follow
+the deformation as the add-on's objects' do (`deformed.Deformable`: the original cloud's
+positions are the rest ones)."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from ...core.blender_splats import attributes
 from ...core.gaussians import Gaussians
 from .. import splat_object
 from ..blender_splats import data as blender_data
 from ..blender_splats import ownership
-from .base import Source, settings_of
+from .base import settings_of
+from .deformed import Deformable
 
 
 def _blender_renders(evaluated, owner) -> bool:
@@ -22,7 +30,7 @@ def _blender_renders(evaluated, owner) -> bool:
     return False
 
 
-class BlenderCloud(Source):
+class BlenderCloud(Deformable):
     kind = "Blender splat point cloud"
 
     @classmethod
@@ -44,7 +52,14 @@ class BlenderCloud(Source):
     def point_count(self) -> int:
         return blender_data.point_count(self.data)
 
-    def read(self, warnings: list[str]) -> Gaussians:
-        conversion = blender_data.read_conversion(self.data)
+    def _holds_splats(self, data) -> bool:
+        return blender_data.is_blender_splat_data(data)
+
+    def _gaussians(self, warnings: list[str], drop_hidden: bool
+                   ) -> tuple[Gaussians, np.ndarray | None]:
+        conversion = blender_data.read_conversion(self.data, drop_hidden=drop_hidden)
         warnings.extend(w for w in conversion.warnings if w not in warnings and "degree" not in w)
-        return conversion.gaussians
+        return conversion.gaussians, conversion.kept
+
+    def _hidden(self) -> np.ndarray | None:
+        return blender_data.hidden_mask(self.data)

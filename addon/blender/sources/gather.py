@@ -8,11 +8,10 @@ cloud), asks it for its Gaussians in object space (SH bands limited to the objec
 `sh_degree` option) and transforms them by the matrix it renders with
 (`addon.core.transform.transform_gaussians`: centres, rotations, scales and SH bands 1-3; a
 non-uniform scale re-decomposes each covariance exactly and rotates the SH by the polar
-rotation; a source that does both for less, a deformed splat object turning each SH once,
-gives them in world space itself: `Source.read_world`), then batches and caches them. Render
-options come from the splat object the
-geometry belongs to: the evaluated object itself when it is a splat object, else the instancer
-(`obj.splat`), else the defaults.
+rotation; a source that does both for less, a deformed splat object or cloud turning each SH
+once, gives them in world space itself: `Source.read_world`), then batches and caches them.
+Render options come from the splat object the geometry belongs to: the evaluated object itself
+when it is a splat object, else the instancer (`obj.splat`), else the defaults.
 
 `objects=[...]` limits the gather to those objects and to the instances they make (export).
 
@@ -47,7 +46,7 @@ from bpy.app.handlers import persistent
 
 from ...core.gaussians import Gaussians
 from ...core.transform import transform_gaussians
-from . import base, live, own, source_of
+from . import base, deformed, live, source_of
 from .base import Source
 
 _world_cache: dict[tuple, tuple[tuple, Gaussians, tuple]] = {}  # key, world, contents
@@ -106,7 +105,7 @@ def _on_load(*_args) -> None:
 
 
 def clear_cache() -> None:
-    own.clear_neighbours()
+    deformed.clear()
     _world_cache.clear()
     _combined_cache.clear()
     _edit_cache.clear()
