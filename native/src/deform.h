@@ -16,7 +16,27 @@ typedef struct {
     double undetermined, determined;
 } sc_fit_input;
 
-/* Row `row`'s deformation Jacobian and its polar rotation (deform_fit.c's comment). */
+/* The rest half of a row's fit, SC_FIT_FIELDS + k doubles (deform_fit.c's comment): what depends
+ * on the rest centres and the neighbour lists alone, so a deformation's frames share it. Offsets
+ * into it: */
+enum {
+    SC_FIT_E1 = 0, /* the spread's widest direction e_1 (3) */
+    SC_FIT_E2 = 3, /* the second, e_2 (3); e_3 = e_1 x e_2 */
+    SC_FIT_L = 6,  /* the spread's eigenvalues l_1 >= l_2 >= l_3 (3); l_1 = 0: no neighbours */
+    SC_FIT_C = 9,  /* the ramps c_2, c_3 (2) */
+    SC_FIT_W = 11  /* each neighbour's weight (k; 0 where there is none) */
+};
+_Static_assert((int)SC_FIT_W == (int)SC_FIT_FIELDS, "the weights end the rest half's fixed fields");
+
+/* Row `row`'s rest half (in->deformed is not read) into `half`. */
+void sc_fit_rest(const sc_fit_input *in, int64_t row, double *half);
+
+/* Row `row`'s deformation Jacobian and its polar rotation from its rest half (deform_fit.c's
+ * comment); the thresholds in `in` are not read (they are in the half). */
+void sc_fit_deformed(const sc_fit_input *in, int64_t row, const double *half, double jac[9],
+                     double rot[9]);
+
+/* Both: the rest half on the stack. */
 void sc_fit_point(const sc_fit_input *in, int64_t row, double jac[9], double rot[9]);
 
 enum { SC_SH_DIRECTIONS = 9 };

@@ -23,7 +23,15 @@
  *   - a row's sides and a sheet's normal turn with it rather than keeping their rest
  *     direction (the ladder of dashes an unchanged J draws along a bent row).
  * The rotation written beside J is J's polar rotation (SH follow it), or R where J is
- * singular. No neighbours (or all at the centre): J = R = identity. */
+ * singular. No neighbours (or all at the centre): J = R = identity.
+ *
+ * The weights, A's eigenpairs and the ramps depend on the rest positions alone: sc_fit_rest
+ * computes them (the rest half, deform.h's SC_FIT_* layout), sc_fit_deformed the rest from a
+ * frame's deformed positions; sc_deform_rest keeps the halves of every point, once per rest
+ * shape, for the frames' one pass (deform_frame.c), which then skips the weights' exp and the
+ * eigen-decomposition (about a quarter of its time). A neighbourhood spanning 3D needs no R
+ * unless J comes out singular; it is only computed then. The numbers are those of computing
+ * everything per frame, bit for bit. */
 #include "deform.h"
 #include "mat3.h"
 
@@ -54,9 +62,10 @@ static void unit(double v[3]) {
     for (int a = 0; a < 3; ++a) v[a] /= n;
 }
 
-void sc_fit_point(const sc_fit_input *j, int64_t i, double jac[9], double rot[9]) {
-    const float *p = j->rest + 3 * i, *x = j->deformed + 3 * i;
+void sc_fit_rest(const sc_fit_input *j, int64_t i, double *half) {
+    const float *p = j->rest + 3 * i;
     const int32_t *nb = j->neighbours + (int64_t)j->k * i;
+    memset(half, 0, sizeof(double) * (size_t)(SC_FIT_W + j->k));
     double reach2 = 0.0;
     for (int m = 0; m < j->k; ++m) {
         if (nb[m] < 0) continue;
@@ -65,70 +74,130 @@ void sc_fit_point(const sc_fit_input *j, int64_t i, double jac[9], double rot[9]
         for (int a = 0; a < 3; ++a) d2 += ((double)q[a] - p[a]) * ((double)q[a] - p[a]);
         reach2 = d2 > reach2 ? d2 : reach2;
     }
-    sc_m3_identity(jac);
-    sc_m3_identity(rot);
-    if (!(reach2 > 0.0)) return;
-    double A[9] = {0}, B[9] = {0};
+    if (!(reach2 > 0.0)) return; /* l_1 = 0: J = R = I */
+    double A[9] = {0};
     for (int m = 0; m < j->k; ++m) {
         if (nb[m] < 0) continue;
-        const float *q = j->rest + 3 * (int64_t)nb[m], *y = j->deformed + 3 * (int64_t)nb[m];
-        double a[3], b[3], d2 = 0.0;
+        const float *q = j->rest + 3 * (int64_t)nb[m];
+        double a[3], d2 = 0.0;
         for (int c = 0; c < 3; ++c) {
-            a[c] = (double)q[c] - p[c], b[c] = (double)y[c] - x[c];
+            a[c] = (double)q[c] - p[c];
             d2 += a[c] * a[c];
         }
         const double w = exp(-d2 / reach2);
+        half[SC_FIT_W + m] = w;
         for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 3; ++c) A[3 * r + c] += w * a[r] * a[c], B[3 * r + c] += w * b[r] * a[c];
+            for (int c = 0; c < 3; ++c) A[3 * r + c] += w * a[r] * a[c];
     }
     double values[3], vectors[9];
     sc_sym3_eigen(A, values, vectors, SEPARATED, SEPARATED);
-    const double l[3] = {values[2], values[1], values[0]};
+    double *l = half + SC_FIT_L;
+    l[0] = values[2], l[1] = values[1], l[2] = values[0];
+    for (int a = 0; a < 3; ++a)
+        half[SC_FIT_E1 + a] = vectors[3 * a + 2], half[SC_FIT_E2 + a] = vectors[3 * a + 1];
+    for (int m = 1; m < 3; ++m)
+        half[SC_FIT_C + m - 1] = ramp(l[m] / l[0], j->undetermined, j->determined);
+}
+
+/* R: the rotation the data determines best (the file's comment), from f_1 and f_2. */
+static void fit_rotation(const double e[3][3], const double c[3], double f[3][3], double R[9]) {
+    sc_m3_identity(R);
+    const double f1 = sqrt(f[0][0] * f[0][0] + f[0][1] * f[0][1] + f[0][2] * f[0][2]);
+    if (!(f1 > 0.0)) return;
+    double d[3][3] = {{f[0][0] / f1, f[0][1] / f1, f[0][2] / f1}};
+    sc_rotation_between(e[0], d[0], R);
+    if (!(c[1] > 0.0)) return;
+    double turned[3], u[3];
+    for (int r = 0; r < 3; ++r) turned[r] = R[3 * r] * e[1][0] + R[3 * r + 1] * e[1][1] + R[3 * r + 2] * e[1][2];
+    const double f2 = sqrt(f[1][0] * f[1][0] + f[1][1] * f[1][1] + f[1][2] * f[1][2]);
+    for (int r = 0; r < 3; ++r) u[r] = (f2 > 0.0 ? c[1] * f[1][r] / f2 : 0.0) + (1.0 - c[1]) * turned[r];
+    double along = u[0] * d[0][0] + u[1] * d[0][1] + u[2] * d[0][2];
+    for (int r = 0; r < 3; ++r) u[r] -= along * d[0][r];
+    if (!(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] > 1e-24)) { /* f_2 along f_1: fold */
+        along = turned[0] * d[0][0] + turned[1] * d[0][1] + turned[2] * d[0][2];
+        for (int r = 0; r < 3; ++r) u[r] = turned[r] - along * d[0][r];
+    }
+    unit(u);
+    memcpy(d[1], u, sizeof u);
+    sc_cross(d[0], d[1], d[2]);
+    for (int r = 0; r < 3; ++r)
+        for (int s = 0; s < 3; ++s)
+            R[3 * r + s] = d[0][r] * e[0][s] + d[1][r] * e[1][s] + d[2][r] * e[2][s];
+}
+
+void sc_fit_deformed(const sc_fit_input *j, int64_t i, const double *half, double jac[9],
+                     double rot[9]) {
+    sc_m3_identity(jac);
+    sc_m3_identity(rot);
+    const double *l = half + SC_FIT_L;
+    if (!(l[0] > 0.0)) return;
+    const float *p = j->rest + 3 * i, *x = j->deformed + 3 * i;
+    const int32_t *nb = j->neighbours + (int64_t)j->k * i;
+    double B[9] = {0};
+    for (int m = 0; m < j->k; ++m) {
+        if (nb[m] < 0) continue;
+        const float *q = j->rest + 3 * (int64_t)nb[m], *y = j->deformed + 3 * (int64_t)nb[m];
+        double a[3], b[3];
+        for (int c = 0; c < 3; ++c) a[c] = (double)q[c] - p[c], b[c] = (double)y[c] - x[c];
+        const double w = half[SC_FIT_W + m];
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) B[3 * r + c] += w * b[r] * a[c];
+    }
     double e[3][3];
-    for (int a = 0; a < 3; ++a) e[0][a] = vectors[3 * a + 2], e[1][a] = vectors[3 * a + 1];
+    memcpy(e[0], half + SC_FIT_E1, sizeof e[0]);
+    memcpy(e[1], half + SC_FIT_E2, sizeof e[1]);
     sc_cross(e[0], e[1], e[2]);
-    double c[3] = {1.0, 0.0, 0.0}, f[3][3] = {{0}};
-    for (int m = 1; m < 3; ++m) c[m] = ramp(l[m] / l[0], j->undetermined, j->determined);
+    const double c[3] = {1.0, half[SC_FIT_C], half[SC_FIT_C + 1]};
+    double f[3][3] = {{0}};
     for (int m = 0; m < 3; ++m) {
         if (c[m] <= 0.0) continue;
         for (int r = 0; r < 3; ++r)
             f[m][r] = (B[3 * r] * e[m][0] + B[3 * r + 1] * e[m][1] + B[3 * r + 2] * e[m][2]) / l[m];
     }
+    /* Every direction fitted (a neighbourhood spanning 3D): J = sum f_m e_m^T, R only needed
+     * where J is singular. */
+    const int fitted = c[1] >= 1.0 && c[2] >= 1.0;
     double R[9];
-    sc_m3_identity(R);
-    const double f1 = sqrt(f[0][0] * f[0][0] + f[0][1] * f[0][1] + f[0][2] * f[0][2]);
-    if (f1 > 0.0) {
-        double d[3][3] = {{f[0][0] / f1, f[0][1] / f1, f[0][2] / f1}};
-        sc_rotation_between(e[0], d[0], R);
-        if (c[1] > 0.0) {
-            double turned[3], u[3];
-            for (int r = 0; r < 3; ++r) turned[r] = R[3 * r] * e[1][0] + R[3 * r + 1] * e[1][1] + R[3 * r + 2] * e[1][2];
-            const double f2 = sqrt(f[1][0] * f[1][0] + f[1][1] * f[1][1] + f[1][2] * f[1][2]);
-            for (int r = 0; r < 3; ++r) u[r] = (f2 > 0.0 ? c[1] * f[1][r] / f2 : 0.0) + (1.0 - c[1]) * turned[r];
-            double along = u[0] * d[0][0] + u[1] * d[0][1] + u[2] * d[0][2];
-            for (int r = 0; r < 3; ++r) u[r] -= along * d[0][r];
-            if (!(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] > 1e-24)) { /* f_2 along f_1: fold */
-                along = turned[0] * d[0][0] + turned[1] * d[0][1] + turned[2] * d[0][2];
-                for (int r = 0; r < 3; ++r) u[r] = turned[r] - along * d[0][r];
-            }
-            unit(u);
-            memcpy(d[1], u, sizeof u);
-            sc_cross(d[0], d[1], d[2]);
-            for (int r = 0; r < 3; ++r)
-                for (int s = 0; s < 3; ++s)
-                    R[3 * r + s] = d[0][r] * e[0][s] + d[1][r] * e[1][s] + d[2][r] * e[2][s];
-        }
-    }
+    if (!fitted) fit_rotation(e, c, f, R);
     for (int r = 0; r < 3; ++r)
         for (int s = 0; s < 3; ++s) {
             double v = 0.0;
             for (int m = 0; m < 3; ++m) {
-                const double re = R[3 * r] * e[m][0] + R[3 * r + 1] * e[m][1] + R[3 * r + 2] * e[m][2];
+                const double re = fitted ? 0.0 : R[3 * r] * e[m][0] + R[3 * r + 1] * e[m][1] + R[3 * r + 2] * e[m][2];
                 v += (c[m] * f[m][r] + (1.0 - c[m]) * re) * e[m][s];
             }
             jac[3 * r + s] = v;
         }
-    if (!sc_polar_rotation(jac, rot)) memcpy(rot, R, sizeof R);
+    if (!sc_polar_rotation(jac, rot)) {
+        if (fitted) fit_rotation(e, c, f, R);
+        memcpy(rot, R, sizeof R);
+    }
+}
+
+void sc_fit_point(const sc_fit_input *j, int64_t i, double jac[9], double rot[9]) {
+    double half[SC_FIT_W + SC_MAX_NEIGHBOURS];
+    sc_fit_rest(j, i, half);
+    sc_fit_deformed(j, i, half, jac, rot);
+}
+
+typedef struct {
+    sc_fit_input in;
+    double *fit;
+} rest_job;
+
+static void rest_rows(void *ctx, int64_t begin, int64_t end, int thread) {
+    (void)thread;
+    const rest_job *j = ctx;
+    const int64_t stride = SC_FIT_FIELDS + j->in.k;
+    for (int64_t i = begin; i < end; ++i) sc_fit_rest(&j->in, i, j->fit + stride * i);
+}
+
+void sc_deform_rest(const float *rest, int64_t n, const int32_t *neighbours, int k,
+                    double undetermined, double determined, double *fit, int threads) {
+    rest_job j = {.in = {.rest = rest, .neighbours = neighbours, .k = k,
+                         .undetermined = undetermined, .determined = determined},
+                  .fit = fit};
+    sc_parallel_for(threads < 1 ? 1 : threads, n, GRAIN, rest_rows, &j);
 }
 
 static void fit_rows(void *ctx, int64_t begin, int64_t end, int thread) {

@@ -1,6 +1,7 @@
 /* A frame of a deformation in one pass (sc_deform_frame, splatcore.h): per Gaussian, the
- * Jacobian and its polar rotation fitted from its neighbours (sc_fit_point, deform_fit.c) and
- * the Gaussian's shape and SH through them (sc_shapes_point, deform_apply.c), the two maps kept
+ * Jacobian and its polar rotation fitted from its neighbours (sc_fit_deformed, deform_fit.c,
+ * from the rest half of the fit its row keeps: sc_deform_rest, once per rest shape) and the
+ * Gaussian's shape and SH through them (sc_shapes_point, deform_apply.c), the two maps kept
  * on the stack rather than written to and read back from two (n, 3, 3) double arrays.
  *
  * The fit reads every neighbour's rest and deformed centre: in the Gaussians' own order (a
@@ -41,6 +42,7 @@ static void permute(void *ctx, int64_t begin, int64_t end, int thread) {
 
 typedef struct {
     sc_fit_input fit;
+    const double *rest_fit; /* by row: sc_fit_rest's halves */
     sc_shapes shapes;
     const int32_t *order;
     const double *linear, *linear_rotation; /* both or NULL */
@@ -73,25 +75,24 @@ static void frame_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     for (int64_t row = begin; row < end; ++row) {
         if (row + AHEAD < end) prefetch(j, j->order[row + AHEAD]);
         double jac[9], rot[9];
-        sc_fit_point(&j->fit, row, jac, rot);
+        sc_fit_deformed(&j->fit, row, j->rest_fit + (SC_FIT_FIELDS + j->fit.k) * row, jac, rot);
         if (j->linear) then(j->linear, jac), then(j->linear_rotation, rot);
         sc_shapes_point(&j->shapes, j->order[row], jac, rot);
     }
 }
 
 int sc_deform_frame(const float *rest, const float *deformed, int64_t n,
-                    const int32_t *neighbours, int k, const int32_t *order,
-                    double undetermined, double determined, const double *linear,
-                    const double *linear_rotation, const float *log_scales,
-                    const float *quats, const float *sh, int sh_coeffs, float *out_log_scales,
-                    float *out_quats, float *out_sh, int threads) {
+                    const int32_t *neighbours, int k, const int32_t *order, const double *fit,
+                    const double *linear, const double *linear_rotation,
+                    const float *log_scales, const float *quats, const float *sh, int sh_coeffs,
+                    float *out_log_scales, float *out_quats, float *out_sh, int threads) {
     threads = threads < 1 ? 1 : threads;
     float *rows = malloc(sizeof(float) * 3 * (size_t)(n > 0 ? n : 1));
     if (rows == NULL) return -2;
     permute_job p = {.deformed = deformed, .order = order, .rows = rows};
     sc_parallel_for(threads, n, 65536, permute, &p);
-    frame_job j = {.fit = {.rest = rest, .deformed = rows, .neighbours = neighbours, .k = k,
-                           .undetermined = undetermined, .determined = determined},
+    frame_job j = {.fit = {.rest = rest, .deformed = rows, .neighbours = neighbours, .k = k},
+                   .rest_fit = fit,
                    .shapes = {.log_scales = log_scales, .quats = quats, .sh = sh,
                               .coeffs = sh_coeffs, .out_log_scales = out_log_scales,
                               .out_quats = out_quats, .out_sh = out_sh},

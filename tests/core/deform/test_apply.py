@@ -166,11 +166,18 @@ def test_one_pass_checks_its_inputs(rng):
     order = hoods.order.copy()
     order[3] = order[4]
     with pytest.raises(ValueError, match="permutation"):
-        deform(g, Neighbourhoods(hoods.rest, hoods.neighbours, order))
+        deform(g, Neighbourhoods(hoods.rest, hoods.neighbours, order, hoods.fit))
     bad = hoods.neighbours.copy()
     bad[2, 1] = 50
     with pytest.raises(ValueError, match="not a point's index"):
-        deform(g, Neighbourhoods(hoods.rest, bad, hoods.order))
+        deform(g, Neighbourhoods(hoods.rest, bad, hoods.order, hoods.fit))
+    with pytest.raises(ValueError, match=r"fit must have shape \(N, 11 \+ k\) = \(N, 15\)"):
+        deform(g, Neighbourhoods(hoods.rest, hoods.neighbours, hoods.order,
+                                 np.ascontiguousarray(hoods.fit[:, :-1])))
+    fit = hoods.fit.copy()
+    fit[7, 3] = np.nan
+    with pytest.raises(ValueError, match="fit has a non-finite value"):
+        deform(g, Neighbourhoods(hoods.rest, hoods.neighbours, hoods.order, fit))
 
 
 def test_float64_maps_are_checked_as_float64(rng):
