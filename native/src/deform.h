@@ -53,8 +53,16 @@ typedef struct {
 
 void sc_shapes_prepare(sc_shapes *s);
 
-/* Gaussian i's covariance through J and its SH through the orthogonal Q, into the outputs
- * (deform_apply.c's comment). */
-void sc_shapes_point(const sc_shapes *s, int64_t i, const double J[9], const double Q[9]);
+/* Up to SC_SHAPE_LANES Gaussians (their indices) and their maps J and orthogonal Q. */
+enum { SC_SHAPE_LANES = 8 };
+typedef struct {
+    int count; /* 1..SC_SHAPE_LANES */
+    int64_t index[SC_SHAPE_LANES];
+    double jac[SC_SHAPE_LANES][9], rot[SC_SHAPE_LANES][9];
+} sc_shape_batch;
+
+/* Each Gaussian's covariance through its J and its SH through its Q, into the outputs
+ * (deform_apply.c's comment); the same numbers whatever the batch. */
+void sc_shapes_batch(const sc_shapes *s, const sc_shape_batch *b);
 
 #endif

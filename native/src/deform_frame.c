@@ -1,8 +1,9 @@
 /* A frame of a deformation in one pass (sc_deform_frame, splatcore.h): per Gaussian, the
  * Jacobian and its polar rotation fitted from its neighbours (sc_fit_deformed, deform_fit.c,
  * from the rest half of the fit its row keeps: sc_deform_rest, once per rest shape) and the
- * Gaussian's shape and SH through them (sc_shapes_point, deform_apply.c), the two maps kept
- * on the stack rather than written to and read back from two (n, 3, 3) double arrays.
+ * Gaussian's shape and SH through them (sc_shapes_batch, deform_apply.c: SC_SHAPE_LANES rows'
+ * Gaussians at a time), the two maps kept on the stack rather than written to and read back
+ * from two (n, 3, 3) double arrays.
  *
  * The fit reads every neighbour's rest and deformed centre: in the Gaussians' own order (a
  * capture's, a random cloud's) those are scattered over memory, a cache miss each, about a
@@ -13,8 +14,8 @@
  * then scattered (read and written whole: a few cache lines each), asked for AHEAD rows early.
  * Every Gaussian's result is computed by the same code from the same numbers whichever thread
  * takes its row, so it is the same for every thread count, and bit for bit what the two
- * stages give one after the other. The outputs may be the inputs (sc_shapes_point reads a
- * Gaussian's shape and SH whole before writing its own). An object's matrix may follow the
+ * stages give one after the other. The outputs may be the inputs (sc_shapes_batch reads its
+ * Gaussians' shapes and SH whole before writing theirs). An object's matrix may follow the
  * deformation (linear, and its polar rotation for the SH): the gather then turns each SH once,
  * not once here and again for the object. */
 #include <stdlib.h>
@@ -22,7 +23,7 @@
 
 #include "deform.h"
 
-enum { GRAIN = 4096, AHEAD = 8 };
+enum { GRAIN = 4096, AHEAD = 16 };
 
 typedef struct {
     const float *deformed; /* by Gaussian */
@@ -71,13 +72,19 @@ static void prefetch(const frame_job *j, int64_t i) {
 static void frame_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     const frame_job *j = ctx;
+    const int64_t stride = SC_FIT_FIELDS + j->fit.k;
     for (int64_t row = begin; row < end && row < begin + AHEAD; ++row) prefetch(j, j->order[row]);
-    for (int64_t row = begin; row < end; ++row) {
-        if (row + AHEAD < end) prefetch(j, j->order[row + AHEAD]);
-        double jac[9], rot[9];
-        sc_fit_deformed(&j->fit, row, j->rest_fit + (SC_FIT_FIELDS + j->fit.k) * row, jac, rot);
-        if (j->linear) then(j->linear, jac), then(j->linear_rotation, rot);
-        sc_shapes_point(&j->shapes, j->order[row], jac, rot);
+    sc_shape_batch b;
+    for (int64_t start = begin; start < end; start += SC_SHAPE_LANES) {
+        b.count = end - start < SC_SHAPE_LANES ? (int)(end - start) : SC_SHAPE_LANES;
+        for (int l = 0; l < b.count; ++l) {
+            const int64_t row = start + l;
+            if (row + AHEAD < end) prefetch(j, j->order[row + AHEAD]);
+            sc_fit_deformed(&j->fit, row, j->rest_fit + stride * row, b.jac[l], b.rot[l]);
+            if (j->linear) then(j->linear, b.jac[l]), then(j->linear_rotation, b.rot[l]);
+            b.index[l] = j->order[row];
+        }
+        sc_shapes_batch(&j->shapes, &b);
     }
 }
 
