@@ -7,6 +7,9 @@
 
 #include "internal.h"
 
+/* How many Gaussians the deformation stages take side by side, in vector lanes. */
+enum { SC_SHAPE_LANES = 8 };
+
 /* Rows of rest and deformed centres (n, 3), each row's neighbours (n, k) as rows (-1 none),
  * the fit's thresholds (variance ratios). */
 typedef struct {
@@ -31,13 +34,12 @@ _Static_assert((int)SC_FIT_W == (int)SC_FIT_FIELDS, "the weights end the rest ha
 /* Row `row`'s rest half (in->deformed is not read) into `half`. */
 void sc_fit_rest(const sc_fit_input *in, int64_t row, double *half);
 
-/* Row `row`'s deformation Jacobian and its polar rotation from its rest half (deform_fit.c's
- * comment); the thresholds in `in` are not read (they are in the half). */
-void sc_fit_deformed(const sc_fit_input *in, int64_t row, const double *half, double jac[9],
-                     double rot[9]);
-
-/* Both: the rest half on the stack. */
-void sc_fit_point(const sc_fit_input *in, int64_t row, double jac[9], double rot[9]);
+/* Rows row .. row + count - 1's (count 1..SC_SHAPE_LANES) deformation Jacobians and their polar
+ * rotations (deform_fit.c's comment) from their rest halves (`halves`, one after the other);
+ * the thresholds in `in` are not read (they are in the halves). The same numbers whatever the
+ * batch. */
+void sc_fit_batch(const sc_fit_input *in, int64_t row, int count, const double *halves,
+                  double jac[][9], double rot[][9]);
 
 enum { SC_SH_DIRECTIONS = 9 };
 
@@ -54,7 +56,6 @@ typedef struct {
 void sc_shapes_prepare(sc_shapes *s);
 
 /* Up to SC_SHAPE_LANES Gaussians (their indices) and their maps J and orthogonal Q. */
-enum { SC_SHAPE_LANES = 8 };
 typedef struct {
     int count; /* 1..SC_SHAPE_LANES */
     int64_t index[SC_SHAPE_LANES];

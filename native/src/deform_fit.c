@@ -26,12 +26,13 @@
  * singular. No neighbours (or all at the centre): J = R = identity.
  *
  * The weights, A's eigenpairs and the ramps depend on the rest positions alone: sc_fit_rest
- * computes them (the rest half, deform.h's SC_FIT_* layout), sc_fit_deformed the rest from a
- * frame's deformed positions; sc_deform_rest keeps the halves of every point, once per rest
- * shape, for the frames' one pass (deform_frame.c), which then skips the weights' exp and the
+ * computes them (the rest half, deform.h's SC_FIT_* layout), sc_fit_batch the rest from a
+ * frame's deformed positions, SC_SHAPE_LANES rows at a time (their polar rotations side by
+ * side in vector lanes); sc_deform_rest keeps the halves of every point, once per rest shape,
+ * for the frames' one pass (deform_frame.c), which then skips the weights' exp and the
  * eigen-decomposition (about a quarter of its time). A neighbourhood spanning 3D needs no R
  * unless J comes out singular; it is only computed then. The numbers are those of computing
- * everything per frame, bit for bit. */
+ * everything per frame, bit for bit, whatever the batches. */
 #include "deform.h"
 #include "mat3.h"
 
@@ -125,12 +126,17 @@ static void fit_rotation(const double e[3][3], const double c[3], double f[3][3]
             R[3 * r + s] = d[0][r] * e[0][s] + d[1][r] * e[1][s] + d[2][r] * e[2][s];
 }
 
-void sc_fit_deformed(const sc_fit_input *j, int64_t i, const double *half, double jac[9],
-                     double rot[9]) {
-    sc_m3_identity(jac);
-    sc_m3_identity(rot);
+/* What a row's J is made of: e_m, c_m, f_m (the file's comment). */
+typedef struct {
+    double e[3][3], c[3], f[3][3];
+    int fitted; /* every c_m = 1: J = sum f_m e_m^T, R not needed for it */
+} fit_parts;
+
+/* Row i's parts from its rest half and the deformed positions; 0 for a row without neighbours
+ * (J = R = I). */
+static int parts_of(const sc_fit_input *j, int64_t i, const double *half, fit_parts *fp) {
     const double *l = half + SC_FIT_L;
-    if (!(l[0] > 0.0)) return;
+    if (!(l[0] > 0.0)) return 0;
     const float *p = j->rest + 3 * i, *x = j->deformed + 3 * i;
     const int32_t *nb = j->neighbours + (int64_t)j->k * i;
     double B[9] = {0};
@@ -143,41 +149,134 @@ void sc_fit_deformed(const sc_fit_input *j, int64_t i, const double *half, doubl
         for (int r = 0; r < 3; ++r)
             for (int c = 0; c < 3; ++c) B[3 * r + c] += w * b[r] * a[c];
     }
-    double e[3][3];
-    memcpy(e[0], half + SC_FIT_E1, sizeof e[0]);
-    memcpy(e[1], half + SC_FIT_E2, sizeof e[1]);
-    sc_cross(e[0], e[1], e[2]);
-    const double c[3] = {1.0, half[SC_FIT_C], half[SC_FIT_C + 1]};
-    double f[3][3] = {{0}};
+    memcpy(fp->e[0], half + SC_FIT_E1, sizeof fp->e[0]);
+    memcpy(fp->e[1], half + SC_FIT_E2, sizeof fp->e[1]);
+    sc_cross(fp->e[0], fp->e[1], fp->e[2]);
+    fp->c[0] = 1.0, fp->c[1] = half[SC_FIT_C], fp->c[2] = half[SC_FIT_C + 1];
+    memset(fp->f, 0, sizeof fp->f);
     for (int m = 0; m < 3; ++m) {
-        if (c[m] <= 0.0) continue;
+        if (fp->c[m] <= 0.0) continue;
+        const double *e = fp->e[m];
         for (int r = 0; r < 3; ++r)
-            f[m][r] = (B[3 * r] * e[m][0] + B[3 * r + 1] * e[m][1] + B[3 * r + 2] * e[m][2]) / l[m];
+            fp->f[m][r] = (B[3 * r] * e[0] + B[3 * r + 1] * e[1] + B[3 * r + 2] * e[2]) / l[m];
     }
-    /* Every direction fitted (a neighbourhood spanning 3D): J = sum f_m e_m^T, R only needed
-     * where J is singular. */
-    const int fitted = c[1] >= 1.0 && c[2] >= 1.0;
-    double R[9];
-    if (!fitted) fit_rotation(e, c, f, R);
+    fp->fitted = fp->c[1] >= 1.0 && fp->c[2] >= 1.0;
+    return 1;
+}
+
+/* J = sum_m (c_m f_m + (1 - c_m) R e_m) e_m^T (R unused, may be NULL, when fitted). */
+static void jacobian_of(const fit_parts *fp, const double *R, double jac[9]) {
     for (int r = 0; r < 3; ++r)
         for (int s = 0; s < 3; ++s) {
             double v = 0.0;
             for (int m = 0; m < 3; ++m) {
-                const double re = fitted ? 0.0 : R[3 * r] * e[m][0] + R[3 * r + 1] * e[m][1] + R[3 * r + 2] * e[m][2];
-                v += (c[m] * f[m][r] + (1.0 - c[m]) * re) * e[m][s];
+                const double *e = fp->e[m];
+                const double re = fp->fitted ? 0.0 : R[3 * r] * e[0] + R[3 * r + 1] * e[1] + R[3 * r + 2] * e[2];
+                v += (fp->c[m] * fp->f[m][r] + (1.0 - fp->c[m]) * re) * e[s];
             }
             jac[3 * r + s] = v;
         }
-    if (!sc_polar_rotation(jac, rot)) {
-        if (fitted) fit_rotation(e, c, f, R);
-        memcpy(rot, R, sizeof R);
+}
+
+/* ---------------------------------------------------------------- polar rotations in lanes
+ * The orthogonal factor Q of the polar decomposition J = Q P (det Q = sign det J) by Higham's
+ * scaled Newton iteration Q <- (g Q + Q^-T / g) / 2, for SC_SHAPE_LANES matrices side by side
+ * (one matrix's iteration is a chain of a division and two square roots per step, each waiting
+ * for the one before; eight side by side cost about as much). Q^-T = C / det, C the cofactors,
+ * and g = (|C| / (|det| |Q|))^(1/2) (Frobenius norms: the optimal scaling's estimate). None
+ * (J's R instead) where J is singular to 1e-12 of its size, where Q is not unique, or the
+ * iteration is not finite. Each lane stops (keeps its Q) when its own step is under 1e-8, or
+ * fails, whatever the others do, so its result does not depend on its batch. */
+
+enum { LANES = SC_SHAPE_LANES, POLAR_STEPS = 60 };
+
+typedef struct {
+    double x[9][LANES];
+    int64_t state[LANES]; /* 1 iterating, 0 done, -1 singular or non-finite (no rotation) */
+} polar_lanes;
+
+static SC_ALWAYS_INLINE void polar_start(polar_lanes *restrict P) {
+    for (int l = 0; l < LANES; ++l) {
+        double x[9];
+        for (int e = 0; e < 9; ++e) x[e] = P->x[e][l];
+        double size2 = 0.0;
+        for (int e = 0; e < 9; ++e) size2 += x[e] * x[e];
+        const double size = sqrt(size2);
+        const double det = x[0] * (x[4] * x[8] - x[5] * x[7]) - x[1] * (x[3] * x[8] - x[5] * x[6]) +
+                           x[2] * (x[3] * x[7] - x[4] * x[6]);
+        P->state[l] = size > 0.0 && fabs(det) > 1e-12 * size * size * size ? 1 : -1;
     }
 }
 
-void sc_fit_point(const sc_fit_input *j, int64_t i, double jac[9], double rot[9]) {
-    double half[SC_FIT_W + SC_MAX_NEIGHBOURS];
-    sc_fit_rest(j, i, half);
-    sc_fit_deformed(j, i, half, jac, rot);
+/* One step for every lane still iterating; returns how many still are. */
+static SC_ALWAYS_INLINE int polar_step(polar_lanes *restrict P) {
+    double iterating = 0.0;
+    for (int l = 0; l < LANES; ++l) {
+        double x[9];
+        for (int e = 0; e < 9; ++e) x[e] = P->x[e][l];
+        const double c[9] = {x[4] * x[8] - x[5] * x[7], x[5] * x[6] - x[3] * x[8], x[3] * x[7] - x[4] * x[6],
+                             x[2] * x[7] - x[1] * x[8], x[0] * x[8] - x[2] * x[6], x[1] * x[6] - x[0] * x[7],
+                             x[1] * x[5] - x[2] * x[4], x[2] * x[3] - x[0] * x[5], x[0] * x[4] - x[1] * x[3]};
+        const double det = x[0] * c[0] + x[1] * c[1] + x[2] * c[2];
+        double cc = 0.0, xx = 0.0;
+        for (int e = 0; e < 9; ++e) cc += c[e] * c[e], xx += x[e] * x[e];
+        const double g = sqrt(sqrt(cc / xx) / fabs(det));
+        const double by_x = 0.5 * g, by_c = 0.5 / (g * det);
+        double change = 0.0, next[9];
+        for (int e = 0; e < 9; ++e) {
+            next[e] = by_x * x[e] + by_c * c[e];
+            change += (next[e] - x[e]) * (next[e] - x[e]);
+        }
+        const int active = P->state[l] == 1, finite = change - change == 0.0;
+        for (int e = 0; e < 9; ++e) P->x[e][l] = active && finite ? next[e] : x[e];
+        /* Quadratic convergence: a step of size c leaves x about c^2 / 2 from Q, so after a
+         * step under 1e-8 (squared: 1e-16) x is Q to rounding. */
+        P->state[l] = !active ? P->state[l] : !finite ? -1 : change <= 1e-16 ? 0 : 1;
+        iterating += P->state[l] == 1 ? 1.0 : 0.0;
+    }
+    return (int)iterating;
+}
+
+static SC_ALWAYS_INLINE void polar_body(polar_lanes *restrict P) {
+    polar_start(P);
+    for (int step = 0; step < POLAR_STEPS && polar_step(P) > 0; ++step) {
+    }
+}
+
+SC_MULTIVERSION(void, polar_lanes_run, (polar_lanes * P), (P), polar_body(P))
+
+void sc_fit_batch(const sc_fit_input *j, int64_t row, int count, const double *halves,
+                  double jac[][9], double rot[][9]) {
+    const int64_t stride = SC_FIT_FIELDS + j->k;
+    fit_parts parts[LANES];
+    int kind[LANES]; /* 0 no neighbours, 1 fitted, 2 with R */
+    double R[LANES][9];
+    polar_lanes P;
+    for (int l = 0; l < LANES; ++l) {
+        if (l < count) {
+            kind[l] = parts_of(j, row + l, halves + stride * l, &parts[l]);
+            if (kind[l] == 0) {
+                sc_m3_identity(jac[l]);
+            } else {
+                kind[l] += !parts[l].fitted;
+                if (kind[l] == 2) fit_rotation(parts[l].e, parts[l].c, parts[l].f, R[l]);
+                jacobian_of(&parts[l], R[l], jac[l]);
+            }
+        }
+        const int from = l < count ? l : count - 1; /* a short batch repeats its last row */
+        for (int e = 0; e < 9; ++e) P.x[e][l] = jac[from][e];
+    }
+    polar_lanes_run(&P);
+    for (int l = 0; l < count; ++l) {
+        if (kind[l] == 0) {
+            sc_m3_identity(rot[l]);
+        } else if (P.state[l] >= 0) {
+            for (int e = 0; e < 9; ++e) rot[l][e] = P.x[e][l];
+        } else { /* J singular: R */
+            if (kind[l] == 1) fit_rotation(parts[l].e, parts[l].c, parts[l].f, R[l]);
+            memcpy(rot[l], R[l], sizeof R[l]);
+        }
+    }
 }
 
 typedef struct {
@@ -203,7 +302,14 @@ void sc_deform_rest(const float *rest, int64_t n, const int32_t *neighbours, int
 static void fit_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     const job *j = ctx;
-    for (int64_t i = begin; i < end; ++i) sc_fit_point(&j->in, i, j->jacobians + 9 * i, j->rotations + 9 * i);
+    const int64_t stride = SC_FIT_FIELDS + j->in.k;
+    double halves[LANES * (SC_FIT_FIELDS + SC_MAX_NEIGHBOURS)];
+    for (int64_t start = begin; start < end; start += LANES) {
+        const int count = end - start < LANES ? (int)(end - start) : LANES;
+        for (int l = 0; l < count; ++l) sc_fit_rest(&j->in, start + l, halves + stride * l);
+        sc_fit_batch(&j->in, start, count, halves, (double(*)[9])(j->jacobians + 9 * start),
+                     (double(*)[9])(j->rotations + 9 * start));
+    }
 }
 
 void sc_deformation_jacobians(const float *rest, const float *deformed, int64_t n,

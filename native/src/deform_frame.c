@@ -1,5 +1,5 @@
 /* A frame of a deformation in one pass (sc_deform_frame, splatcore.h): per Gaussian, the
- * Jacobian and its polar rotation fitted from its neighbours (sc_fit_deformed, deform_fit.c,
+ * Jacobian and its polar rotation fitted from its neighbours (sc_fit_batch, deform_fit.c,
  * from the rest half of the fit its row keeps: sc_deform_rest, once per rest shape) and the
  * Gaussian's shape and SH through them (sc_shapes_batch, deform_apply.c: SC_SHAPE_LANES rows'
  * Gaussians at a time), the two maps kept on the stack rather than written to and read back
@@ -77,12 +77,12 @@ static void frame_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     sc_shape_batch b;
     for (int64_t start = begin; start < end; start += SC_SHAPE_LANES) {
         b.count = end - start < SC_SHAPE_LANES ? (int)(end - start) : SC_SHAPE_LANES;
+        for (int l = 0; l < b.count; ++l)
+            if (start + l + AHEAD < end) prefetch(j, j->order[start + l + AHEAD]);
+        sc_fit_batch(&j->fit, start, b.count, j->rest_fit + stride * start, b.jac, b.rot);
         for (int l = 0; l < b.count; ++l) {
-            const int64_t row = start + l;
-            if (row + AHEAD < end) prefetch(j, j->order[row + AHEAD]);
-            sc_fit_deformed(&j->fit, row, j->rest_fit + stride * row, b.jac[l], b.rot[l]);
             if (j->linear) then(j->linear, b.jac[l]), then(j->linear_rotation, b.rot[l]);
-            b.index[l] = j->order[row];
+            b.index[l] = j->order[start + l];
         }
         sc_shapes_batch(&j->shapes, &b);
     }
