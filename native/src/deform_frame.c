@@ -10,8 +10,9 @@
  * third of the fit. So the rest centres come in the rows of a spatial order (`order[row]` is
  * the Gaussian in that row; the neighbours given as rows), the deformed centres are permuted
  * into those rows first, and the rows are walked in that order: a row's neighbours lie a few
- * rows away and were mostly read for the rows before it. Each Gaussian's own parameters are
- * then scattered (read and written whole: a few cache lines each), asked for AHEAD rows early.
+ * rows away and were mostly read for the rows before it; those a Morton jump away are asked
+ * for AHEAD rows early. Each Gaussian's own parameters are then scattered (read and written
+ * whole: a few cache lines each), asked for AHEAD rows early too.
  * Every Gaussian's result is computed by the same code from the same numbers whichever thread
  * takes its row, so it is the same for every thread count, and bit for bit what the two
  * stages give one after the other. The outputs may be the inputs (sc_shapes_batch reads its
@@ -69,6 +70,16 @@ static void prefetch(const frame_job *j, int64_t i) {
     }
 }
 
+/* Row `row`'s neighbours' rest and deformed centres (a neighbour a Morton jump away is a miss). */
+static void prefetch_neighbours(const frame_job *j, int64_t row) {
+    const int32_t *nb = j->fit.neighbours + (int64_t)j->fit.k * row;
+    for (int m = 0; m < j->fit.k; ++m) {
+        if (nb[m] < 0) continue;
+        SC_PREFETCH(j->fit.rest + 3 * (int64_t)nb[m]);
+        SC_PREFETCH(j->fit.deformed + 3 * (int64_t)nb[m]);
+    }
+}
+
 static void frame_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     const frame_job *j = ctx;
@@ -78,7 +89,10 @@ static void frame_rows(void *ctx, int64_t begin, int64_t end, int thread) {
     for (int64_t start = begin; start < end; start += SC_SHAPE_LANES) {
         b.count = end - start < SC_SHAPE_LANES ? (int)(end - start) : SC_SHAPE_LANES;
         for (int l = 0; l < b.count; ++l)
-            if (start + l + AHEAD < end) prefetch(j, j->order[start + l + AHEAD]);
+            if (start + l + AHEAD < end) {
+                prefetch(j, j->order[start + l + AHEAD]);
+                prefetch_neighbours(j, start + l + AHEAD);
+            }
         sc_fit_batch(&j->fit, start, b.count, j->rest_fit + stride * start, b.jac, b.rot);
         for (int l = 0; l < b.count; ++l) {
             if (j->linear) then(j->linear, b.jac[l]), then(j->linear_rotation, b.rot[l]);
