@@ -181,8 +181,8 @@ static void jacobian_of(const fit_parts *fp, const double *R, double jac[9]) {
 /* ---------------------------------------------------------------- polar rotations in lanes
  * The orthogonal factor Q of the polar decomposition J = Q P (det Q = sign det J) by Higham's
  * scaled Newton iteration Q <- (g Q + Q^-T / g) / 2, for SC_SHAPE_LANES matrices side by side
- * (one matrix's iteration is a chain of a division and two square roots per step, each waiting
- * for the one before; eight side by side cost about as much). Q^-T = C / det, C the cofactors,
+ * (one matrix's iteration is a chain of divisions and square roots, each waiting for the one
+ * before; eight side by side cost about as much). Q^-T = C / det, C the cofactors,
  * and g = (|C| / (|det| |Q|))^(1/2) (Frobenius norms: the optimal scaling's estimate). None
  * (J's R instead) where J is singular to 1e-12 of its size, where Q is not unique, or the
  * iteration is not finite. Each lane stops (keeps its Q) when its own step is under 1e-8, or
@@ -260,7 +260,7 @@ void sc_fit_batch(const sc_fit_input *j, int64_t row, int count, const double *h
             } else {
                 kind[l] += !parts[l].fitted;
                 if (kind[l] == 2) fit_rotation(parts[l].e, parts[l].c, parts[l].f, R[l]);
-                jacobian_of(&parts[l], R[l], jac[l]);
+                jacobian_of(&parts[l], kind[l] == 2 ? R[l] : NULL, jac[l]);
             }
         }
         const int from = l < count ? l : count - 1; /* a short batch repeats its last row */
