@@ -3,6 +3,7 @@ cost at a million Gaussians.
 
     .venv/bin/python benchmarks/bench_deform.py                 # accuracy, then 1M timings
     .venv/bin/python benchmarks/bench_deform.py --n 200000 --skip-blender
+    .venv/bin/python benchmarks/bench_deform.py --skip-accuracy --skip-blender --threads 1
 
 Accuracy: the estimated Jacobian J against the analytic one of a bend (radius 0.5 about Z) and
 a twist (2 rad per unit about Z), over points at spacing h in a 0.6-wide block: a jittered 3D
@@ -12,12 +13,13 @@ rotation and the true one, for the default thresholds and two others (the varian
 below which a direction follows the rotation, above which it is fitted).
 
 Cost (wall clock, best of --repeat, with the CPU seconds of all threads of that run: on a
-machine other work loads, the CPU time varies less): the native stages on N Gaussians of SH degree 3 (the rest
-neighbours, cold, then cached; the fit; the shapes and SH; the neighbours' spatial layout; the
-one pass a frame runs: fit, shapes and SH per Gaussian), then in bpy the gather of a splat
-object of N Gaussians without a modifier and with a Simple Deform (bend), cache cold (each
-frame of an animation whose deformation changes), and cached (a frame whose deformation did
-not change).
+machine other work loads, the CPU time varies less): the native stages on N Gaussians of SH
+degree 3, on --threads (default every core): the rest neighbours, cold, then cached; the fit;
+the shapes and SH; the neighbours' spatial layout (with the fit's rest half); the one pass a
+frame runs (fit, shapes and SH per Gaussian), into new arrays and, as the gather runs it, over
+a fresh copy's own; then in bpy the gather of a splat object of N Gaussians without a modifier
+and with a Simple Deform (bend), cache cold (each frame of an animation whose deformation
+changes), and cached (a frame whose deformation did not change).
 """
 
 from __future__ import annotations
@@ -105,7 +107,7 @@ def cells(seconds: tuple[float, float]) -> str:
     return f"{seconds[0]:.3f} | {seconds[1]:.3f}"
 
 
-def native_costs(n: int, repeat: int, rng) -> None:
+def native_costs(n: int, repeat: int, rng, threads: int) -> None:
     from addon.core.gaussians import Gaussians
 
     rest = rng.normal(size=(n, 3)).astype(np.float32)
@@ -116,22 +118,31 @@ def native_costs(n: int, repeat: int, rng) -> None:
                   rng.normal(scale=0.3, size=(n, 16, 3)).astype(f))
     cache = deform.RestNeighbours()
     rows = []
-    t, nbrs = timed(lambda: deform.rest_neighbours(rest), 1)
+    t, nbrs = timed(lambda: deform.rest_neighbours(rest, threads=threads), 1)
     rows.append(("rest neighbours (k = 8), cold", t))
     cache.get("object", rest)
     t, _ = timed(lambda: cache.get("object", rest), repeat)
     rows.append(("rest neighbours, cached (checksum of the rest positions)", t))
-    t, (jac, rot) = timed(lambda: deform.deformation_jacobians(rest, g.means, nbrs), repeat)
+    t, (jac, rot) = timed(lambda: deform.deformation_jacobians(rest, g.means, nbrs,
+                                                               threads=threads), repeat)
     rows.append(("fit: J and its polar rotation", t))
-    t, _ = timed(lambda: deform.deform_gaussians(g, jac, rot), repeat)
+    t, _ = timed(lambda: deform.deform_gaussians(g, jac, rot, threads=threads), repeat)
     rows.append(("shapes (J Sigma J^T) and SH degree 3 rotated", t))
     if hasattr(deform, "neighbourhoods"):  # not before the one pass (a baseline's checkout)
-        t, hoods = timed(lambda: deform.neighbourhoods(rest, neighbours=nbrs), 1)
+        t, hoods = timed(lambda: deform.neighbourhoods(rest, neighbours=nbrs, threads=threads),
+                         1)
         rows.append(("spatial layout of the neighbours (once per rest shape, cached)", t))
-        t, _ = timed(lambda: deform.deform(g, hoods), repeat)
+        t, _ = timed(lambda: deform.deform(g, hoods, threads=threads), repeat)
         rows.append(("one pass: fit, shapes and SH per Gaussian over the spatial rows (a "
                      "frame)", t))
-    print(f"\nNative stages, {n:,} Gaussians\n\n| stage | seconds | CPU seconds |\n"
+        best = (np.inf, np.inf)
+        for _ in range(repeat):  # over a fresh read's arrays, as the gather deforms
+            copy = Gaussians(*(a.copy() for a in g.arrays().values()))
+            t, _ = timed(lambda: deform.deform(copy, hoods, threads=threads, in_place=True), 1)
+            best = min(best, t)
+        rows.append(("one pass in place (the gather's)", best))
+    print(f"\nNative stages, {n:,} Gaussians, threads {threads or 'all'}\n\n"
+          "| stage | seconds | CPU seconds |\n"
           "| --- | --- | --- |")
     for name, seconds in rows:
         print(f"| {name} | {cells(seconds)} |")
@@ -188,11 +199,13 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--skip-accuracy", action="store_true")
     parser.add_argument("--skip-blender", action="store_true")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="native stages' threads (0: every core, as the add-on runs them)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     if not args.skip_accuracy:
         accuracy(rng)
-    native_costs(args.n, args.repeat, rng)
+    native_costs(args.n, args.repeat, rng, args.threads)
     if not args.skip_blender:
         blender_costs(args.n, args.repeat, rng)
 

@@ -27,7 +27,8 @@ def neighbours(points: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def _ramp(ratio: float, lo: float, hi: float) -> float:
+def ramp(ratio: float, lo: float, hi: float) -> float:
+    """The weight c_m of a direction whose spread is `ratio` of the widest (deform_fit.c)."""
     if ratio <= lo or ratio <= 1e-12:  # rounding-level spread: flat, whatever lo is
         return 0.0
     return 1.0 if ratio >= hi else (ratio - lo) / (hi - lo)
@@ -74,7 +75,7 @@ def jacobians(rest: np.ndarray, deformed: np.ndarray, nbrs: np.ndarray, undeterm
         lam = values[::-1]
         e = [vectors[:, 2], vectors[:, 1]]
         e.append(np.cross(e[0], e[1]))
-        c = [1.0] + [_ramp(lam[m] / lam[0], undetermined, determined) for m in (1, 2)]
+        c = [1.0] + [ramp(lam[m] / lam[0], undetermined, determined) for m in (1, 2)]
         f = [cross @ e[m] / lam[m] if c[m] > 0 else np.zeros(3) for m in range(3)]
         rotation = np.eye(3)
         if np.linalg.norm(f[0]) > 0:

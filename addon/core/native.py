@@ -300,20 +300,33 @@ def deform_shapes(log_scales: np.ndarray, quats: np.ndarray, sh: np.ndarray,
         out_sh=out_sh)
 
 
+FIT_FIELDS = 11  # a point's rest half of the fit: FIT_FIELDS + k float64 (SC_FIT_FIELDS)
+
+
+def deform_rest(rest: np.ndarray, neighbours: np.ndarray, out_fit: np.ndarray, *,
+                undetermined: float, determined: float, threads: int) -> None:
+    """The half of `deformation_jacobians`' fit that the rest positions (float32 (N, 3)) and
+    `neighbours` (int32 (N, k)) alone determine, into float64 `out_fit` (N, FIT_FIELDS + k):
+    what `deform_frame` takes, once per rest shape."""
+    splatcore().deform_rest(rest=rest, neighbours=neighbours, undetermined=float(undetermined),
+                            determined=float(determined), threads=thread_count(threads),
+                            out_fit=out_fit)
+
+
 def deform_frame(rest: np.ndarray, deformed: np.ndarray, neighbours: np.ndarray,
-                 order: np.ndarray, log_scales: np.ndarray, quats: np.ndarray, sh: np.ndarray,
-                 out_log_scales: np.ndarray, out_quats: np.ndarray, out_sh: np.ndarray, *,
-                 undetermined: float, determined: float, linear: np.ndarray | None,
+                 order: np.ndarray, fit: np.ndarray, log_scales: np.ndarray, quats: np.ndarray,
+                 sh: np.ndarray, out_log_scales: np.ndarray, out_quats: np.ndarray,
+                 out_sh: np.ndarray, *, linear: np.ndarray | None,
                  linear_rotation: np.ndarray | None, threads: int) -> None:
     """`deformation_jacobians` then `deform_shapes` in one pass, the maps never stored: rest
-    centres (float32 (N, 3)) and neighbours (int32 (N, k), as rows) in the rows of a spatial
-    order, `order` (int32 (N,)) the Gaussian in each row; the deformed centres, shapes, SH and
-    outputs by Gaussian (see `addon.core.deform`). `linear` and its orthogonal
-    `linear_rotation` (float64 (3, 3) each, or None): a map after the deformation."""
+    centres (float32 (N, 3)), neighbours (int32 (N, k), as rows) and their `deform_rest` fit
+    in the rows of a spatial order, `order` (int32 (N,)) the Gaussian in each row; the
+    deformed centres, shapes, SH and outputs by Gaussian (see `addon.core.deform`). `linear`
+    and its orthogonal `linear_rotation` (float64 (3, 3) each, or None): a map after the
+    deformation."""
     splatcore().deform_frame(
-        rest=rest, deformed=deformed, neighbours=neighbours, order=order,
-        undetermined=float(undetermined), determined=float(determined), linear=linear,
-        linear_rotation=linear_rotation, log_scales=log_scales,
+        rest=rest, deformed=deformed, neighbours=neighbours, order=order, fit=fit,
+        linear=linear, linear_rotation=linear_rotation, log_scales=log_scales,
         quats=quats, sh=sh, threads=thread_count(threads), out_log_scales=out_log_scales,
         out_quats=out_quats, out_sh=out_sh)
 

@@ -42,7 +42,8 @@
  * Deformation (modifiers, armatures, shape keys bending Gaussians, not only their centres):
  *   neighbours.c    k nearest neighbours of every point (a k-d tree)
  *   deform_fit.c    each Gaussian's deformation Jacobian from its neighbours' rest and
- *                   deformed positions, and its polar rotation
+ *                   deformed positions, and its polar rotation; the rest positions' half of
+ *                   that fit, computed once per rest shape
  *   deform_apply.c  covariances J Sigma J^T and SH rotated, a matrix per Gaussian
  *
  * The Python binding, module.c, is no stage: it checks every argument (a table per entry point)
@@ -421,19 +422,26 @@ void sc_deform_shapes(const float *log_scales, const float *quats, const float *
                       int sh_coeffs, const double *jacobians, const double *rotations,
                       float *out_log_scales, float *out_quats, float *out_sh, int threads);
 
-/* Both of the above for n Gaussians in one pass (deform_frame.c): rest (n, 3) the rest centres
- * in the rows of a spatial order, order (n,) the Gaussian in each row (a permutation),
- * neighbours (n, k) each row's neighbours as rows (-1 none); deformed (n, 3) and the shapes,
- * SH and outputs by Gaussian. The same numbers as sc_deformation_jacobians (in Gaussian order)
- * then sc_deform_shapes. linear and linear_rotation (3, 3) row-major, both or NULL: a map
- * after the deformation (an object's matrix): the shapes go through linear J, the SH through
- * linear_rotation Q. Returns 0, or -2 when memory runs out. */
+/* The rest half of each point's fit (deform_fit.c): what sc_deformation_jacobians computes
+ * from the rest centres (n, 3) and neighbours (n, k) alone, SC_FIT_FIELDS + k doubles per point,
+ * into fit (n, SC_FIT_FIELDS + k): a deformation's frames share it. */
+enum { SC_FIT_FIELDS = 11 };
+void sc_deform_rest(const float *rest, int64_t n, const int32_t *neighbours, int k,
+                    double undetermined, double determined, double *fit, int threads);
+
+/* sc_deformation_jacobians and sc_deform_shapes for n Gaussians in one pass (deform_frame.c):
+ * rest (n, 3) the rest centres in the rows of a spatial order, order (n,) the Gaussian in each
+ * row (a permutation), neighbours (n, k) each row's neighbours as rows (-1 none), fit
+ * (n, SC_FIT_FIELDS + k) their sc_deform_rest; deformed (n, 3) and the shapes, SH and outputs
+ * by Gaussian. The same numbers as sc_deformation_jacobians (in Gaussian order, with fit's
+ * thresholds) then sc_deform_shapes. linear and linear_rotation (3, 3) row-major, both or NULL:
+ * a map after the deformation (an object's matrix): the shapes go through linear J, the SH
+ * through linear_rotation Q. Returns 0, or -2 when memory runs out. */
 int sc_deform_frame(const float *rest, const float *deformed, int64_t n,
-                    const int32_t *neighbours, int k, const int32_t *order,
-                    double undetermined, double determined, const double *linear,
-                    const double *linear_rotation, const float *log_scales,
-                    const float *quats, const float *sh, int sh_coeffs, float *out_log_scales,
-                    float *out_quats, float *out_sh, int threads);
+                    const int32_t *neighbours, int k, const int32_t *order, const double *fit,
+                    const double *linear, const double *linear_rotation,
+                    const float *log_scales, const float *quats, const float *sh, int sh_coeffs,
+                    float *out_log_scales, float *out_quats, float *out_sh, int threads);
 
 #ifdef __cplusplus
 }

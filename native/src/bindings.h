@@ -205,18 +205,29 @@ static const arg_spec DEFORM_SHAPES[] = {
     {"out_sh", 'f', 3, {DIM_N, DIM_K, 3}, WRITABLE, ARRAY, 0},
 };
 
-/* Both in one pass: the rest centres and each one's neighbours in the rows of a spatial order
- * (neighbours as rows), order (N,) the Gaussian in each row (a permutation); the deformed
- * centres, shapes and SH by Gaussian. The outputs may be log_scales, quats and sh themselves
- * (each Gaussian's are read before its own are written). linear and linear_rotation (both or
- * neither; the second orthogonal): a map after the deformation (an object's matrix), applied
- * as L J to the shapes and as linear_rotation Q to the SH. */
+/* The rest half of the fit: rest centres and neighbours (indices, -1 none) as for
+ * deformation_jacobians, out_fit (N, SC_FIT_FIELDS + k). */
+static const arg_spec DEFORM_REST[] = {
+    {"rest", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
+    {"neighbours", 'i', 2, {DIM_N, ANY}, 0, ARRAY, 0},
+    SCALAR("undetermined", REAL), SCALAR("determined", REAL),
+    SCALAR("threads", THREADS),
+    {"out_fit", 'd', 2, {DIM_N, ANY}, WRITABLE, ARRAY, 0},
+};
+
+/* Both in one pass: the rest centres, each one's neighbours and the rest half of its fit
+ * (deform_rest's, by row) in the rows of a spatial order (neighbours as rows), order (N,) the
+ * Gaussian in each row (a permutation); the deformed centres, shapes and SH by Gaussian. The
+ * outputs may be log_scales, quats and sh themselves (each Gaussian's are read before its own
+ * are written). linear and linear_rotation (both or neither; the second orthogonal): a map
+ * after the deformation (an object's matrix), applied as L J to the shapes and as
+ * linear_rotation Q to the SH. */
 static const arg_spec DEFORM_FRAME[] = {
     {"rest", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
     {"deformed", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},
     {"neighbours", 'i', 2, {DIM_N, ANY}, 0, ARRAY, 0},
     {"order", 'i', 1, {DIM_N}, 0, ARRAY, 0},
-    SCALAR("undetermined", REAL), SCALAR("determined", REAL),
+    {"fit", 'd', 2, {DIM_N, ANY}, FINITE, ARRAY, 0},
     {"linear", 'd', 2, {3, 3}, OPTIONAL | FINITE, ARRAY, 0},
     {"linear_rotation", 'd', 2, {3, 3}, OPTIONAL | FINITE, ARRAY, 0},
     {"log_scales", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},

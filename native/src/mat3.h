@@ -1,6 +1,7 @@
-/* 3x3 matrices in double, row-major (m[3 * row + col]): the symmetric eigen-decomposition, the
- * polar rotation, a rotation's quaternion and the smallest rotation between two directions,
- * for the deformation stages (deform_fit.c, deform_apply.c). Only src/ files include this. */
+/* 3x3 matrices in double, row-major (m[3 * row + col]): the symmetric eigen-decomposition, a
+ * rotation's quaternion and the smallest rotation between two directions, for the deformation
+ * stages (deform_fit.c, deform_apply.c; the polar rotation is deform_fit.c's, in vector lanes).
+ * Only src/ files include this. */
 #ifndef SC_MAT3_H
 #define SC_MAT3_H
 
@@ -10,12 +11,6 @@
 static inline void sc_m3_identity(double m[9]) {
     memset(m, 0, 9 * sizeof(double));
     m[0] = m[4] = m[8] = 1.0;
-}
-
-static inline double sc_m3_frobenius(const double m[9]) {
-    double s = 0.0;
-    for (int i = 0; i < 9; ++i) s += m[i] * m[i];
-    return sqrt(s);
 }
 
 static inline double sc_m3_det(const double m[9]) {
@@ -197,39 +192,6 @@ static inline void sc_sym3_eigen(const double a_in[9], double values[3], double 
         values[i] = value[i] * scale;
         for (int k = 0; k < 3; ++k) vectors[3 * k + i] = v[i][k];
     }
-}
-
-/* The orthogonal factor Q of the polar decomposition m = Q P (det Q = sign det m) by Higham's
- * scaled Newton iteration Q <- (g Q + Q^-T / g) / 2; returns 0 (q untouched) when m is singular
- * to 1e-12 of its size, where Q is not unique. */
-static inline int sc_polar_rotation(const double m[9], double q[9]) {
-    const double size = sc_m3_frobenius(m);
-    if (!(size > 0.0) || !(fabs(sc_m3_det(m)) > 1e-12 * size * size * size)) return 0;
-    double x[9];
-    memcpy(x, m, sizeof x);
-    for (int it = 0; it < 60; ++it) {
-        const double det = sc_m3_det(x);
-        double inv_t[9]; /* the inverse transposed: cofactors / det */
-        inv_t[0] = (x[4] * x[8] - x[5] * x[7]) / det, inv_t[1] = (x[5] * x[6] - x[3] * x[8]) / det;
-        inv_t[2] = (x[3] * x[7] - x[4] * x[6]) / det, inv_t[3] = (x[2] * x[7] - x[1] * x[8]) / det;
-        inv_t[4] = (x[0] * x[8] - x[2] * x[6]) / det, inv_t[5] = (x[1] * x[6] - x[0] * x[7]) / det;
-        inv_t[6] = (x[1] * x[5] - x[2] * x[4]) / det, inv_t[7] = (x[2] * x[3] - x[0] * x[5]) / det;
-        inv_t[8] = (x[0] * x[4] - x[1] * x[3]) / det;
-        const double g = sqrt(sc_m3_frobenius(inv_t) / sc_m3_frobenius(x));
-        double change = 0.0;
-        for (int i = 0; i < 9; ++i) {
-            const double next = 0.5 * (g * x[i] + inv_t[i] / g);
-            change += (next - x[i]) * (next - x[i]);
-            x[i] = next;
-        }
-        if (!isfinite(change)) return 0;
-        /* Quadratic convergence: a step of size c leaves x about c^2 / 2 from Q, so after a
-         * step under 1e-8 (squared: 1e-16) x is Q to rounding; another step would only
-         * confirm it. */
-        if (change <= 1e-16) break;
-    }
-    memcpy(q, x, sizeof x);
-    return 1;
 }
 
 /* The unit quaternion (w, x, y, z), w >= 0, of a proper rotation (Shepperd's method: the

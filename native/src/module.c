@@ -602,6 +602,13 @@ static int check_finite(const Py_buffer *view, const char *name) {
     const int64_t n = (int64_t)(view->len / view->itemsize);
     if (view->itemsize == (Py_ssize_t)sizeof(float)) return check_finite_array(view->buf, n, name);
     const double *v = view->buf;
+    uint64_t bad = 0; /* branch-free first, as check_finite_array */
+    for (int64_t i = 0; i < n; ++i) {
+        uint64_t bits;
+        memcpy(&bits, v + i, sizeof bits);
+        bad |= (bits & 0x7ff0000000000000u) == 0x7ff0000000000000u;
+    }
+    if (!bad) return 0;
     for (int64_t i = 0; i < n; ++i)
         if (!isfinite(v[i])) return non_finite_at(name, i);
     return 0;
@@ -621,6 +628,7 @@ static PyObject *py_position_noise(PyObject *self, PyObject *args, PyObject *kwa
 static PyObject *py_neighbours(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_deformation_jacobians(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_deform_shapes(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_deform_rest(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs);
@@ -646,6 +654,7 @@ static const signature SIGNATURES[] = {
     ENTRY("neighbours", NEIGHBOURS),
     ENTRY("deformation_jacobians", DEFORMATION_JACOBIANS),
     ENTRY("deform_shapes", DEFORM_SHAPES),
+    ENTRY("deform_rest", DEFORM_REST),
     ENTRY("deform_frame", DEFORM_FRAME),
     ENTRY("srgb_premultiplied", SRGB_PREMULTIPLIED),
     ENTRY("srgb_view", SRGB_VIEW),
@@ -1051,17 +1060,46 @@ static PyObject *py_deform_shapes(PyObject *self, PyObject *args, PyObject *kwar
     return finish(&c, Py_NewRef(Py_None));
 }
 
-static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwargs) {
-    BEGIN(c, "deform_frame");
+/* A fit (N, SC_FIT_FIELDS + k) for neighbours (N, k). */
+static int check_fit_width(const call *c, const char *name, Py_ssize_t k) {
+    const Py_ssize_t width = view_of(c, name)->shape[1];
+    if (width != SC_FIT_FIELDS + k) {
+        PyErr_Format(PyExc_ValueError, "%s must have shape (N, %d + k) = (N, %zd) for k=%zd "
+                     "neighbours, got (N, %zd)", name, (int)SC_FIT_FIELDS, SC_FIT_FIELDS + k, k,
+                     width);
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *py_deform_rest(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "deform_rest");
     const double lo = real_of(&c, "undetermined"), hi = real_of(&c, "determined");
     if (!(lo >= 0.0 && lo <= hi && hi <= 1.0)) {
         value_error("need 0 <= undetermined <= determined <= 1, got %g and %g", lo, hi);
         return fail(&c);
     }
+    if (check(&c, "rest", "neighbours") != 0 || check(&c, "out_fit", "out_fit") != 0)
+        return fail(&c);
+    const Py_ssize_t n = SIZE(&c.d, DIM_N), k = view_of(&c, "neighbours")->shape[1];
+    if (check_neighbours(&c, n, k) != 0 || check_fit_width(&c, "out_fit", k) != 0)
+        return fail(&c);
+    const float *rest = data_of(&c, "rest");
+    const int32_t *neighbours = data_of(&c, "neighbours");
+    double *fit = data_of(&c, "out_fit");
+    const int threads = threads_of(&c);
+    Py_BEGIN_ALLOW_THREADS
+    sc_deform_rest(rest, n, neighbours, (int)k, lo, hi, fit, threads);
+    Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
+static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "deform_frame");
     if (check(&c, "rest", "sh") != 0 || check(&c, "out_log_scales", "out_sh") != 0)
         return fail(&c);
     const Py_ssize_t n = SIZE(&c.d, DIM_N), k = view_of(&c, "neighbours")->shape[1];
-    if (check_neighbours(&c, n, k) != 0) return fail(&c);
+    if (check_neighbours(&c, n, k) != 0 || check_fit_width(&c, "fit", k) != 0) return fail(&c);
     const int32_t *order = data_of(&c, "order");
     uint8_t *seen = calloc((size_t)(n > 0 ? n : 1), 1);
     if (seen == NULL) return fail(&c), PyErr_NoMemory();
@@ -1099,9 +1137,9 @@ static PyObject *py_deform_frame(PyObject *self, PyObject *args, PyObject *kwarg
     const int coeffs = (int)SIZE(&c.d, DIM_K), threads = threads_of(&c);
     int status;
     Py_BEGIN_ALLOW_THREADS
-    status = sc_deform_frame(rest, deformed, n, neighbours, (int)k, order, lo, hi, linear,
-                             linear_rotation, log_scales, quats, sh, coeffs, out_log_scales,
-                             out_quats, out_sh, threads);
+    status = sc_deform_frame(rest, deformed, n, neighbours, (int)k, order, data_of(&c, "fit"),
+                             linear, linear_rotation, log_scales, quats, sh, coeffs,
+                             out_log_scales, out_quats, out_sh, threads);
     Py_END_ALLOW_THREADS
     if (status != 0) return fail(&c), PyErr_NoMemory();
     return finish(&c, Py_NewRef(Py_None));
@@ -1491,6 +1529,9 @@ static PyMethodDef methods[] = {
     {"deform_shapes", WITH_KEYWORDS(py_deform_shapes),
      "deform_shapes(...) -> None\n\nLog-scales and quaternions of J Sigma J^T and SH rotated, "
      "a Jacobian and a rotation per Gaussian (sc_deform_shapes)."},
+    {"deform_rest", WITH_KEYWORDS(py_deform_rest),
+     "deform_rest(...) -> None\n\nThe rest positions' half of each point's deformation fit, "
+     "shared by a deformation's frames (sc_deform_rest)."},
     {"deform_frame", WITH_KEYWORDS(py_deform_frame),
      "deform_frame(...) -> None\n\nThe deformation Jacobians fitted and the Gaussians' shapes "
      "and SH through them, in one pass over rows in a spatial order (sc_deform_frame)."},

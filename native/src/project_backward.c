@@ -18,6 +18,7 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "lane_math.h"
 #include "sh_basis.h"
 
 /* Whether a recomputed value still rounds to (about) what the forward stored. */
@@ -217,44 +218,9 @@ int sc_project_backward_gaussian(const sc_gaussians *g, const sc_camera *cam,
 
 enum { LANES = SC_BW_LANES };
 
-/* e^x in double for |x| <= 700 (the caller checks): 2^n e^r, |r| <= ln(2)/2, e^r by its Taylor
- * series to r^13 (truncation below 1e-17 relative), ln 2 split in two so that r is exact to
- * the last bits. About 1 ulp from libm's exp; vectorisable (no table, no branch). */
-static SC_ALWAYS_INLINE double exp_lane(double x) {
-    /* n = round(x / ln 2), also as an integer: 1.5 2^52 + n holds n in its low mantissa bits
-     * (integer operations only: AVX2 has no double-to-int64 conversion). */
-    const double shifted = x * 1.4426950408889634 + 6755399441055744.0;
-    const double n = shifted - 6755399441055744.0;
-    int64_t n_bits;
-    memcpy(&n_bits, &shifted, sizeof n_bits);
-    const double r = (x - n * 0.6931471803691238) - n * 1.9082149292705877e-10;
-    double p = 1.0 / 6227020800.0;
-    p = p * r + 1.0 / 479001600.0;
-    p = p * r + 1.0 / 39916800.0;
-    p = p * r + 1.0 / 3628800.0;
-    p = p * r + 1.0 / 362880.0;
-    p = p * r + 1.0 / 40320.0;
-    p = p * r + 1.0 / 5040.0;
-    p = p * r + 1.0 / 720.0;
-    p = p * r + 1.0 / 120.0;
-    p = p * r + 1.0 / 24.0;
-    p = p * r + 1.0 / 6.0;
-    p = p * r + 0.5;
-    p = p * r + 1.0;
-    p = p * r + 1.0;
-    /* 2^n from its exponent bits: n + 1023 in [3, 2033]. */
-    const int64_t bits = (n_bits - 0x4338000000000000LL + 1023) << 52;
-    double scale;
-    memcpy(&scale, &bits, sizeof scale);
-    return p * scale;
-}
-
 /* The rows of lanes.out: a Gaussian's gradient values in the order the outputs hold them. */
 enum { OUT_MEANS = 0, OUT_SCALES = 3, OUT_QUATS = 6, OUT_LOGIT = 10, OUT_SH = 11,
        LANE_OUT = OUT_SH + 48 };
-
-/* The larger of two non-NaN values (not fmax, a library call that stops vectorisation). */
-static SC_ALWAYS_INLINE double fmax_lane(double a, double b) { return a > b ? a : b; }
 
 /* The inputs and results of LANES Gaussians, one array per value. */
 typedef struct {
@@ -265,11 +231,11 @@ typedef struct {
     double sh[48][LANES];  /* the rendered coefficients, (K,3) order */
     float out[LANE_OUT][LANES]; /* the parameter gradients, as lane_out orders them */
     int64_t ok[LANES]; /* 0: leave the lane to the scalar code (a non-finite input or result,
-                          stale, out of exp_lane's range) */
+                          stale, out of sc_exp_lane's range) */
 } lanes;
 
 /* backward_body for every lane, with the branches as selects (so the lane loop vectorises):
- * the same expressions in the same order, exp() by exp_lane. `degree` is a constant at each
+ * the same expressions in the same order, exp() by sc_exp_lane. `degree` is a constant at each
  * use (a build per degree), so the SH loops unroll. */
 static SC_ALWAYS_INLINE void lanes_body(lanes *restrict L, const sc_camera *cam,
                                         const sc_options *opt, const double campos[3],
@@ -306,13 +272,14 @@ static SC_ALWAYS_INLINE void lanes_body(lanes *restrict L, const sc_camera *cam,
         /* Whether the lane is fine: a count of failed conditions, added up as numbers, since
          * a chain of && (or &) of compares becomes branches, which stop the vectoriser. */
         double failed = (z >= near ? 0.0 : 1.0) + (z <= FLT_MAX ? 0.0 : 1.0);
-        const double largest_input = fmax_lane(fmax_lane(fabs(ls0), fabs(ls1)),
-                                               fmax_lane(fabs(ls2), fabs(logit)));
+        const double largest_input = sc_fmax_lane(sc_fmax_lane(fabs(ls0), fabs(ls1)),
+                                                  sc_fmax_lane(fabs(ls2), fabs(logit)));
         const int in_range = largest_input <= 700.0;
         failed += in_range ? 0.0 : 1.0;
-        /* Out of range (the lane goes to the scalar code): any value exp_lane takes. */
-        const double scale[3] = {exp_lane(in_range ? ls0 : 0.0), exp_lane(in_range ? ls1 : 0.0),
-                                 exp_lane(in_range ? ls2 : 0.0)};
+        /* Out of range (the lane goes to the scalar code): any value sc_exp_lane takes. */
+        const double scale[3] = {sc_exp_lane(in_range ? ls0 : 0.0),
+                                 sc_exp_lane(in_range ? ls1 : 0.0),
+                                 sc_exp_lane(in_range ? ls2 : 0.0)};
         double m[2][3], af[2][3];
         for (int k = 0; k < 3; ++k) {
             m[0][k] = j00 * v[k] + j02 * v[8 + k];
@@ -328,7 +295,7 @@ static SC_ALWAYS_INLINE void lanes_body(lanes *restrict L, const sc_camera *cam,
         const double a = a0 + SC_DILATION, b = b0, c = c0 + SC_DILATION;
         const double det = a * c - b * b;
         failed += (det > 0.0 ? 0.0 : 1.0) + (det <= DBL_MAX ? 0.0 : 1.0);
-        const double sig = 1.0 / (1.0 + exp_lane(in_range ? -logit : 0.0));
+        const double sig = 1.0 / (1.0 + sc_exp_lane(in_range ? -logit : 0.0));
         const double e0 = m0 - cp0, e1 = m1 - cp1, e2 = m2 - cp2;
         const double len = sqrt(e0 * e0 + e1 * e1 + e2 * e2);
         const double dir[3] = {len > 0.0 ? e0 / len : 0.0, len > 0.0 ? e1 / len : 0.0,

@@ -6,8 +6,9 @@ Jacobian J there. This package estimates J from the centres alone and applies it
 
     neighbours.py   each centre's k nearest neighbours in the rest positions (a k-d tree,
                     native), laid out in rows of a spatial order so a frame's reads of them
-                    are local (`Neighbourhoods`), cached while the rest positions stay the
-                    same (`RestNeighbours`)
+                    are local, with the half of the fit the rest positions alone determine
+                    (`Neighbourhoods`), cached while the rest positions stay the same
+                    (`RestNeighbours`)
     jacobians.py    J per Gaussian: weighted least squares of rest offsets to deformed offsets
                     over those neighbours, directions they do not span (a row's sides, a
                     sheet's normal) following the rotation the data determines; and J's polar
@@ -77,8 +78,7 @@ def deform(gaussians: Gaussians, hoods: Neighbourhoods, *, matrix: np.ndarray | 
         log_scales = np.empty((n, 3), np.float32)
         quats = np.empty((n, 4), np.float32)
         sh = np.empty_like(gaussians.sh)
-    native.deform_frame(hoods.rest, deformed, hoods.neighbours, hoods.order,
+    native.deform_frame(hoods.rest, deformed, hoods.neighbours, hoods.order, hoods.fit,
                         gaussians.log_scales, gaussians.quats, gaussians.sh, log_scales, quats, sh,
-                        undetermined=UNDETERMINED, determined=DETERMINED, linear=linear,
-                        linear_rotation=rotation, threads=threads)
+                        linear=linear, linear_rotation=rotation, threads=threads)
     return Gaussians(means, log_scales, quats, gaussians.opacity_logits, sh)

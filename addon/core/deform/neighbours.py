@@ -1,6 +1,6 @@
 """Each rest centre's k nearest neighbours (native: `splatcore.neighbours`, a k-d tree; the
-float64 brute-force twin is in tests/reference_deform.py), laid out in a spatial order
-(`Neighbourhoods`), and a cache of them.
+float64 brute-force twin is in tests/reference_deform.py), laid out in a spatial order with the
+rest half of each one's fit (`Neighbourhoods`), and a cache of them.
 
 The neighbourhoods are taken in the rest positions, not the deformed ones, so that a Gaussian
 keeps the same neighbours however the stack bends it (two sides of a fold pressed together do
@@ -11,7 +11,12 @@ The fit reads each Gaussian's neighbours' positions every frame; in the Gaussian
 Z-order (Morton) of the rest positions neighbours lie a few rows apart, and walking the rows in
 that order reads each position for many rows in a row, so `Neighbourhoods` holds the rows of
 that order: the rest positions in it, each row's neighbours as rows, the Gaussian in each row
-(`native.deform_frame` permutes a frame's deformed positions into it and walks it)."""
+(`native.deform_frame` permutes a frame's deformed positions into it and walks it).
+
+Half of each frame's fit depends on the rest positions alone (the neighbours' weights, the
+directions they spread in and how far, hence which directions are fitted: `jacobians.py`), so
+`Neighbourhoods` holds that half too (`native.deform_rest`, 8 * (11 + k) bytes a row: 152 MB per
+million Gaussians at k = 8) and a frame computes only what the deformed positions change."""
 
 from __future__ import annotations
 
@@ -20,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import native
+from .jacobians import DETERMINED, UNDETERMINED
 
 NEIGHBOURS = 8  # enough for a plane's fit to be over-determined, few enough to stay local
 
@@ -70,11 +76,13 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
 class Neighbourhoods:
     """Rest positions and neighbour lists in the rows of a spatial order (see the module's
     docstring), by row: `rest` (N, 3) float32, `neighbours` (N, k) int32 (rows; -1 none),
-    `order` (N,) int32 the Gaussian in each row."""
+    `order` (N,) int32 the Gaussian in each row, `fit` (N, native.FIT_FIELDS + k) float64 the
+    rest half of each row's fit (`native.deform_rest`, with the default thresholds)."""
 
     rest: np.ndarray
     neighbours: np.ndarray
     order: np.ndarray
+    fit: np.ndarray
 
     def __len__(self) -> int:
         return len(self.order)
@@ -90,7 +98,7 @@ class Neighbourhoods:
 def neighbourhoods(rest: np.ndarray, k: int = NEIGHBOURS, *, threads: int = 0,
                    neighbours: np.ndarray | None = None) -> Neighbourhoods:
     """`rest` (N, 3) and its k nearest neighbours (`rest_neighbours`, or `neighbours` as it
-    gives them) laid out in the rows of its spatial order."""
+    gives them) laid out in the rows of its spatial order, with the rest half of the fit."""
     points = np.ascontiguousarray(rest, np.float32)
     lists = rest_neighbours(points, k, threads=threads) if neighbours is None else \
         np.ascontiguousarray(neighbours, np.int32)
@@ -102,7 +110,11 @@ def neighbourhoods(rest: np.ndarray, k: int = NEIGHBOURS, *, threads: int = 0,
     slots[order] = np.arange(len(order), dtype=np.int32)
     by_row = lists[order]
     rows = np.where(by_row < 0, -1, slots[np.maximum(by_row, 0)]).astype(np.int32)
-    return Neighbourhoods(np.ascontiguousarray(points[order]), rows, order)
+    rest_rows = np.ascontiguousarray(points[order])
+    fit = np.empty((len(rows), native.FIT_FIELDS + rows.shape[1]), np.float64)
+    native.deform_rest(rest_rows, rows, fit, undetermined=UNDETERMINED, determined=DETERMINED,
+                       threads=threads)
+    return Neighbourhoods(rest_rows, rows, order, fit)
 
 
 class RestNeighbours:

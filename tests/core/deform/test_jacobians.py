@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 import reference_deform
-from addon.core.deform import DETERMINED, UNDETERMINED, deformation_jacobians, rest_neighbours
+from addon.core import native
+from addon.core.deform import (DETERMINED, UNDETERMINED, deformation_jacobians, neighbourhoods,
+                               rest_neighbours)
 from addon.core.transform import quat_to_matrix
 
 
@@ -55,6 +57,50 @@ def test_native_fit_is_the_reference(rng, shape):
     assert (np.linalg.norm(jac - want_j, axis=(1, 2)) <= 1e-9 * size).all()
     assert np.abs(rot - want_q).max() < 1e-9
     assert np.abs(rot @ np.swapaxes(rot, 1, 2) - np.eye(3)).max() < 1e-12
+
+
+def test_the_rest_half_is_the_reference_spread(rng):
+    """native.deform_rest, the half of the fit a deformation's frames share (`Neighbourhoods.fit`):
+    each neighbour's weight, the spread's eigenvalues and its two widest directions (up to sign,
+    where the eigenvalues are apart), and the ramps, against the float64 twin's; a row without
+    neighbours is all zeros."""
+    n = 400
+    rest = rng.uniform(-1, 1, (n, 3))
+    rest[: n // 4, 2] = 0.0  # a sheet beside a cloud: ramps of both kinds
+    rest = rest.astype(np.float32)
+    k = int(rng.integers(3, 13))
+    nbrs = rest_neighbours(rest, k)
+    nbrs[5] = -1
+    fit = np.empty((n, native.FIT_FIELDS + k))
+    native.deform_rest(rest, nbrs, fit, undetermined=UNDETERMINED, determined=DETERMINED,
+                       threads=2)
+    assert np.array_equal(fit[5], np.zeros(native.FIT_FIELDS + k))
+    r64 = rest.astype(np.float64)
+    for i in range(n):
+        if i == 5:
+            continue
+        a = r64[nbrs[i]] - r64[i]
+        d2 = (a * a).sum(axis=1)
+        w = np.exp(-d2 / d2.max())
+        values, vectors = np.linalg.eigh((w[:, None] * a).T @ a)
+        lam = values[::-1]
+        assert np.allclose(fit[i, native.FIT_FIELDS:], w, rtol=1e-14, atol=0), i
+        assert np.allclose(fit[i, 6:9], lam, rtol=0, atol=1e-12 * lam[0]), i
+        for m, column in ((0, 0), (1, 3)):
+            gap = min(abs(lam[m] - lam[m + 1]), abs(lam[m] - lam[m - 1]) if m else np.inf)
+            if gap > 1e-3 * lam[0]:
+                assert abs(fit[i, column:column + 3] @ vectors[:, 2 - m]) > 1 - 1e-9, (i, m)
+        for m in (1, 2):
+            want = reference_deform.ramp(lam[m] / lam[0], UNDETERMINED, DETERMINED)
+            assert abs(fit[i, 8 + m] - want) < 1e-9, (i, m)
+    hoods = neighbourhoods(rest, k)  # the layout's own: the same halves, by row
+    by_row = np.empty_like(fit)
+    native.deform_rest(hoods.rest, hoods.neighbours, by_row, undetermined=UNDETERMINED,
+                       determined=DETERMINED, threads=1)
+    assert np.array_equal(hoods.fit, by_row)
+    with pytest.raises(ValueError, match=r"out_fit must have shape \(N, 11 \+ k\)"):
+        native.deform_rest(rest, nbrs, fit[:, 1:].copy(), undetermined=UNDETERMINED,
+                           determined=DETERMINED, threads=1)
 
 
 def test_affine_map_is_exact_where_the_neighbours_span_3d(rng):
