@@ -357,6 +357,15 @@ def native_cpu_count() -> int:
     return splatcore().cpu_count()
 
 
+def pool_profile(enable: bool) -> dict[str, float]:
+    """The native thread pool's counters since the last call, zeroed (benchmarks): `jobs`
+    (parallel sections run), `inside_ms` (their callers' wall time inside them: the rest of a
+    native call ran on one thread), `busy_ms` (their threads' working time, summed),
+    `offered_ms` (each section's wall time times its threads). Profiles from now on if
+    `enable` (process-wide; the stages' stats then fill their `ms_pool_*` fields)."""
+    return dict(splatcore().pool_profile(enable=bool(enable)))
+
+
 def signature(name: str) -> tuple[tuple[str, str, bool], ...]:
     """The arguments of `splatcore.<name>` in call order, as native/src/bindings.h declares
     them: (name, what it is, whether it may be left out)."""

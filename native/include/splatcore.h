@@ -162,6 +162,9 @@ typedef struct {
 
 typedef struct {
     double ms_project, ms_sort, ms_bin, ms_composite, ms_total;
+    /* While the pool is profiled (sc_pool_profile), the part of each stage spent in parallel
+     * sections (the rest ran on the calling thread alone); 0 otherwise. */
+    double ms_pool_project, ms_pool_sort, ms_pool_bin, ms_pool_composite;
     int64_t visible;     /* Gaussians with a non-empty footprint */
     int64_t tile_pairs;  /* Gaussian/tile pairs composited */
     int64_t evaluations; /* Gaussian/pixel evaluations actually made */
@@ -196,6 +199,21 @@ void sc_release_buffers(void);
 
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);
+
+/* What the thread pool did while profiling (benchmarks/bench_scaling.py): process-wide sums over
+ * every parallel section (one pass of a stage over Gaussians, tiles or rows), whatever called it. */
+typedef struct {
+    int64_t jobs;      /* parallel sections run */
+    double inside_ms;  /* their callers' wall time inside them; the rest of a call is serial */
+    double busy_ms;    /* the time their threads spent working, summed over the threads */
+    double offered_ms; /* each section's wall time times the threads it ran on: offered - busy is
+                        * the threads' waiting (waking up, the last chunk's tail) */
+} sc_pool_counters;
+
+/* Takes (returns and zeroes) the counters, and profiles from now on if `enable`. Profiling is
+ * off by default and then costs nothing; on, it reads the clock twice per section and thread,
+ * and the stages' stats fill their ms_pool_* fields. */
+void sc_pool_profile(int enable, sc_pool_counters *taken);
 
 /* The instruction set the compositor kernels run with on this CPU: "avx512", "avx2" or "sse2"
  * on x86-64 (picked once; SPLATCORE_ISA=sse2|avx2|avx512 caps it), "neon" on arm64. */
@@ -271,6 +289,7 @@ typedef struct {
 
 typedef struct {
     double ms_composite, ms_project, ms_total;
+    double ms_pool_composite, ms_pool_project; /* as sc_stats's, while profiling */
     int64_t evaluations;
     int64_t flushed;     /* non-finite gradient values written as 0 (expected: 0) */
     int64_t error_index; /* with SC_ERR_NONFINITE or SC_ERR_STALE */

@@ -173,6 +173,10 @@ static const arg_spec COMPOSITE_MICROBENCH[] = {
     SCALAR("iterations", INT),
 };
 
+static const arg_spec POOL_PROFILE[] = {
+    SCALAR("enable", FLAG),
+};
+
 /* (N, 3) points; out (N, k), k 1..SC_MAX_NEIGHBOURS. */
 static const arg_spec NEIGHBOURS[] = {
     {"points", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},

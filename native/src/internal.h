@@ -105,6 +105,10 @@ void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ct
 /* A monotonic clock in milliseconds (the stages' timings). */
 double sc_now_ms(void);
 
+/* While the pool is profiled (sc_pool_profile), the wall time callers have spent inside
+ * sc_parallel_for so far (a stage's ms_pool_* is the difference across it); else 0. */
+double sc_pool_inside_ms(void);
+
 /* Project, sort and bin (the first three stages of sc_render); with_pairs also builds the
  * Gaussian-major pair index. Fills stats' project/sort/bin times, visible, tile_pairs and
  * peak_bytes.

@@ -549,6 +549,10 @@ static PyObject *stats_dict(const sc_stats *s) {
         set_number(d, "ms_bin", PyFloat_FromDouble(s->ms_bin)) ||
         set_number(d, "ms_composite", PyFloat_FromDouble(s->ms_composite)) ||
         set_number(d, "ms_total", PyFloat_FromDouble(s->ms_total)) ||
+        set_number(d, "ms_pool_project", PyFloat_FromDouble(s->ms_pool_project)) ||
+        set_number(d, "ms_pool_sort", PyFloat_FromDouble(s->ms_pool_sort)) ||
+        set_number(d, "ms_pool_bin", PyFloat_FromDouble(s->ms_pool_bin)) ||
+        set_number(d, "ms_pool_composite", PyFloat_FromDouble(s->ms_pool_composite)) ||
         set_number(d, "visible", PyLong_FromLongLong(s->visible)) ||
         set_number(d, "tile_pairs", PyLong_FromLongLong(s->tile_pairs)) ||
         set_number(d, "evaluations", PyLong_FromLongLong(s->evaluations)) ||
@@ -626,6 +630,7 @@ static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args, PyObject 
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_pool_profile(PyObject *self, PyObject *args, PyObject *kwargs);
 
 /* Every entry point with its table (METH_NOARGS ones have none), for begin() and for
  * `splatcore.signature`. */
@@ -651,6 +656,7 @@ static const signature SIGNATURES[] = {
     ENTRY("srgb_view", SRGB_VIEW),
     ENTRY("srgb_decode_changed", SRGB_DECODE_CHANGED),
     ENTRY("composite_microbench", COMPOSITE_MICROBENCH),
+    ENTRY("pool_profile", POOL_PROFILE),
 };
 
 static const signature *signature_of(const char *name) {
@@ -861,9 +867,12 @@ static PyObject *py_backward(PyObject *self, PyObject *args, PyObject *kwargs) {
         raise_status(status, &g, &s);
         return fail(&c);
     }
-    return finish(&c, Py_BuildValue("{s:d,s:d,s:d,s:L,s:L}", "ms_composite", stats.ms_composite,
-                                    "ms_project", stats.ms_project, "ms_total", stats.ms_total,
-                                    "evaluations", (long long)stats.evaluations, "flushed",
+    return finish(&c, Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:L,s:L}", "ms_composite",
+                                    stats.ms_composite, "ms_project", stats.ms_project,
+                                    "ms_total", stats.ms_total, "ms_pool_composite",
+                                    stats.ms_pool_composite, "ms_pool_project",
+                                    stats.ms_pool_project, "evaluations",
+                                    (long long)stats.evaluations, "flushed",
                                     (long long)stats.flushed));
 }
 
@@ -1385,6 +1394,15 @@ static PyObject *py_cpu_count(PyObject *self, PyObject *args) {
     return PyLong_FromLong(sc_cpu_count());
 }
 
+static PyObject *py_pool_profile(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "pool_profile");
+    sc_pool_counters taken;
+    sc_pool_profile((int)int_of(&c, "enable"), &taken);
+    return finish(&c, Py_BuildValue("{s:L,s:d,s:d,s:d}", "jobs", (long long)taken.jobs,
+                                    "inside_ms", taken.inside_ms, "busy_ms", taken.busy_ms,
+                                    "offered_ms", taken.offered_ms));
+}
+
 /* What an argument is, in words: "float32 array (N, 3)", "int", "threads", ... */
 static PyObject *describe(const arg_spec *s) {
     static const char *const kinds[] = {"array", "int", "int", "float", "bool", "threads", "object"};
@@ -1508,6 +1526,10 @@ static PyMethodDef methods[] = {
      "composite_microbench(...) -> seconds for the compositor's inner loop over one in-cache "
      "tile covered by `count` Gaussians, `iterations` times."},
     {"cpu_count", py_cpu_count, METH_NOARGS, "Cores this process may use."},
+    {"pool_profile", WITH_KEYWORDS(py_pool_profile),
+     "pool_profile(...) -> dict\n\nThe thread pool's counters since the last call (jobs, "
+     "inside_ms, busy_ms, offered_ms; see sc_pool_counters), zeroed; profiles from now on if "
+     "`enable` (the stages' stats then fill their ms_pool_* fields)."},
     {"signature", py_signature, METH_O,
      "signature(name) -> ((argument, what it is, may be left out), ...)\n\nThe arguments of "
      "entry point `name` in call order, from the one table module.c parses them by."},

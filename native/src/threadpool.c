@@ -103,13 +103,25 @@ static struct {
 } pool = {.job_lock = SC_MUTEX_INIT, .lock = SC_MUTEX_INIT, .wake = SC_COND_INIT,
           .finished = SC_COND_INIT};
 
+/* Profiling (sc_pool_profile): off unless a benchmark asks, and then process-wide. Times in
+ * nanoseconds, so that threads add to them atomically. */
+static struct {
+    atomic_int on;
+    atomic_llong jobs, inside_ns, busy_ns, offered_ns;
+} profile;
+
+static int64_t ms_to_ns(double ms) { return (int64_t)(ms * 1e6); }
+
 static void run_chunks(int thread) {
+    const int profiling = atomic_load_explicit(&profile.on, memory_order_relaxed);
+    const double start = profiling ? sc_now_ms() : 0.0;
     for (;;) {
         int64_t begin = atomic_fetch_add(&pool.next, pool.grain);
         if (begin >= pool.n) break;
         int64_t end = begin + pool.grain < pool.n ? begin + pool.grain : pool.n;
         pool.fn(pool.ctx, begin, end, thread);
     }
+    if (profiling) atomic_fetch_add(&profile.busy_ns, ms_to_ns(sc_now_ms() - start));
 }
 
 static void worker_main(int id) {
@@ -138,14 +150,53 @@ static void *worker_entry(void *arg) {
 }
 #endif
 
+/* A job's wall time, counted when profiling: inside, and offered to each of its threads. */
+static void note_job(double start, int threads) {
+    const int64_t ns = ms_to_ns(sc_now_ms() - start);
+    atomic_fetch_add(&profile.jobs, 1);
+    atomic_fetch_add(&profile.inside_ns, ns);
+    atomic_fetch_add(&profile.offered_ns, ns * threads);
+}
+
+static void parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx);
+
 void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx) {
     if (n <= 0) return;
     if (grain < 1) grain = 1;
     int64_t chunks = (n + grain - 1) / grain;
     if (threads > chunks) threads = (int)chunks;
     if (threads > MAX_WORKERS + 1) threads = MAX_WORKERS + 1;
+    if (threads < 1) threads = 1;
+    if (!atomic_load_explicit(&profile.on, memory_order_relaxed)) {
+        parallel_for(threads, n, grain, fn, ctx);
+        return;
+    }
+    const double start = sc_now_ms();
+    parallel_for(threads, n, grain, fn, ctx);
+    note_job(start, threads);
+}
+
+double sc_pool_inside_ms(void) {
+    return atomic_load_explicit(&profile.on, memory_order_relaxed)
+               ? 1e-6 * (double)atomic_load(&profile.inside_ns)
+               : 0.0;
+}
+
+void sc_pool_profile(int enable, sc_pool_counters *taken) {
+    taken->jobs = atomic_exchange(&profile.jobs, 0);
+    taken->inside_ms = 1e-6 * (double)atomic_exchange(&profile.inside_ns, 0);
+    taken->busy_ms = 1e-6 * (double)atomic_exchange(&profile.busy_ns, 0);
+    taken->offered_ms = 1e-6 * (double)atomic_exchange(&profile.offered_ns, 0);
+    atomic_store(&profile.on, enable != 0);
+}
+
+/* sc_parallel_for with its arguments settled (1 <= threads <= chunks). */
+static void parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx) {
     if (threads <= 1) {
+        const int profiling = atomic_load_explicit(&profile.on, memory_order_relaxed);
+        const double start = profiling ? sc_now_ms() : 0.0;
         fn(ctx, 0, n, 0);
+        if (profiling) atomic_fetch_add(&profile.busy_ns, ms_to_ns(sc_now_ms() - start));
         return;
     }
     mutex_lock(&pool.job_lock);
