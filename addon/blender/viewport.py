@@ -49,6 +49,7 @@ from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
 from ..core.render.renderer import render
 from .sources import gather
+from .threads import scene_threads
 from .splat_object import BOUNDS_FLAG, drawn_by_addon, needs_sync, sync_display  # noqa: F401
 
 REST_SECONDS = 0.15
@@ -413,7 +414,8 @@ def viewport_splats(depsgraph, scene) -> tuple[Gaussians, dict] | None:
     spaces = {b.color_space for b in batches}
     options = dict(color_space="LINEAR" if spaces == {"LINEAR"} else "SRGB",
                    antialiased=antialiased, near=settings.near,
-                   sh_degree=min(settings.sh_degree, gaussians.degree), threads=settings.threads)
+                   sh_degree=min(settings.sh_degree, gaussians.degree),
+                   threads=scene_threads(scene, beside_ui=True))
     return gaussians, options
 
 
