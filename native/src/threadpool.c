@@ -1,8 +1,17 @@
-/* A small persistent thread pool: workers sleep on a condition variable between jobs and take
- * chunks of a job through an atomic counter, so load balances itself. Results never depend on
- * which thread ran a chunk; callers make every chunk's output independent of the thread.
- * One job runs at a time (a mutex serialises concurrent callers, e.g. two Python threads that
- * both released the GIL). POSIX threads, or Win32 threads on Windows, behind five wrappers. */
+/* A small persistent thread pool: workers wait between jobs and take chunks of a job through an
+ * atomic counter, so load balances itself. Results never depend on which thread ran a chunk;
+ * callers make every chunk's output independent of the thread. One job runs at a time (a mutex
+ * serialises concurrent callers, e.g. two Python threads that both released the GIL).
+ *
+ * A training step runs some 25 jobs, often a fraction of a millisecond apart, and a render a
+ * dozen: waking sleeping workers for each (a futex wake per worker, each then queueing for the
+ * pool's lock, a virtual CPU brought back by its hypervisor) and putting the caller to sleep
+ * until the last one is done cost tens of microseconds per job, more the more threads there
+ * are, all of it serial. So a job is published through one atomic word (its sequence number
+ * and thread count) that workers watch, spinning for SPIN_MS after their last job before they
+ * sleep on a condition variable; workers count down an atomic when done, and the caller spins
+ * for the same time before it sleeps. The lock is taken only to wake sleepers or be woken.
+ * POSIX threads, or Win32 threads on Windows, behind a few wrappers. */
 #if !defined(_WIN32)
 #define _GNU_SOURCE /* sched_getaffinity, CPU_COUNT */
 #endif
@@ -10,6 +19,15 @@
 
 #include <stdatomic.h>
 #include <time.h>
+
+#if defined(__x86_64__) || defined(_M_X64) || defined(__i386__)
+#include <immintrin.h>
+static void cpu_relax(void) { _mm_pause(); }
+#elif defined(__aarch64__) && defined(__GNUC__)
+static void cpu_relax(void) { __asm__ __volatile__("yield"); }
+#else
+static void cpu_relax(void) {}
+#endif
 
 #if defined(_WIN32)
 #define WIN32_LEAN_AND_MEAN
@@ -86,16 +104,23 @@ double sc_now_ms(void) {
 }
 #endif
 
-enum { MAX_WORKERS = 255 };
+enum { MAX_WORKERS = 255, PARTICIPANTS_BITS = 16 };
+/* How long a worker watches for the next job, and the caller for the last worker, before they
+ * sleep: longer than the gaps inside a step (a Python call between two kernels), short
+ * enough that an idle pool costs nothing to speak of. */
+static const double SPIN_MS = 0.05;
 
 static struct {
-    sc_mutex job_lock; /* one job at a time */
-    sc_mutex lock;
+    sc_mutex job_lock;    /* one job at a time */
+    sc_mutex lock;        /* sleeping and waking */
     sc_cond wake, finished;
-    int started;      /* workers created so far */
-    uint64_t epoch;   /* bumped for every job */
-    int participants; /* workers (ids 1..participants-1) taking part in this job */
-    int busy;         /* participating workers not yet done */
+    int started;          /* workers created so far */
+    /* The job: sequence number << PARTICIPANTS_BITS | threads taking part (the caller and
+     * workers 1 .. participants - 1), stored (release) once the fields below are set. */
+    atomic_ullong job;
+    atomic_int busy;      /* participating workers not yet done */
+    int sleepers;         /* workers asleep on `wake` (under lock) */
+    int caller_asleep;    /* the caller asleep on `finished` (under lock) */
     sc_task fn;
     void *ctx;
     int64_t n, grain;
@@ -124,17 +149,37 @@ static void run_chunks(int thread) {
     if (profiling) atomic_fetch_add(&profile.busy_ns, ms_to_ns(sc_now_ms() - start));
 }
 
+/* The next job after `seen`: watched for SPIN_MS, then slept for. */
+static uint64_t next_job(uint64_t seen) {
+    const double until = sc_now_ms() + SPIN_MS;
+    for (unsigned i = 1;; ++i) {
+        const uint64_t job = atomic_load_explicit(&pool.job, memory_order_acquire);
+        if (job != seen) return job;
+        if (i % 64 == 0 && sc_now_ms() > until) break;
+        cpu_relax();
+    }
+    mutex_lock(&pool.lock);
+    pool.sleepers++;
+    uint64_t job;
+    while ((job = atomic_load_explicit(&pool.job, memory_order_acquire)) == seen)
+        cond_wait(&pool.wake, &pool.lock);
+    pool.sleepers--;
+    mutex_unlock(&pool.lock);
+    return job;
+}
+
 static void worker_main(int id) {
     uint64_t seen = 0;
-    mutex_lock(&pool.lock);
     for (;;) {
-        while (pool.epoch == seen) cond_wait(&pool.wake, &pool.lock);
-        seen = pool.epoch;
-        if (id >= pool.participants) continue;
-        mutex_unlock(&pool.lock);
+        seen = next_job(seen);
+        if (id >= (int)(seen & ((1u << PARTICIPANTS_BITS) - 1))) continue; /* not in this one */
         run_chunks(id);
-        mutex_lock(&pool.lock);
-        if (--pool.busy == 0) cond_signal(&pool.finished);
+        /* The caller cannot publish another job before this, so the fields read were this job's. */
+        if (atomic_fetch_sub_explicit(&pool.busy, 1, memory_order_acq_rel) == 1) {
+            mutex_lock(&pool.lock);
+            if (pool.caller_asleep) cond_signal(&pool.finished);
+            mutex_unlock(&pool.lock);
+        }
     }
 }
 
@@ -200,26 +245,38 @@ static void parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void
         return;
     }
     mutex_lock(&pool.job_lock);
-    mutex_lock(&pool.lock);
     /* Worker ids start at 1; the caller is thread 0. A failed start just means fewer helpers:
      * the caller still runs every chunk that nobody else takes. */
     while (pool.started < threads - 1 && start_worker(pool.started + 1) == 0) pool.started++;
-    int helpers = threads - 1 < pool.started ? threads - 1 : pool.started;
+    const int helpers = threads - 1 < pool.started ? threads - 1 : pool.started;
     pool.fn = fn;
     pool.ctx = ctx;
     pool.n = n;
     pool.grain = grain;
-    atomic_store(&pool.next, 0);
-    pool.participants = helpers + 1;
-    pool.busy = helpers;
-    pool.epoch++;
-    cond_broadcast(&pool.wake);
+    atomic_store_explicit(&pool.next, 0, memory_order_relaxed);
+    atomic_store_explicit(&pool.busy, helpers, memory_order_relaxed);
+    const uint64_t sequence = (atomic_load_explicit(&pool.job, memory_order_relaxed) >>
+                               PARTICIPANTS_BITS) + 1;
+    atomic_store_explicit(&pool.job, sequence << PARTICIPANTS_BITS | (uint64_t)(helpers + 1),
+                          memory_order_release);
+    mutex_lock(&pool.lock);
+    if (pool.sleepers) cond_broadcast(&pool.wake);
     mutex_unlock(&pool.lock);
 
     run_chunks(0);
 
-    mutex_lock(&pool.lock);
-    while (pool.busy > 0) cond_wait(&pool.finished, &pool.lock);
-    mutex_unlock(&pool.lock);
+    const double until = sc_now_ms() + SPIN_MS;
+    for (unsigned i = 1; atomic_load_explicit(&pool.busy, memory_order_acquire) > 0; ++i) {
+        if (i % 64 == 0 && sc_now_ms() > until) {
+            mutex_lock(&pool.lock);
+            pool.caller_asleep = 1;
+            while (atomic_load_explicit(&pool.busy, memory_order_acquire) > 0)
+                cond_wait(&pool.finished, &pool.lock);
+            pool.caller_asleep = 0;
+            mutex_unlock(&pool.lock);
+            break;
+        }
+        cpu_relax();
+    }
     mutex_unlock(&pool.job_lock);
 }
