@@ -82,6 +82,15 @@ sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, in
                  int64_t **offsets, uint32_t **list, int64_t **pair_offsets, uint32_t **pairs,
                  int64_t *peak_bytes);
 
+/* The counting sorts' prefix sums (prefix.c): counts (rows, columns), row r of column c what
+ * chunk r puts in bucket c, become in place each chunk's first position in the output, buckets
+ * in order and chunks in order within a bucket; starts (columns + 1, or NULL) gets each
+ * bucket's first position and the total. On `threads` threads when the table is large; the
+ * same result for any count. Returns the total, or -1 when out of memory; a total above
+ * `limit` (at most UINT32_MAX) leaves the counts as they were. */
+int64_t sc_prefix_by_column(uint32_t *counts, int64_t rows, int64_t columns, int64_t *starts,
+                            int64_t limit, int threads);
+
 /* Composite one tile front to back (`exhaustive` as in sc_options). Returns the number of
  * Gaussian/pixel evaluations made. */
 int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,

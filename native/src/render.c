@@ -1,7 +1,8 @@
 /* The forward pipeline: project -> sort by depth -> bin into tiles -> composite each tile.
  * Working memory is O(Gaussians + tile pairs + tiles): at most 132 bytes per Gaussian (the
  * projected and the depth-sorted splats side by side during the gather), 4 per Gaussian/tile
- * pair (12 more for training's pair index) and 12 per tile and binning chunk; nothing is kept
+ * pair (12 more for training's pair index) and 4 per tile and binning chunk (at most 32 MiB of
+ * these beyond one chunk per thread: binning.c); nothing is kept
  * per pixel beyond the caller's images. The front half (project, sort, bin) is shared with the training forward
  * (train.c), which keeps it for the backward pass. */
 #include <math.h>
