@@ -200,6 +200,10 @@ void sc_release_buffers(void);
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);
 
+/* The index of the first NaN or Inf among `n` float32 values, or -1; on `threads` threads (the
+ * same answer on any count). */
+int64_t sc_first_non_finite(const float *values, int64_t n, int threads);
+
 /* What the thread pool did while profiling (benchmarks/bench_scaling.py): process-wide sums over
  * every parallel section (one pass of a stage over Gaussians, tiles or rows), whatever called it. */
 typedef struct {

@@ -111,6 +111,16 @@ int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, in
 typedef void (*sc_task)(void *ctx, int64_t begin, int64_t end, int thread);
 void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx);
 
+/* Rows per chunk for a pass over `rows` rows of `width` values on `threads` threads: about
+ * four chunks per thread, each of 4k to 64k values (smaller ones would cost more to hand out
+ * than to run; larger ones left threads idle: Adam over 50k opacities ran as one 64k chunk). */
+static inline int64_t sc_grain(int64_t rows, int64_t width, int threads) {
+    const int64_t w = width > 0 ? width : 1, per_chunk = rows * w / (4 * (int64_t)(threads > 0 ? threads : 1));
+    const int64_t values = per_chunk < 4096 ? 4096 : per_chunk > 65536 ? 65536 : per_chunk;
+    const int64_t grain = values / w;
+    return grain > 0 ? grain : 1;
+}
+
 /* A monotonic clock in milliseconds (the stages' timings). */
 double sc_now_ms(void);
 

@@ -182,7 +182,7 @@ static const Py_buffer *get_array(buffers *b, PyObject *obj, const char *name, c
     return view;
 }
 
-static int check_finite(const Py_buffer *view, const char *name);
+static int check_finite(const Py_buffer *view, const char *name, int threads);
 
 /* A named size just bound: N and K have limits of their own. */
 static int check_bound(int dim, Py_ssize_t size) {
@@ -201,7 +201,7 @@ static int check_bound(int dim, Py_ssize_t size) {
 /* Validate objs[0..count-1] against specs[0..count-1] in order; views[i] gets each array's view
  * (NULL for an OPTIONAL None), held by `b` until release_all. */
 static int check_args(buffers *b, arg_dims *d, const arg_spec *specs, int count,
-                      PyObject *const *objs, const Py_buffer **views) {
+                      PyObject *const *objs, const Py_buffer **views, int threads) {
     for (int i = 0; i < count; ++i) {
         const arg_spec *s = &specs[i];
         views[i] = NULL;
@@ -245,7 +245,7 @@ static int check_args(buffers *b, arg_dims *d, const arg_spec *specs, int count,
             }
         }
         if (s->flags & ANY_RANK) d->like = view;
-        if ((s->flags & FINITE) && check_finite(view, s->name) != 0) return -1;
+        if ((s->flags & FINITE) && check_finite(view, s->name, threads) != 0) return -1;
         views[i] = view;
     }
     return 0;
@@ -376,11 +376,15 @@ static int begin(call *c, const signature *sig, PyObject *args, PyObject *kwargs
  * is held until finish() or fail(). A left-out or None OPTIONAL array has no view. */
 static int check(call *c, const char *first, const char *last) {
     const int from = index_of(c->sig, first), to = index_of(c->sig, last);
+    int threads = 1; /* the call's own, for the FINITE scans (threads 0: every core) */
+    for (int i = 0; i < c->sig->count; ++i)
+        if (c->sig->params[i].kind == THREADS)
+            threads = c->ints[i] ? (int)c->ints[i] : sc_cpu_count();
     for (int i = from; i <= to; ++i) {
         const arg_spec *s = &c->sig->params[i];
         if (s->kind != ARRAY) continue;
         PyObject *obj = c->objs[i] ? c->objs[i] : Py_None;
-        if (check_args(&c->b, &c->d, s, 1, &obj, &c->views[i]) != 0) return -1;
+        if (check_args(&c->b, &c->d, s, 1, &obj, &c->views[i], threads) != 0) return -1;
     }
     return 0;
 }
@@ -586,25 +590,22 @@ static int non_finite_at(const char *name, int64_t i) {
     return -1;
 }
 
-static int check_finite_array(const float *v, int64_t n, const char *name) {
-    /* One branch-free pass (it vectorises: these arrays are whole images and gradients); the
-     * index is looked for only when there is something to report. */
-    uint32_t bad = 0;
-    for (int64_t i = 0; i < n; ++i) {
-        uint32_t bits;
-        memcpy(&bits, v + i, sizeof bits);
-        bad |= (bits & 0x7f800000u) == 0x7f800000u; /* exponent all ones: Inf or NaN */
-    }
-    if (!bad) return 0;
-    for (int64_t i = 0; i < n; ++i)
-        if (!isfinite(v[i])) return non_finite_at(name, i);
-    return 0;
-}
-
-/* A FINITE argument's values, float32 or float64 as its spec says (itemsize). */
-static int check_finite(const Py_buffer *view, const char *name) {
+/* A FINITE argument's values, float32 or float64 as its spec says (itemsize). float32 ones are
+ * whole images and gradients, checked at every training step: on the call's threads, without
+ * the GIL when there are many (sc_first_non_finite). */
+static int check_finite(const Py_buffer *view, const char *name, int threads) {
     const int64_t n = (int64_t)(view->len / view->itemsize);
-    if (view->itemsize == (Py_ssize_t)sizeof(float)) return check_finite_array(view->buf, n, name);
+    if (view->itemsize == (Py_ssize_t)sizeof(float)) {
+        int64_t bad;
+        if (n < ((int64_t)1 << 16)) {
+            bad = sc_first_non_finite(view->buf, n, 1);
+        } else {
+            Py_BEGIN_ALLOW_THREADS
+            bad = sc_first_non_finite(view->buf, n, threads);
+            Py_END_ALLOW_THREADS
+        }
+        return bad < 0 ? 0 : non_finite_at(name, bad);
+    }
     const double *v = view->buf;
     for (int64_t i = 0; i < n; ++i)
         if (!isfinite(v[i])) return non_finite_at(name, i);
@@ -1210,8 +1211,8 @@ static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject
         out.name = "layer";
         out.flags &= ~(OPTIONAL | DEFAULTED);
         PyObject *obj = c.objs[layer_at];
-        if (check_args(&c.b, &c.d, &layer, 1, &obj, &c.views[layer_at]) != 0 ||
-            check_args(&c.b, &c.d, &out, 1, &obj, &c.views[out_at]) != 0)
+        if (check_args(&c.b, &c.d, &layer, 1, &obj, &c.views[layer_at], 1) != 0 ||
+            check_args(&c.b, &c.d, &out, 1, &obj, &c.views[out_at], 1) != 0)
             return fail(&c);
     } else if (check(&c, "layer", "out") != 0) {
         return fail(&c);

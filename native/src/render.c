@@ -79,7 +79,8 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     frame->splats = sc_buffer_alloc(sizeof(sc_splat) * (size_t)(drawn ? drawn : 1));
     if (!frame->splats) goto done;
     gather_job gather = {proj.splats, frame->order, frame->splats};
-    sc_parallel_for(opt->threads, drawn, 8192, gather_sorted, &gather);
+    /* (A 64-byte record: 16 values.) */
+    sc_parallel_for(opt->threads, drawn, sc_grain(drawn, 16, opt->threads), gather_sorted, &gather);
     const int64_t gathered = (int64_t)(sizeof(sc_splat) * (rows + (size_t)drawn) +
                                        sizeof(uint32_t) * rows);
     peak = gathered > peak ? gathered : peak;

@@ -234,7 +234,7 @@ sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const 
 
     sc_parallel_for(threads, f->ntiles, 1, backward_tiles, j);
     const double composited = sc_now_ms(), pool_composited = sc_pool_inside_ms();
-    sc_parallel_for(threads, f->drawn, 4096, gather_gradients, j);
+    sc_parallel_for(threads, f->drawn, sc_grain(f->drawn, 16, threads), gather_gradients, j);
     sc_parallel_for(threads, g->count, 1024, backward_gaussians, j);
     const double done = sc_now_ms();
     stats->ms_pool_composite = pool_composited - pool_start;
