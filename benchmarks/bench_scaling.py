@@ -22,19 +22,24 @@ and composite (native timers); "first touch" is the composite's time over what i
 images that were written before (the page faults of fresh images); then the viewport's output
 conversion (`render_view` after its render; needs bpy, --no-viewport skips it).
 
-Columns: ms per step (or frame), the median over the turns, at each thread count; the
-speed-up over 1 thread; the serial fraction s that Amdahl's law gives from it,
-s = (T_n / T_1 - 1/n) / (1 - 1/n); and "serial @1": at 1 thread, the phase's time outside the
+Columns: ms per step (or frame), the median over the turns, at each thread count: at 1 thread
+the calling thread's CPU time (all the work runs on it: steady on a busy machine; code without
+`pool_profile(cpu_clock=)` gives wall time), at more the wall time; the speed-up over 1
+thread; the serial fraction s that Amdahl's law gives from it, s = (T_n / T_1 - 1/n) / (1 - 1/n);
+and "serial @1": at 1 thread, the phase's time outside the
 native thread pool's parallel sections (`native.pool_profile`), i.e. work that no thread count
 shortens, measured without another core (steady on a busy machine; code without the profile
-shows "-"). Below each table: parallel sections per step and, at each count above 1, the time
-their threads spent waiting in them (waking up, the tail after the last chunk), and page faults.
+shows "-"); "serial @n" the same at n threads (work that grows with the thread count shows
+there, even with more threads than cores). Below each table: parallel sections per step and,
+at each count above 1, the time their threads spent waiting in them (waking up, the tail after
+the last chunk), and page faults.
 Numbers only, never a test; on a shared machine compare runs taken back to back.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import resource
 import statistics
@@ -64,10 +69,17 @@ class Probe:
     phase name (`time(name, function, ...)`, or `add` for native timers). The pool's totals
     (sections, waiting) count what runs inside the phase `counted`."""
 
-    def __init__(self, counted: str) -> None:
+    def __init__(self, counted: str, cpu: bool = False) -> None:
         from addon.core import native
 
         self.profile = getattr(native, "pool_profile", None)
+        # One thread: the calling thread's CPU clock, here and in the native stages' timers
+        # (all the work runs on that thread; a busy machine does not inflate it).
+        self.cpu = cpu
+        self.clock = time.thread_time if cpu else time.perf_counter
+        if cpu and self.profile is not None and \
+                "cpu_clock" not in inspect.signature(self.profile).parameters:
+            self.clock = time.perf_counter  # code whose stages only have the wall clock
         self.ms: dict[str, float] = defaultdict(float)
         self.pool: dict[str, float] = defaultdict(float)
         self.faults: dict[str, float] = defaultdict(float)
@@ -81,7 +93,11 @@ class Probe:
             sums.clear()
         self.pool_totals = dict.fromkeys(self.pool_totals, 0)
         if self.profile:
-            self.profile(True)
+            self._enable()
+
+    def _enable(self) -> dict:
+        return self.profile(True, cpu_clock=True) if self.clock is time.thread_time \
+            else self.profile(True)
 
     def stop(self) -> None:
         if self.profile:
@@ -92,7 +108,7 @@ class Probe:
         """ms inside parallel sections since the last take (0 without the profile)."""
         if not self.profile:
             return 0.0
-        counters = self.profile(True)
+        counters = self._enable()
         if self._stack and self._stack[0] == self.counted:
             for key in self.pool_totals:
                 self.pool_totals[key] += counters[key]
@@ -104,11 +120,11 @@ class Probe:
             self.pool[self._stack[-1]] += outer
         self._stack.append(name)
         faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-        start = time.perf_counter()
+        start = self.clock()
         try:
             return function(*args, **kwargs)
         finally:
-            self.ms[name] += 1e3 * (time.perf_counter() - start)
+            self.ms[name] += 1e3 * (self.clock() - start)
             self.faults[name] += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
             self.pool[name] += self._take()
             self._stack.pop()
@@ -148,16 +164,18 @@ def scaling_table(title: str, phases: list[str], runs: dict[int, list[Probe]], p
             row += [f"{median[base][p] / median[n][p]:.2f}",
                     f"{amdahl(median[base][p], median[n][p], n):.2f}"]
         if profiled:
-            serial = statistics.median((r.ms[p] - r.pool[p]) / per for r in runs[base])
-            share = serial / median[base][p] if median[base][p] > 0 else 0.0
-            row += [f"{serial:.2f}", f"{100 * share:.0f} %"]
+            serial = {n: statistics.median((r.ms[p] - r.pool[p]) / per for r in runs[n])
+                      for n in counts}
+            share = serial[base] / median[base][p] if median[base][p] > 0 else 0.0
+            row += [f"{serial[base]:.2f}", f"{100 * share:.0f} %"]
+            row += [f"{serial[n]:.2f}" for n in counts[1:]]
         else:
-            row += ["-", "-"]
+            row += ["-", "-"] + ["-" for _ in counts[1:]]
         rows.append(row)
     header = ["phase"] + [f"ms @{n}" for n in counts]
     for n in counts[1:]:
         header += [f"x @{n}", f"s @{n}"]
-    header += ["serial @1 ms", "of phase"]
+    header += ["serial @1 ms", "of phase"] + [f"serial @{n}" for n in counts[1:]]
     print(title)
     table(rows, header)
     notes = []
@@ -219,7 +237,7 @@ def profile_training(dataset, checkpoint: Path, steps: int, threads: int) -> tup
 
     trainer = Trainer.load_checkpoint(checkpoint, dataset)
     trainer.config.threads = threads
-    probe = Probe("step")
+    probe = Probe("step", cpu=threads == 1)
     # Wrapped where the trainer looks them up: the kernels module, the parameters' class, the
     # trainer's and strategy's own methods.
     originals = (kernels.render_train, kernels.l1_ssim_loss, kernels.backward,
@@ -308,7 +326,7 @@ def profile_render(gaussians, camera, threads: int, repeats: int, viewport) -> P
     from addon.core import native
     from addon.core.render import renderer
 
-    probe = Probe("render")
+    probe = Probe("render", cpu=threads == 1)
     renderer.render(gaussians, camera, threads=threads)  # warm-up: the pool, kept buffers
     probe.start()
     reused = [np.empty((camera.height, camera.width, 3), np.float32),

@@ -357,13 +357,15 @@ def native_cpu_count() -> int:
     return splatcore().cpu_count()
 
 
-def pool_profile(enable: bool) -> dict[str, float]:
+def pool_profile(enable: bool, cpu_clock: bool = False) -> dict[str, float]:
     """The native thread pool's counters since the last call, zeroed (benchmarks): `jobs`
     (parallel sections run), `inside_ms` (their callers' wall time inside them: the rest of a
     native call ran on one thread), `busy_ms` (their threads' working time, summed),
     `offered_ms` (each section's wall time times its threads). Profiles from now on if
-    `enable` (process-wide; the stages' stats then fill their `ms_pool_*` fields)."""
-    return dict(splatcore().pool_profile(enable=bool(enable)))
+    `enable` (process-wide; the stages' stats then fill their `ms_pool_*` fields); with
+    `cpu_clock` the stages and sections are timed by the calling thread's CPU clock, not the
+    wall clock (for one thread: steady on a busy machine)."""
+    return dict(splatcore().pool_profile(enable=bool(enable), cpu_clock=bool(cpu_clock)))
 
 
 def signature(name: str) -> tuple[tuple[str, str, bool], ...]:

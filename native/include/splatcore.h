@@ -214,10 +214,14 @@ typedef struct {
                         * the threads' waiting (waking up, the last chunk's tail) */
 } sc_pool_counters;
 
-/* Takes (returns and zeroes) the counters, and profiles from now on if `enable`. Profiling is
- * off by default and then costs nothing; on, it reads the clock twice per section and thread,
- * and the stages' stats fill their ms_pool_* fields. */
-void sc_pool_profile(int enable, sc_pool_counters *taken);
+/* Takes (returns and zeroes) the counters and profiles from now on as `mode` says. Profiling
+ * is off by default and then costs nothing; on, it reads the clock twice per section and
+ * thread, and the stages' stats fill their ms_pool_* fields. SC_PROFILE_CPU times the stages
+ * and the sections by the calling thread's CPU clock instead of the wall clock: steady on a
+ * busy machine, and exact for one thread, where all the work runs on the calling thread (with
+ * more, the sections' times are then only the calling thread's share). */
+enum { SC_PROFILE_OFF, SC_PROFILE_WALL, SC_PROFILE_CPU };
+void sc_pool_profile(int mode, sc_pool_counters *taken);
 
 /* The instruction set the compositor kernels run with on this CPU: "avx512", "avx2" or "sse2"
  * on x86-64 (picked once; SPLATCORE_ISA=sse2|avx2|avx512 caps it), "neon" on arm64. */

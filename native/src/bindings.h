@@ -175,6 +175,7 @@ static const arg_spec COMPOSITE_MICROBENCH[] = {
 
 static const arg_spec POOL_PROFILE[] = {
     SCALAR("enable", FLAG),
+    SCALAR_OR("cpu_clock", FLAG, 0),
 };
 
 /* (N, 3) points; out (N, k), k 1..SC_MAX_NEIGHBOURS. */

@@ -1398,7 +1398,10 @@ static PyObject *py_cpu_count(PyObject *self, PyObject *args) {
 static PyObject *py_pool_profile(PyObject *self, PyObject *args, PyObject *kwargs) {
     BEGIN(c, "pool_profile");
     sc_pool_counters taken;
-    sc_pool_profile((int)int_of(&c, "enable"), &taken);
+    sc_pool_profile(!int_of(&c, "enable")     ? SC_PROFILE_OFF
+                    : int_of(&c, "cpu_clock") ? SC_PROFILE_CPU
+                                              : SC_PROFILE_WALL,
+                    &taken);
     return finish(&c, Py_BuildValue("{s:L,s:d,s:d,s:d}", "jobs", (long long)taken.jobs,
                                     "inside_ms", taken.inside_ms, "busy_ms", taken.busy_ms,
                                     "offered_ms", taken.offered_ms));
@@ -1530,7 +1533,8 @@ static PyMethodDef methods[] = {
     {"pool_profile", WITH_KEYWORDS(py_pool_profile),
      "pool_profile(...) -> dict\n\nThe thread pool's counters since the last call (jobs, "
      "inside_ms, busy_ms, offered_ms; see sc_pool_counters), zeroed; profiles from now on if "
-     "`enable` (the stages' stats then fill their ms_pool_* fields)."},
+     "`enable` (the stages' stats then fill their ms_pool_* fields), by the calling thread's "
+     "CPU clock with `cpu_clock` (for one thread)."},
     {"signature", py_signature, METH_O,
      "signature(name) -> ((argument, what it is, may be left out), ...)\n\nThe arguments of "
      "entry point `name` in call order, from the one table module.c parses them by."},
