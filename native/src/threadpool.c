@@ -10,7 +10,7 @@
  * are, all of it serial. So a job is published through one atomic word (its sequence number
  * and thread count) that workers watch, spinning for SPIN_MS after their last job before they
  * sleep on a condition variable; workers count down an atomic when done, and the caller spins
- * for the same time before it sleeps. The lock is taken only to wake sleepers or be woken.
+ * for the same time before it sleeps. Nobody spins when a job's threads outnumber the cores. The lock is taken only to wake sleepers or be woken.
  * POSIX threads, or Win32 threads on Windows, behind a few wrappers. */
 #if !defined(_WIN32)
 #define _GNU_SOURCE /* sched_getaffinity, CPU_COUNT */
@@ -171,10 +171,20 @@ static void run_chunks(int thread) {
     if (profiling) atomic_fetch_add(&profile.busy_ns, ms_to_ns(sc_now_ms() - start));
 }
 
+/* Whether a job on `threads` threads may spin: not when they outnumber the cores, where a
+ * spinning thread would take a core from one with work. */
+static int may_spin(int threads) {
+    static atomic_int cores;
+    int n = atomic_load_explicit(&cores, memory_order_relaxed);
+    if (n == 0) atomic_store_explicit(&cores, n = sc_cpu_count(), memory_order_relaxed);
+    return threads <= n;
+}
+
 /* The next job after `seen`: watched for SPIN_MS, then slept for. */
 static uint64_t next_job(uint64_t seen) {
+    const int spin = may_spin((int)(seen & ((1u << PARTICIPANTS_BITS) - 1)));
     const double until = wall_ms() + SPIN_MS;
-    for (unsigned i = 1;; ++i) {
+    for (unsigned i = 1; spin; ++i) {
         const uint64_t job = atomic_load_explicit(&pool.job, memory_order_acquire);
         if (job != seen) return job;
         if (i % 64 == 0 && wall_ms() > until) break;
@@ -288,9 +298,9 @@ static void parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void
 
     run_chunks(0);
 
-    const double until = wall_ms() + SPIN_MS;
+    const double until = may_spin(helpers + 1) ? wall_ms() + SPIN_MS : 0.0;
     for (unsigned i = 1; atomic_load_explicit(&pool.busy, memory_order_acquire) > 0; ++i) {
-        if (i % 64 == 0 && wall_ms() > until) {
+        if (i % 64 == 1 && wall_ms() > until) {
             mutex_lock(&pool.lock);
             pool.caller_asleep = 1;
             while (atomic_load_explicit(&pool.busy, memory_order_acquire) > 0)
