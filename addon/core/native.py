@@ -346,6 +346,17 @@ def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, la
                                     threads=thread_count(threads), out=out)
 
 
+def viewport_image(rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray,
+                   projection: np.ndarray, out_rgba: np.ndarray, out_depth: np.ndarray, *,
+                   threads: int) -> None:
+    """A render's rgb (H, W, 3), alpha and planar depth (H, W) into the viewport's
+    premultiplied RGBA (H, W, 4) and depth-buffer values (H, W), rows bottom to top;
+    `projection` float64 (P22, P23, P32, P33) of the view's OpenGL projection."""
+    splatcore().viewport_image(rgb=rgb, alpha=alpha, depth=depth, projection=projection,
+                               out_rgba=out_rgba, out_depth=out_depth,
+                               threads=thread_count(threads))
+
+
 def composite_microbench(count: int, iterations: int) -> float:
     """Seconds for the compositor's inner loop over one in-cache tile covered by `count`
     Gaussians, `iterations` times (a benchmark's probe)."""

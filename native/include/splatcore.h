@@ -200,6 +200,13 @@ void sc_release_buffers(void);
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);
 
+/* The viewport's image of a render (H = height, W = width): rgb (H,W,3), alpha and planar depth
+ * (H,W) into premultiplied RGBA (H,W,4) and depth-buffer values (H,W), rows bottom to top;
+ * projection = P22, P23, P32, P33 of the view's OpenGL projection (viewport.c says how). */
+void sc_viewport_image(const float *rgb, const float *alpha, const float *depth, int width,
+                       int height, const double projection[4], float *rgba, float *window,
+                       int threads);
+
 /* The index of the first NaN or Inf among `n` float32 values, or -1; on `threads` threads (the
  * same answer on any count). */
 int64_t sc_first_non_finite(const float *values, int64_t n, int threads);

@@ -173,6 +173,17 @@ static const arg_spec COMPOSITE_MICROBENCH[] = {
     SCALAR("iterations", INT),
 };
 
+/* A render's three images into the viewport's two (none overlapping another; module.c checks). */
+static const arg_spec VIEWPORT_IMAGE[] = {
+    {"rgb", 'f', 3, {DIM_H, DIM_W, 3}, 0, ARRAY, 0},
+    {"alpha", 'f', 2, {DIM_H, DIM_W}, 0, ARRAY, 0},
+    {"depth", 'f', 2, {DIM_H, DIM_W}, 0, ARRAY, 0},
+    {"projection", 'd', 1, {4}, FINITE, ARRAY, 0},
+    {"out_rgba", 'f', 3, {DIM_H, DIM_W, 4}, WRITABLE, ARRAY, 0},
+    {"out_depth", 'f', 2, {DIM_H, DIM_W}, WRITABLE, ARRAY, 0},
+    SCALAR("threads", THREADS),
+};
+
 static const arg_spec POOL_PROFILE[] = {
     SCALAR("enable", FLAG),
     SCALAR_OR("cpu_clock", FLAG, 0),

@@ -632,6 +632,7 @@ static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_pool_profile(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_viewport_image(PyObject *self, PyObject *args, PyObject *kwargs);
 
 /* Every entry point with its table (METH_NOARGS ones have none), for begin() and for
  * `splatcore.signature`. */
@@ -658,6 +659,7 @@ static const signature SIGNATURES[] = {
     ENTRY("srgb_decode_changed", SRGB_DECODE_CHANGED),
     ENTRY("composite_microbench", COMPOSITE_MICROBENCH),
     ENTRY("pool_profile", POOL_PROFILE),
+    ENTRY("viewport_image", VIEWPORT_IMAGE),
 };
 
 static const signature *signature_of(const char *name) {
@@ -1182,6 +1184,28 @@ static int same_view(const Py_buffer *a, const Py_buffer *b) {
     return 1;
 }
 
+static PyObject *py_viewport_image(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "viewport_image");
+    if (check(&c, "rgb", "out_depth") != 0) return fail(&c);
+    const char *names[] = {"rgb", "alpha", "depth", "out_rgba", "out_depth"};
+    for (int a = 3; a < 5; ++a)
+        for (int b = 0; b < 5; ++b)
+            if (b != a && overlap(view_of(&c, names[a]), view_of(&c, names[b]))) {
+                PyErr_Format(PyExc_ValueError, "%s must not overlap %s", names[a], names[b]);
+                return fail(&c);
+            }
+    const int width = (int)SIZE(&c.d, DIM_W), height = (int)SIZE(&c.d, DIM_H);
+    const float *rgb = data_of(&c, "rgb"), *alpha = data_of(&c, "alpha");
+    const float *depth = data_of(&c, "depth");
+    const double *projection = data_of(&c, "projection");
+    float *rgba = data_of(&c, "out_rgba"), *window = data_of(&c, "out_depth");
+    const int threads = threads_of(&c);
+    Py_BEGIN_ALLOW_THREADS
+    sc_viewport_image(rgb, alpha, depth, width, height, projection, rgba, window, threads);
+    Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs) {
     BEGIN(c, "srgb_view");
     if (check(&c, "rgba", "out") != 0) return fail(&c);
@@ -1530,6 +1554,9 @@ static PyMethodDef methods[] = {
      "composite_microbench(...) -> seconds for the compositor's inner loop over one in-cache "
      "tile covered by `count` Gaussians, `iterations` times."},
     {"cpu_count", py_cpu_count, METH_NOARGS, "Cores this process may use."},
+    {"viewport_image", WITH_KEYWORDS(py_viewport_image),
+     "viewport_image(...) -> None\n\nA render's rgb, alpha and depth into the viewport's "
+     "premultiplied RGBA and depth-buffer values, rows bottom to top (sc_viewport_image)."},
     {"pool_profile", WITH_KEYWORDS(py_pool_profile),
      "pool_profile(...) -> dict\n\nThe thread pool's counters since the last call (jobs, "
      "inside_ms, busy_ms, offered_ms; see sc_pool_counters), zeroed; profiles from now on if "
