@@ -357,6 +357,12 @@ def viewport_image(rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray,
                                threads=thread_count(threads))
 
 
+def photo_rgb(pixels: np.ndarray, out: np.ndarray, *, threads: int) -> None:
+    """8-bit photo pixels (H, W, C >= 3), C-contiguous, into `out` float32 (H, W, 3): the first
+    three channels times float32(1 / 255)."""
+    splatcore().photo_rgb(pixels=pixels, out=out, threads=thread_count(threads))
+
+
 def composite_microbench(count: int, iterations: int) -> float:
     """Seconds for the compositor's inner loop over one in-cache tile covered by `count`
     Gaussians, `iterations` times (a benchmark's probe)."""

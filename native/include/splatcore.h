@@ -207,6 +207,11 @@ void sc_viewport_image(const float *rgb, const float *alpha, const float *depth,
                        int height, const double projection[4], float *rgba, float *window,
                        int threads);
 
+/* 8-bit photo pixels (height, width, channels >= 3), C-contiguous, to float32 RGB (height,
+ * width, 3) in [0, 1]: each value times float32(1 / 255) (photo.c). */
+void sc_photo_rgb(const uint8_t *pixels, int width, int height, int channels, float *rgb,
+                  int threads);
+
 /* The index of the first NaN or Inf among `n` float32 values, or -1; on `threads` threads (the
  * same answer on any count). */
 int64_t sc_first_non_finite(const float *values, int64_t n, int threads);

@@ -184,6 +184,13 @@ static const arg_spec VIEWPORT_IMAGE[] = {
     SCALAR("threads", THREADS),
 };
 
+/* 8-bit (H, W, C) pixels, C >= 3 (module.c checks), into float32 (H, W, 3). */
+static const arg_spec PHOTO_RGB[] = {
+    {"pixels", 'B', 3, {DIM_H, DIM_W, ANY}, 0, ARRAY, 0},
+    {"out", 'f', 3, {DIM_H, DIM_W, 3}, WRITABLE, ARRAY, 0},
+    SCALAR("threads", THREADS),
+};
+
 static const arg_spec POOL_PROFILE[] = {
     SCALAR("enable", FLAG),
     SCALAR_OR("cpu_clock", FLAG, 0),

@@ -633,6 +633,7 @@ static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_pool_profile(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_viewport_image(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_photo_rgb(PyObject *self, PyObject *args, PyObject *kwargs);
 
 /* Every entry point with its table (METH_NOARGS ones have none), for begin() and for
  * `splatcore.signature`. */
@@ -660,6 +661,7 @@ static const signature SIGNATURES[] = {
     ENTRY("composite_microbench", COMPOSITE_MICROBENCH),
     ENTRY("pool_profile", POOL_PROFILE),
     ENTRY("viewport_image", VIEWPORT_IMAGE),
+    ENTRY("photo_rgb", PHOTO_RGB),
 };
 
 static const signature *signature_of(const char *name) {
@@ -1206,6 +1208,29 @@ static PyObject *py_viewport_image(PyObject *self, PyObject *args, PyObject *kwa
     return finish(&c, Py_NewRef(Py_None));
 }
 
+static PyObject *py_photo_rgb(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "photo_rgb");
+    if (check(&c, "pixels", "out") != 0) return fail(&c);
+    const Py_buffer *pixels = view_of(&c, "pixels"), *out = view_of(&c, "out");
+    const Py_ssize_t channels = pixels->shape[2];
+    if (channels < 3) {
+        PyErr_Format(PyExc_ValueError, "pixels must have 3 or more channels, got %zd", channels);
+        return fail(&c);
+    }
+    if (overlap(pixels, out)) {
+        PyErr_SetString(PyExc_ValueError, "out must not overlap pixels");
+        return fail(&c);
+    }
+    const int width = (int)SIZE(&c.d, DIM_W), height = (int)SIZE(&c.d, DIM_H);
+    const uint8_t *in = data_of(&c, "pixels");
+    float *rgb = data_of(&c, "out");
+    const int threads = threads_of(&c);
+    Py_BEGIN_ALLOW_THREADS
+    sc_photo_rgb(in, width, height, (int)channels, rgb, threads);
+    Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs) {
     BEGIN(c, "srgb_view");
     if (check(&c, "rgba", "out") != 0) return fail(&c);
@@ -1557,6 +1582,9 @@ static PyMethodDef methods[] = {
     {"viewport_image", WITH_KEYWORDS(py_viewport_image),
      "viewport_image(...) -> None\n\nA render's rgb, alpha and depth into the viewport's "
      "premultiplied RGBA and depth-buffer values, rows bottom to top (sc_viewport_image)."},
+    {"photo_rgb", WITH_KEYWORDS(py_photo_rgb),
+     "photo_rgb(...) -> None\n\n8-bit photo pixels (H, W, C >= 3) into float32 RGB in [0, 1] "
+     "(sc_photo_rgb), as NumPy's astype(float32) * float32(1 / 255)."},
     {"pool_profile", WITH_KEYWORDS(py_pool_profile),
      "pool_profile(...) -> dict\n\nThe thread pool's counters since the last call (jobs, "
      "inside_ms, busy_ms, offered_ms; see sc_pool_counters), zeroed; profiles from now on if "

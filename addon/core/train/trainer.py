@@ -238,13 +238,14 @@ class Trainer:
         level = self.image_level(camera, level)
         if level == 0:
             self._coarse_views.clear()  # past the coarse steps: give their memory back
-            return camera, self.dataset.image(view)
+            return camera, self.dataset.image(view, threads=self.config.threads)
         key = (view, level)
         if key not in self._coarse_views:
             # Kept while they fit COARSE_CACHE_BYTES (every view of cup: 7.5 MB) and the
             # dataset's photos do not change (a bake's background does); made again each step
             # they took 0.55 ms of a 12 ms step at 50x37.
-            small = downscaled_view(camera, self.dataset.image(view), 2 ** level)
+            small = downscaled_view(camera, self.dataset.image(view, threads=self.config.threads),
+                                    2 ** level)
             if (not getattr(self.dataset, "fixed_images", True)
                     or self.coarse_view_bytes + small[1].nbytes > COARSE_CACHE_BYTES):
                 return small
