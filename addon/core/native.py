@@ -357,6 +357,13 @@ def viewport_image(rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray,
                                threads=thread_count(threads))
 
 
+def image_memory(bytes: int) -> Any:
+    """`bytes` of memory for a render's image, from the buffers frames keep: a writable buffer
+    object (view it with NumPy); when the last view is gone the memory is kept for the next
+    frame's images (`release_buffers` frees it)."""
+    return splatcore().image_memory(bytes=int(bytes))
+
+
 def photo_rgb(pixels: np.ndarray, out: np.ndarray, *, threads: int) -> None:
     """8-bit photo pixels (H, W, C >= 3), C-contiguous, into `out` float32 (H, W, 3): the first
     three channels times float32(1 / 255)."""

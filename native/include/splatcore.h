@@ -197,6 +197,12 @@ double sc_composite_microbench(int count, int iterations);
  * frame, which saves the page faults of fresh memory; this frees them. */
 void sc_release_buffers(void);
 
+/* Memory for a caller's image (a render's outputs) from those kept buffers, so that frame after
+ * frame the same pages are written again rather than fresh ones faulted in; NULL when out of
+ * memory. sc_image_free gives it back, to be kept for the next frame. */
+void *sc_image_alloc(size_t bytes);
+void sc_image_free(void *p);
+
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);
 

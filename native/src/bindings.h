@@ -191,6 +191,11 @@ static const arg_spec PHOTO_RGB[] = {
     SCALAR("threads", THREADS),
 };
 
+/* Bytes of kept memory for an image (module.c: a buffer object). */
+static const arg_spec IMAGE_MEMORY[] = {
+    SCALAR("bytes", LONG),
+};
+
 static const arg_spec POOL_PROFILE[] = {
     SCALAR("enable", FLAG),
     SCALAR_OR("cpu_clock", FLAG, 0),
