@@ -117,12 +117,11 @@ def viewport_image(result: RenderResult, projection, *,
     """A render as a viewport draws it: premultiplied RGBA (H, W, 4) float32 and the depth-buffer
     value of each pixel's planar depth under the 4x4 OpenGL `projection` (default depth range
     [0, 1]; 1 where nothing was hit), (H, W) float32, both rows bottom to top (a texture's
-    order). New arrays, filled natively in one parallel pass (tests/reference.py's
-    `window_depth` is the float64 formula)."""
+    order). New arrays in kept memory (`kept_image`), filled natively in one parallel pass
+    (tests/reference.py's `window_depth` is the float64 formula)."""
     p = np.asarray(projection, np.float64)
     height, width = result.alpha.shape
-    rgba = np.empty((height, width, 4), np.float32)
-    depth = np.empty((height, width), np.float32)
+    rgba, depth = kept_image((height, width, 4)), kept_image((height, width))
     native.viewport_image(result.rgb, result.alpha, result.depth,
                           np.array([p[2, 2], p[2, 3], p[3, 2], p[3, 3]], np.float64), rgba, depth,
                           threads=threads)
