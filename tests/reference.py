@@ -495,3 +495,15 @@ def camera_model_project(means, log_scales, quats, opacity_logits, sh, viewmat, 
         shifted[:, 0] += np.where(uv[:, 0] < 0.5, period, -period)
         out["copies"] = rows(shifted, valid & ~band)
     return out
+
+
+def window_depth(depth, projection) -> np.ndarray:
+    """Planar depth (along the view, +inf: nothing) -> the depth-buffer value OpenGL stores for
+    it under the 4x4 `projection` (default depth range [0, 1]; perspective or orthographic),
+    float64: 0.5 ndc + 0.5 clipped to [0, 1], 1 where ndc is not finite (the native
+    viewport_image's, addon/core/render/renderer.py)."""
+    p = np.asarray(projection, np.float64)
+    z = np.asarray(depth, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ndc = (p[2, 2] * -z + p[2, 3]) / (p[3, 2] * -z + p[3, 3])
+    return np.clip(np.where(np.isfinite(ndc), 0.5 * ndc + 0.5, 1.0), 0.0, 1.0)

@@ -46,6 +46,7 @@ from bpy.props import BoolProperty, StringProperty
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, ProgressPrinter, StagedJob, TrainingJob, status_line
 from .registration import register_classes, unregister_classes
+from .threads import scene_threads
 
 TIMER_STEP = 0.25  # seconds between polls of a background job
 STAGE_BUDGET = 0.1  # seconds of main-thread work per poll for a StagedJob
@@ -267,6 +268,14 @@ class JobOperator:
         self.interactive = wants_background(context)
         context.window_manager.fileselect_add(self)
         return {"RUNNING_MODAL"}
+
+    def job_threads(self, context, override: int = 0) -> int:
+        """Threads for the job's native work (`blender/threads.py`): `override` (the operator's
+        own Threads) or the scene's setting; every core but one at most when the job will run
+        in the background beside the UI."""
+        return scene_threads(context.scene, override=override,
+                             beside_ui=getattr(self, "interactive", False)
+                             and wants_background(context))
 
     def run_job(self, context, job: OperatorJob) -> set:
         """The one execute path: in the background when `self.interactive` and there is a

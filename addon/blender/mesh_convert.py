@@ -51,6 +51,7 @@ from ..core.mesh.surface import Cancelled
 from ..core.jobs import StagedJob
 from . import dependencies
 from .sources import gather
+from .threads import scene_threads
 from .blender_splats import any_splats
 from .camera_adapter import camera_of
 from .job_runner import JobOperator, OperatorJob, wants_background
@@ -249,8 +250,10 @@ def convert_job(obj, *, resolution: int = 128, max_triangles: int = 100_000,
     stats["cameras"] = len(cams)
     yield "render", 0.0
     views = []
+    threads = scene_threads(depsgraph.scene, beside_ui=False)  # on the main thread: all of them
     for i, cam in enumerate(cams):
-        views.extend(surface.render_views(gaussians, [cam], antialiased=gathered.antialiased))
+        views.extend(surface.render_views(gaussians, [cam], antialiased=gathered.antialiased,
+                                          threads=threads))
         yield "render", (i + 1) / len(cams)
     stats["render_s"] = time.perf_counter() - t0
     yield "fuse", 0.0  # each stage is announced as it starts (a headless line says what runs)

@@ -123,8 +123,11 @@ class SplatRenderSettings(bpy.types.PropertyGroup):
         name="Near Plane", description="Splats closer to the camera than this are not drawn",
         default=0.01, min=1e-6, soft_max=1.0, precision=4, subtype="DISTANCE")
     threads: IntProperty(
-        name="Threads", description="Threads for the splat renderer (0: as many as Blender "
-                                     "renders with: Performance > Threads, or blender -t N)",
+        name="Threads", description="Threads for the add-on's work on splats: final renders, the "
+                                     "viewport, training and mesh conversion (0: as many as "
+                                     "Blender renders with: Performance > Threads, or blender "
+                                     "-t N). The viewport and training in the background leave "
+                                     "Blender's interface a core",
         default=0, min=0, max=1024)
     splat_passes: BoolProperty(
         name="Splat Passes",

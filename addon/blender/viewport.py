@@ -47,10 +47,10 @@ from bpy.app.handlers import persistent
 from ..core import colour
 from ..core.cameras import CAMERA_AXIS_FLIP, Camera
 from ..core.gaussians import Gaussians
-from ..core.jobs import ui_kernel_threads
 from ..core.priority import at_background_priority
-from ..core.render.renderer import render
+from ..core.render.renderer import RenderResult, render, viewport_image
 from .sources import gather
+from .threads import scene_threads
 from .splat_object import BOUNDS_FLAG, drawn_by_addon, needs_sync, sync_display  # noqa: F401
 
 REST_SECONDS = 0.15
@@ -97,18 +97,6 @@ def view_near(window_matrix, near: float) -> float:
     return (p[2, 3] + 1.0) / p[2, 2] if _is_orthographic(p) else near
 
 
-def window_depth(depth: np.ndarray, window_matrix) -> np.ndarray:
-    """Planar depth (along the view) -> the depth buffer value OpenGL stores for it under
-    `window_matrix` (default depth range [0, 1]; perspective or orthographic); 1 where nothing
-    is (inf)."""
-    p = np.asarray(window_matrix, np.float64)
-    z = np.asarray(depth, np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ndc = (p[2, 2] * -z + p[2, 3]) / (p[3, 2] * -z + p[3, 3])
-    out = np.where(np.isfinite(ndc), 0.5 * ndc + 0.5, 1.0)
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
-
-
 @dataclass
 class ViewportImage:
     """A rendered view, ready to draw: rows bottom to top (OpenGL's texture order)."""
@@ -120,21 +108,33 @@ class ViewportImage:
     seconds: float
 
 
+# Each thread's last render images, rendered into again at the same size: fresh images cost
+# their page faults every frame (a third of a 3840x2160 frame's time).
+_renders = threading.local()
+
+
+def _render_images(camera: Camera) -> RenderResult:
+    images = getattr(_renders, "images", None)
+    if images is None or images.alpha.shape != (camera.height, camera.width):
+        images = _renders.images = RenderResult(
+            np.empty((camera.height, camera.width, 3), np.float32),
+            np.empty((camera.height, camera.width), np.float32),
+            np.empty((camera.height, camera.width), np.float32))
+    return images
+
+
 def render_view(gaussians: Gaussians, camera: Camera, window_matrix, *, key: tuple = (),
                 coarse: bool = False, color_space: str = "SRGB", antialiased: bool = False,
                 near: float = 0.01, sh_degree: int | None = None, threads: int = 0) -> ViewportImage:
     """Render the splats for a view (no GPU, no bpy: runs in a worker thread)."""
     start = time.perf_counter()
     result = render(gaussians, camera, antialiased=antialiased,
-                    near=view_near(window_matrix, near), sh_degree=sh_degree, threads=threads)
-    rgba = np.empty((camera.height, camera.width, 4), np.float32)
-    rgba[..., :3] = result.rgb
-    rgba[..., 3] = result.alpha
+                    near=view_near(window_matrix, near), sh_degree=sh_degree, threads=threads,
+                    out=_render_images(camera))
+    rgba, depth = viewport_image(result, window_matrix, threads=threads)
     if color_space == "LINEAR":
-        rgba = colour.display_from_linear(rgba)
-    depth = window_depth(result.depth, window_matrix)
-    return ViewportImage(key, np.ascontiguousarray(rgba[::-1]), np.ascontiguousarray(depth[::-1]),
-                         coarse, time.perf_counter() - start)
+        colour.display_from_linear(rgba, out=rgba, threads=threads)
+    return ViewportImage(key, rgba, depth, coarse, time.perf_counter() - start)
 
 
 # ---------------------------------------------------------------------------- GPU drawing
@@ -359,15 +359,13 @@ class ViewportRenderer:
                 region, _ = next(k for k in self._jobs if k[1] == coarse)
                 job = self._jobs.pop((region, coarse))
                 self._running += 1
-            # Threads 0: every core but the UI's. On the UI's cores (one kernel thread) the
-            # render yields to the UI's own redraws.
-            threads = job.options["threads"] or ui_kernel_threads()
 
             def draw() -> ViewportImage:
                 return render_view(job.gaussians, job.camera, job.window_matrix, key=job.key,
-                                   coarse=job.coarse, **{**job.options, "threads": threads})
+                                   coarse=job.coarse, **job.options)
             try:
-                image = at_background_priority(draw) if threads == 1 else draw()
+                # On the UI's cores (one kernel thread) the render yields to the UI's redraws.
+                image = at_background_priority(draw) if job.options["threads"] == 1 else draw()
             except Exception as error:  # a bad frame must not kill the worker
                 image = None
                 self.errors.append(str(error))
@@ -423,7 +421,8 @@ def viewport_splats(depsgraph, scene) -> tuple[Gaussians, dict] | None:
     spaces = {b.color_space for b in batches}
     options = dict(color_space="LINEAR" if spaces == {"LINEAR"} else "SRGB",
                    antialiased=antialiased, near=settings.near,
-                   sh_degree=min(settings.sh_degree, gaussians.degree), threads=settings.threads)
+                   sh_degree=min(settings.sh_degree, gaussians.degree),
+                   threads=scene_threads(scene, beside_ui=True))
     return gaussians, options
 
 

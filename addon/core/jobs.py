@@ -46,6 +46,7 @@ from typing import Callable, Generator, Sequence
 from .gaussians import Gaussians
 from .native import cpu_count
 from .priority import at_background_priority
+from .threads import kernel_threads
 from .train.trainer import CompactionReport, Evaluation, Trainer, compact
 
 PHASES = ("waiting", "loading", "working", "training", "compacting", "evaluating", "saving", "done",
@@ -377,8 +378,9 @@ class TrainingJob:
 
 
 def ui_kernel_threads() -> int:
-    """Kernel threads for training beside a UI: every core but one (at least one)."""
-    return max(1, cpu_count() - 1)
+    """Kernel threads for training beside a UI: every core but one (at least one;
+    `threads.kernel_threads`, the one rule)."""
+    return kernel_threads(beside_ui=True, cores=cpu_count())
 
 
 WAIT_STEP = 0.05  # seconds a blocking StagedJob sleeps when its steps wait on other work

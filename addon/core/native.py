@@ -359,6 +359,30 @@ def srgb_decode_changed(rgb: np.ndarray, alpha: np.ndarray, mesh: np.ndarray, la
                                     threads=thread_count(threads), out=out)
 
 
+def viewport_image(rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray,
+                   projection: np.ndarray, out_rgba: np.ndarray, out_depth: np.ndarray, *,
+                   threads: int) -> None:
+    """A render's rgb (H, W, 3), alpha and planar depth (H, W) into the viewport's
+    premultiplied RGBA (H, W, 4) and depth-buffer values (H, W), rows bottom to top;
+    `projection` float64 (P22, P23, P32, P33) of the view's OpenGL projection."""
+    splatcore().viewport_image(rgb=rgb, alpha=alpha, depth=depth, projection=projection,
+                               out_rgba=out_rgba, out_depth=out_depth,
+                               threads=thread_count(threads))
+
+
+def image_memory(bytes: int) -> Any:
+    """`bytes` of memory for a render's image, from the buffers frames keep: a writable buffer
+    object (view it with NumPy); when the last view is gone the memory is kept for the next
+    frame's images (`release_buffers` frees it)."""
+    return splatcore().image_memory(bytes=int(bytes))
+
+
+def photo_rgb(pixels: np.ndarray, out: np.ndarray, *, threads: int) -> None:
+    """8-bit photo pixels (H, W, C >= 3), C-contiguous, into `out` float32 (H, W, 3): the first
+    three channels times float32(1 / 255)."""
+    splatcore().photo_rgb(pixels=pixels, out=out, threads=thread_count(threads))
+
+
 def composite_microbench(count: int, iterations: int) -> float:
     """Seconds for the compositor's inner loop over one in-cache tile covered by `count`
     Gaussians, `iterations` times (a benchmark's probe)."""
@@ -368,6 +392,17 @@ def composite_microbench(count: int, iterations: int) -> float:
 def native_cpu_count() -> int:
     """Cores the native module may use (its `threads=0`); `cpu_count` is Python's view."""
     return splatcore().cpu_count()
+
+
+def pool_profile(enable: bool, cpu_clock: bool = False) -> dict[str, float]:
+    """The native thread pool's counters since the last call, zeroed (benchmarks): `jobs`
+    (parallel sections run), `inside_ms` (their callers' wall time inside them: the rest of a
+    native call ran on one thread), `busy_ms` (their threads' working time, summed),
+    `offered_ms` (each section's wall time times its threads). Profiles from now on if
+    `enable` (process-wide; the stages' stats then fill their `ms_pool_*` fields); with
+    `cpu_clock` the stages and sections are timed by the calling thread's CPU clock, not the
+    wall clock (for one thread: steady on a busy machine)."""
+    return dict(splatcore().pool_profile(enable=bool(enable), cpu_clock=bool(cpu_clock)))
 
 
 def signature(name: str) -> tuple[tuple[str, str, bool], ...]:

@@ -163,6 +163,9 @@ typedef struct {
 
 typedef struct {
     double ms_project, ms_sort, ms_bin, ms_composite, ms_total;
+    /* While the pool is profiled (sc_pool_profile), the part of each stage spent in parallel
+     * sections (the rest ran on the calling thread alone); 0 otherwise. */
+    double ms_pool_project, ms_pool_sort, ms_pool_bin, ms_pool_composite;
     int64_t visible;     /* Gaussians with a non-empty footprint */
     int64_t tile_pairs;  /* Gaussian/tile pairs composited */
     int64_t evaluations; /* Gaussian/pixel evaluations actually made */
@@ -195,8 +198,49 @@ double sc_composite_microbench(int count, int iterations);
  * frame, which saves the page faults of fresh memory; this frees them. */
 void sc_release_buffers(void);
 
+/* Memory for a caller's image (a render's outputs) from those kept buffers, so that frame after
+ * frame the same pages are written again rather than fresh ones faulted in; NULL when out of
+ * memory. sc_image_free gives it back, to be kept for the next frame. */
+void *sc_image_alloc(size_t bytes);
+void sc_image_free(void *p);
+
 /* Cores this process may use (the default for `threads`). */
 int sc_cpu_count(void);
+
+/* The viewport's image of a render (H = height, W = width): rgb (H,W,3), alpha and planar depth
+ * (H,W) into premultiplied RGBA (H,W,4) and depth-buffer values (H,W), rows bottom to top;
+ * projection = P22, P23, P32, P33 of the view's OpenGL projection (viewport.c says how). */
+void sc_viewport_image(const float *rgb, const float *alpha, const float *depth, int width,
+                       int height, const double projection[4], float *rgba, float *window,
+                       int threads);
+
+/* 8-bit photo pixels (height, width, channels >= 3), C-contiguous, to float32 RGB (height,
+ * width, 3) in [0, 1]: each value times float32(1 / 255) (photo.c). */
+void sc_photo_rgb(const uint8_t *pixels, int width, int height, int channels, float *rgb,
+                  int threads);
+
+/* The index of the first NaN or Inf among `n` float32 values, or -1; on `threads` threads (the
+ * same answer on any count). */
+int64_t sc_first_non_finite(const float *values, int64_t n, int threads);
+
+/* What the thread pool did while profiling (benchmarks/bench_scaling.py): process-wide sums over
+ * every parallel section (one pass of a stage over Gaussians, tiles or rows), whatever called it. */
+typedef struct {
+    int64_t jobs;      /* parallel sections run */
+    double inside_ms;  /* their callers' wall time inside them; the rest of a call is serial */
+    double busy_ms;    /* the time their threads spent working, summed over the threads */
+    double offered_ms; /* each section's wall time times the threads it ran on: offered - busy is
+                        * the threads' waiting (waking up, the last chunk's tail) */
+} sc_pool_counters;
+
+/* Takes (returns and zeroes) the counters and profiles from now on as `mode` says. Profiling
+ * is off by default and then costs nothing; on, it reads the clock twice per section and
+ * thread, and the stages' stats fill their ms_pool_* fields. SC_PROFILE_CPU times the stages
+ * and the sections by the calling thread's CPU clock instead of the wall clock: steady on a
+ * busy machine, and exact for one thread, where all the work runs on the calling thread (with
+ * more, the sections' times are then only the calling thread's share). */
+enum { SC_PROFILE_OFF, SC_PROFILE_WALL, SC_PROFILE_CPU };
+void sc_pool_profile(int mode, sc_pool_counters *taken);
 
 /* The instruction set the compositor kernels run with on this CPU: "avx512", "avx2" or "sse2"
  * on x86-64 (picked once; SPLATCORE_ISA=sse2|avx2|avx512 caps it), "neon" on arm64. */
@@ -272,6 +316,7 @@ typedef struct {
 
 typedef struct {
     double ms_composite, ms_project, ms_total;
+    double ms_pool_composite, ms_pool_project; /* as sc_stats's, while profiling */
     int64_t evaluations;
     int64_t flushed;     /* non-finite gradient values written as 0 (expected: 0) */
     int64_t error_index; /* with SC_ERR_NONFINITE or SC_ERR_STALE */

@@ -81,9 +81,7 @@ void sc_adam_rows(float *param, const float *grad, float *m, float *v, int64_t r
              .one_minus_b1 = (float)(1.0 - o->beta1), .one_minus_b2 = (float)(1.0 - o->beta2),
              .step_size = (float)(o->lr / bc1), .lead_step_size = (float)(lead_lr / bc1),
              .inv_bc2_sqrt = (float)(1.0 / sqrt(bc2)), .eps = (float)o->eps};
-    /* About 64k values a chunk, whatever the row width. */
-    const int64_t grain = (1 << 16) / (width > 0 ? width : 1);
-    sc_parallel_for(threads, rows, grain > 0 ? grain : 1, adam_rows, &j);
+    sc_parallel_for(threads, rows, sc_grain(rows, width, threads), adam_rows, &j);
 }
 
 void sc_adam(float *param, const float *grad, float *m, float *v, int64_t n,

@@ -173,6 +173,34 @@ static const arg_spec COMPOSITE_MICROBENCH[] = {
     SCALAR("iterations", INT),
 };
 
+/* A render's three images into the viewport's two (none overlapping another; module.c checks). */
+static const arg_spec VIEWPORT_IMAGE[] = {
+    {"rgb", 'f', 3, {DIM_H, DIM_W, 3}, 0, ARRAY, 0},
+    {"alpha", 'f', 2, {DIM_H, DIM_W}, 0, ARRAY, 0},
+    {"depth", 'f', 2, {DIM_H, DIM_W}, 0, ARRAY, 0},
+    {"projection", 'd', 1, {4}, FINITE, ARRAY, 0},
+    {"out_rgba", 'f', 3, {DIM_H, DIM_W, 4}, WRITABLE, ARRAY, 0},
+    {"out_depth", 'f', 2, {DIM_H, DIM_W}, WRITABLE, ARRAY, 0},
+    SCALAR("threads", THREADS),
+};
+
+/* 8-bit (H, W, C) pixels, C >= 3 (module.c checks), into float32 (H, W, 3). */
+static const arg_spec PHOTO_RGB[] = {
+    {"pixels", 'B', 3, {DIM_H, DIM_W, ANY}, 0, ARRAY, 0},
+    {"out", 'f', 3, {DIM_H, DIM_W, 3}, WRITABLE, ARRAY, 0},
+    SCALAR("threads", THREADS),
+};
+
+/* Bytes of kept memory for an image (module.c: a buffer object). */
+static const arg_spec IMAGE_MEMORY[] = {
+    SCALAR("bytes", LONG),
+};
+
+static const arg_spec POOL_PROFILE[] = {
+    SCALAR("enable", FLAG),
+    SCALAR_OR("cpu_clock", FLAG, 0),
+};
+
 /* (N, 3) points; out (N, k), k 1..SC_MAX_NEIGHBOURS. */
 static const arg_spec NEIGHBOURS[] = {
     {"points", 'f', 2, {DIM_N, 3}, FINITE, ARRAY, 0},

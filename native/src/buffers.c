@@ -1,8 +1,9 @@
 /* Reusable working buffers. A frame's working memory (about 130 bytes per Gaussian and 4 per
  * tile pair) is allocated at the start and freed at the end; from the operating system, fresh
  * pages cost a page fault and zeroing each (about 15% of a 1M-Gaussian frame). So freed blocks
- * of at least 1 MiB are kept, up to 8 of them (in practice the last frame's), and handed out
- * again to requests they fit within a factor of 2. sc_release_buffers() returns them.
+ * of at least 1 MiB are kept, up to 16 of them (in practice the last frame's working memory and
+ * images: sc_image_alloc), and handed out again to requests they fit within a factor of 2.
+ * sc_release_buffers() returns them.
  *
  * Every block carries a 64-byte header holding its capacity, so the memory after it is
  * aligned for the 64-byte splat records. */
@@ -11,7 +12,7 @@
 
 #include "internal.h"
 
-enum { HEADER = 64, KEPT = 8 };
+enum { HEADER = 64, KEPT = 16 };
 static const size_t MIN_KEPT = (size_t)1 << 20;
 
 static struct {
@@ -80,6 +81,10 @@ void sc_buffer_free(void *p) {
     }
     free(header);
 }
+
+void *sc_image_alloc(size_t bytes) { return sc_buffer_alloc(bytes); }
+
+void sc_image_free(void *p) { sc_buffer_free(p); }
 
 void sc_release_buffers(void) {
     unsigned char *blocks[KEPT];

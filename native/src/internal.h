@@ -82,6 +82,15 @@ sc_status sc_bin(const sc_splat *splats, int64_t count, const sc_camera *cam, in
                  int64_t **offsets, uint32_t **list, int64_t **pair_offsets, uint32_t **pairs,
                  int64_t *peak_bytes);
 
+/* The counting sorts' prefix sums (prefix.c): counts (rows, columns), row r of column c what
+ * chunk r puts in bucket c, become in place each chunk's first position in the output, buckets
+ * in order and chunks in order within a bucket; starts (columns + 1, or NULL) gets each
+ * bucket's first position and the total. On `threads` threads when the table is large; the
+ * same result for any count. Returns the total, or -1 when out of memory; a total above
+ * `limit` (at most UINT32_MAX) leaves the counts as they were. */
+int64_t sc_prefix_by_column(uint32_t *counts, int64_t rows, int64_t columns, int64_t *starts,
+                            int64_t limit, int threads);
+
 /* Composite one tile front to back (`exhaustive` as in sc_options). Returns the number of
  * Gaussian/pixel evaluations made. */
 int64_t sc_composite_tile(const sc_splat *splats, const uint32_t *list, int64_t count,
@@ -102,8 +111,22 @@ int64_t sc_composite_tile_train(const sc_splat *splats, const uint32_t *list, in
 typedef void (*sc_task)(void *ctx, int64_t begin, int64_t end, int thread);
 void sc_parallel_for(int threads, int64_t n, int64_t grain, sc_task fn, void *ctx);
 
+/* Rows per chunk for a pass over `rows` rows of `width` values on `threads` threads: about
+ * four chunks per thread, each of 4k to 64k values (smaller ones would cost more to hand out
+ * than to run; larger ones left threads idle: Adam over 50k opacities ran as one 64k chunk). */
+static inline int64_t sc_grain(int64_t rows, int64_t width, int threads) {
+    const int64_t w = width > 0 ? width : 1, per_chunk = rows * w / (4 * (int64_t)(threads > 0 ? threads : 1));
+    const int64_t values = per_chunk < 4096 ? 4096 : per_chunk > 65536 ? 65536 : per_chunk;
+    const int64_t grain = values / w;
+    return grain > 0 ? grain : 1;
+}
+
 /* A monotonic clock in milliseconds (the stages' timings). */
 double sc_now_ms(void);
+
+/* While the pool is profiled (sc_pool_profile), the wall time callers have spent inside
+ * sc_parallel_for so far (a stage's ms_pool_* is the difference across it); else 0. */
+double sc_pool_inside_ms(void);
 
 /* Project, sort and bin (the first three stages of sc_render); with_pairs also builds the
  * Gaussian-major pair index. Fills stats' project/sort/bin times, visible, tile_pairs and

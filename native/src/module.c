@@ -182,7 +182,7 @@ static const Py_buffer *get_array(buffers *b, PyObject *obj, const char *name, c
     return view;
 }
 
-static int check_finite(const Py_buffer *view, const char *name);
+static int check_finite(const Py_buffer *view, const char *name, int threads);
 
 /* A named size just bound: N and K have limits of their own. */
 static int check_bound(int dim, Py_ssize_t size) {
@@ -201,7 +201,7 @@ static int check_bound(int dim, Py_ssize_t size) {
 /* Validate objs[0..count-1] against specs[0..count-1] in order; views[i] gets each array's view
  * (NULL for an OPTIONAL None), held by `b` until release_all. */
 static int check_args(buffers *b, arg_dims *d, const arg_spec *specs, int count,
-                      PyObject *const *objs, const Py_buffer **views) {
+                      PyObject *const *objs, const Py_buffer **views, int threads) {
     for (int i = 0; i < count; ++i) {
         const arg_spec *s = &specs[i];
         views[i] = NULL;
@@ -245,7 +245,7 @@ static int check_args(buffers *b, arg_dims *d, const arg_spec *specs, int count,
             }
         }
         if (s->flags & ANY_RANK) d->like = view;
-        if ((s->flags & FINITE) && check_finite(view, s->name) != 0) return -1;
+        if ((s->flags & FINITE) && check_finite(view, s->name, threads) != 0) return -1;
         views[i] = view;
     }
     return 0;
@@ -376,11 +376,15 @@ static int begin(call *c, const signature *sig, PyObject *args, PyObject *kwargs
  * is held until finish() or fail(). A left-out or None OPTIONAL array has no view. */
 static int check(call *c, const char *first, const char *last) {
     const int from = index_of(c->sig, first), to = index_of(c->sig, last);
+    int threads = 1; /* the call's own, for the FINITE scans (threads 0: every core) */
+    for (int i = 0; i < c->sig->count; ++i)
+        if (c->sig->params[i].kind == THREADS)
+            threads = c->ints[i] ? (int)c->ints[i] : sc_cpu_count();
     for (int i = from; i <= to; ++i) {
         const arg_spec *s = &c->sig->params[i];
         if (s->kind != ARRAY) continue;
         PyObject *obj = c->objs[i] ? c->objs[i] : Py_None;
-        if (check_args(&c->b, &c->d, s, 1, &obj, &c->views[i]) != 0) return -1;
+        if (check_args(&c->b, &c->d, s, 1, &obj, &c->views[i], threads) != 0) return -1;
     }
     return 0;
 }
@@ -549,6 +553,10 @@ static PyObject *stats_dict(const sc_stats *s) {
         set_number(d, "ms_bin", PyFloat_FromDouble(s->ms_bin)) ||
         set_number(d, "ms_composite", PyFloat_FromDouble(s->ms_composite)) ||
         set_number(d, "ms_total", PyFloat_FromDouble(s->ms_total)) ||
+        set_number(d, "ms_pool_project", PyFloat_FromDouble(s->ms_pool_project)) ||
+        set_number(d, "ms_pool_sort", PyFloat_FromDouble(s->ms_pool_sort)) ||
+        set_number(d, "ms_pool_bin", PyFloat_FromDouble(s->ms_pool_bin)) ||
+        set_number(d, "ms_pool_composite", PyFloat_FromDouble(s->ms_pool_composite)) ||
         set_number(d, "visible", PyLong_FromLongLong(s->visible)) ||
         set_number(d, "tile_pairs", PyLong_FromLongLong(s->tile_pairs)) ||
         set_number(d, "evaluations", PyLong_FromLongLong(s->evaluations)) ||
@@ -582,25 +590,22 @@ static int non_finite_at(const char *name, int64_t i) {
     return -1;
 }
 
-static int check_finite_array(const float *v, int64_t n, const char *name) {
-    /* One branch-free pass (it vectorises: these arrays are whole images and gradients); the
-     * index is looked for only when there is something to report. */
-    uint32_t bad = 0;
-    for (int64_t i = 0; i < n; ++i) {
-        uint32_t bits;
-        memcpy(&bits, v + i, sizeof bits);
-        bad |= (bits & 0x7f800000u) == 0x7f800000u; /* exponent all ones: Inf or NaN */
-    }
-    if (!bad) return 0;
-    for (int64_t i = 0; i < n; ++i)
-        if (!isfinite(v[i])) return non_finite_at(name, i);
-    return 0;
-}
-
-/* A FINITE argument's values, float32 or float64 as its spec says (itemsize). */
-static int check_finite(const Py_buffer *view, const char *name) {
+/* A FINITE argument's values, float32 or float64 as its spec says (itemsize). float32 ones are
+ * whole images and gradients, checked at every training step: on the call's threads, without
+ * the GIL when there are many (sc_first_non_finite). */
+static int check_finite(const Py_buffer *view, const char *name, int threads) {
     const int64_t n = (int64_t)(view->len / view->itemsize);
-    if (view->itemsize == (Py_ssize_t)sizeof(float)) return check_finite_array(view->buf, n, name);
+    if (view->itemsize == (Py_ssize_t)sizeof(float)) {
+        int64_t bad;
+        if (n < ((int64_t)1 << 16)) {
+            bad = sc_first_non_finite(view->buf, n, 1);
+        } else {
+            Py_BEGIN_ALLOW_THREADS
+            bad = sc_first_non_finite(view->buf, n, threads);
+            Py_END_ALLOW_THREADS
+        }
+        return bad < 0 ? 0 : non_finite_at(name, bad);
+    }
     const double *v = view->buf;
     uint64_t bad = 0; /* branch-free first, as check_finite_array */
     for (int64_t i = 0; i < n; ++i) {
@@ -634,6 +639,10 @@ static PyObject *py_srgb_premultiplied(PyObject *self, PyObject *args, PyObject 
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject *kwargs);
 static PyObject *py_composite_microbench(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_pool_profile(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_viewport_image(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_photo_rgb(PyObject *self, PyObject *args, PyObject *kwargs);
+static PyObject *py_image_memory(PyObject *self, PyObject *args, PyObject *kwargs);
 
 /* Every entry point with its table (METH_NOARGS ones have none), for begin() and for
  * `splatcore.signature`. */
@@ -660,6 +669,10 @@ static const signature SIGNATURES[] = {
     ENTRY("srgb_view", SRGB_VIEW),
     ENTRY("srgb_decode_changed", SRGB_DECODE_CHANGED),
     ENTRY("composite_microbench", COMPOSITE_MICROBENCH),
+    ENTRY("pool_profile", POOL_PROFILE),
+    ENTRY("viewport_image", VIEWPORT_IMAGE),
+    ENTRY("photo_rgb", PHOTO_RGB),
+    ENTRY("image_memory", IMAGE_MEMORY),
 };
 
 static const signature *signature_of(const char *name) {
@@ -870,9 +883,12 @@ static PyObject *py_backward(PyObject *self, PyObject *args, PyObject *kwargs) {
         raise_status(status, &g, &s);
         return fail(&c);
     }
-    return finish(&c, Py_BuildValue("{s:d,s:d,s:d,s:L,s:L}", "ms_composite", stats.ms_composite,
-                                    "ms_project", stats.ms_project, "ms_total", stats.ms_total,
-                                    "evaluations", (long long)stats.evaluations, "flushed",
+    return finish(&c, Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:L,s:L}", "ms_composite",
+                                    stats.ms_composite, "ms_project", stats.ms_project,
+                                    "ms_total", stats.ms_total, "ms_pool_composite",
+                                    stats.ms_pool_composite, "ms_pool_project",
+                                    stats.ms_pool_project, "evaluations",
+                                    (long long)stats.evaluations, "flushed",
                                     (long long)stats.flushed));
 }
 
@@ -1210,6 +1226,51 @@ static int same_view(const Py_buffer *a, const Py_buffer *b) {
     return 1;
 }
 
+static PyObject *py_viewport_image(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "viewport_image");
+    if (check(&c, "rgb", "out_depth") != 0) return fail(&c);
+    const char *names[] = {"rgb", "alpha", "depth", "out_rgba", "out_depth"};
+    for (int a = 3; a < 5; ++a)
+        for (int b = 0; b < 5; ++b)
+            if (b != a && overlap(view_of(&c, names[a]), view_of(&c, names[b]))) {
+                PyErr_Format(PyExc_ValueError, "%s must not overlap %s", names[a], names[b]);
+                return fail(&c);
+            }
+    const int width = (int)SIZE(&c.d, DIM_W), height = (int)SIZE(&c.d, DIM_H);
+    const float *rgb = data_of(&c, "rgb"), *alpha = data_of(&c, "alpha");
+    const float *depth = data_of(&c, "depth");
+    const double *projection = data_of(&c, "projection");
+    float *rgba = data_of(&c, "out_rgba"), *window = data_of(&c, "out_depth");
+    const int threads = threads_of(&c);
+    Py_BEGIN_ALLOW_THREADS
+    sc_viewport_image(rgb, alpha, depth, width, height, projection, rgba, window, threads);
+    Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
+static PyObject *py_photo_rgb(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "photo_rgb");
+    if (check(&c, "pixels", "out") != 0) return fail(&c);
+    const Py_buffer *pixels = view_of(&c, "pixels"), *out = view_of(&c, "out");
+    const Py_ssize_t channels = pixels->shape[2];
+    if (channels < 3) {
+        PyErr_Format(PyExc_ValueError, "pixels must have 3 or more channels, got %zd", channels);
+        return fail(&c);
+    }
+    if (overlap(pixels, out)) {
+        PyErr_SetString(PyExc_ValueError, "out must not overlap pixels");
+        return fail(&c);
+    }
+    const int width = (int)SIZE(&c.d, DIM_W), height = (int)SIZE(&c.d, DIM_H);
+    const uint8_t *in = data_of(&c, "pixels");
+    float *rgb = data_of(&c, "out");
+    const int threads = threads_of(&c);
+    Py_BEGIN_ALLOW_THREADS
+    sc_photo_rgb(in, width, height, (int)channels, rgb, threads);
+    Py_END_ALLOW_THREADS
+    return finish(&c, Py_NewRef(Py_None));
+}
+
 static PyObject *py_srgb_view(PyObject *self, PyObject *args, PyObject *kwargs) {
     BEGIN(c, "srgb_view");
     if (check(&c, "rgba", "out") != 0) return fail(&c);
@@ -1239,8 +1300,8 @@ static PyObject *py_srgb_decode_changed(PyObject *self, PyObject *args, PyObject
         out.name = "layer";
         out.flags &= ~(OPTIONAL | DEFAULTED);
         PyObject *obj = c.objs[layer_at];
-        if (check_args(&c.b, &c.d, &layer, 1, &obj, &c.views[layer_at]) != 0 ||
-            check_args(&c.b, &c.d, &out, 1, &obj, &c.views[out_at]) != 0)
+        if (check_args(&c.b, &c.d, &layer, 1, &obj, &c.views[layer_at], 1) != 0 ||
+            check_args(&c.b, &c.d, &out, 1, &obj, &c.views[out_at], 1) != 0)
             return fail(&c);
     } else if (check(&c, "layer", "out") != 0) {
         return fail(&c);
@@ -1412,6 +1473,64 @@ static PyObject *py_sort_keys(PyObject *self, PyObject *args, PyObject *kwargs) 
     return finish(&c, PyLong_FromLongLong(finite));
 }
 
+/* ---------------------------------------------------------------- kept image memory
+ * Memory for a render's images from the buffers frames keep (buffers.c), as a writable buffer
+ * object: NumPy views it, and when the last view is gone the block goes back to be kept for
+ * the next frame. Fresh memory is faulted in page by page, zeroed by the kernel: at 3840x2160 a
+ * render's three images (166 MB) took about as long as its composite, on one thread's time. */
+
+typedef struct {
+    PyObject_HEAD
+    void *data;
+    Py_ssize_t bytes;
+} image_memory;
+
+static int image_memory_getbuffer(PyObject *self, Py_buffer *view, int flags) {
+    image_memory *m = (image_memory *)self;
+    return PyBuffer_FillInfo(view, self, m->data, m->bytes, 0, flags);
+}
+
+static void image_memory_dealloc(PyObject *self) {
+    PyTypeObject *type = Py_TYPE(self);
+    sc_image_free(((image_memory *)self)->data);
+    freefunc free_self = (freefunc)PyType_GetSlot(type, Py_tp_free);
+    free_self(self);
+    Py_DECREF(type);
+}
+
+static PyType_Slot image_memory_slots[] = {
+    {Py_bf_getbuffer, (void *)image_memory_getbuffer},
+    {Py_tp_dealloc, (void *)image_memory_dealloc},
+    {Py_tp_doc, (void *)"Kept memory for a render's image (image_memory(bytes))."},
+    {0, NULL},
+};
+
+static PyType_Spec image_memory_spec = {"splatcore.ImageMemory", sizeof(image_memory), 0,
+                                        Py_TPFLAGS_DEFAULT, image_memory_slots};
+
+static PyObject *image_memory_type; /* made at import */
+
+static PyObject *py_image_memory(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "image_memory");
+    const long long bytes = int_of(&c, "bytes");
+    if (bytes < 0 || bytes > (long long)MAX_PIXELS * 64) {
+        PyErr_Format(PyExc_ValueError, "bytes must be in 0..%lld, got %lld",
+                     (long long)MAX_PIXELS * 64, bytes);
+        return fail(&c);
+    }
+    finish(&c, NULL);
+    void *data = sc_image_alloc((size_t)bytes);
+    if (!data) return PyErr_NoMemory();
+    allocfunc alloc = (allocfunc)PyType_GetSlot((PyTypeObject *)image_memory_type, Py_tp_alloc);
+    image_memory *m = (image_memory *)alloc((PyTypeObject *)image_memory_type, 0);
+    if (!m) {
+        sc_image_free(data);
+        return NULL;
+    }
+    m->data = data, m->bytes = (Py_ssize_t)bytes;
+    return (PyObject *)m;
+}
+
 static PyObject *py_release_buffers(PyObject *self, PyObject *args) {
     (void)self, (void)args;
     sc_release_buffers();
@@ -1421,6 +1540,18 @@ static PyObject *py_release_buffers(PyObject *self, PyObject *args) {
 static PyObject *py_cpu_count(PyObject *self, PyObject *args) {
     (void)self, (void)args;
     return PyLong_FromLong(sc_cpu_count());
+}
+
+static PyObject *py_pool_profile(PyObject *self, PyObject *args, PyObject *kwargs) {
+    BEGIN(c, "pool_profile");
+    sc_pool_counters taken;
+    sc_pool_profile(!int_of(&c, "enable")     ? SC_PROFILE_OFF
+                    : int_of(&c, "cpu_clock") ? SC_PROFILE_CPU
+                                              : SC_PROFILE_WALL,
+                    &taken);
+    return finish(&c, Py_BuildValue("{s:L,s:d,s:d,s:d}", "jobs", (long long)taken.jobs,
+                                    "inside_ms", taken.inside_ms, "busy_ms", taken.busy_ms,
+                                    "offered_ms", taken.offered_ms));
 }
 
 /* What an argument is, in words: "float32 array (N, 3)", "int", "threads", ... */
@@ -1549,6 +1680,21 @@ static PyMethodDef methods[] = {
      "composite_microbench(...) -> seconds for the compositor's inner loop over one in-cache "
      "tile covered by `count` Gaussians, `iterations` times."},
     {"cpu_count", py_cpu_count, METH_NOARGS, "Cores this process may use."},
+    {"viewport_image", WITH_KEYWORDS(py_viewport_image),
+     "viewport_image(...) -> None\n\nA render's rgb, alpha and depth into the viewport's "
+     "premultiplied RGBA and depth-buffer values, rows bottom to top (sc_viewport_image)."},
+    {"photo_rgb", WITH_KEYWORDS(py_photo_rgb),
+     "photo_rgb(...) -> None\n\n8-bit photo pixels (H, W, C >= 3) into float32 RGB in [0, 1] "
+     "(sc_photo_rgb), as NumPy's astype(float32) * float32(1 / 255)."},
+    {"image_memory", WITH_KEYWORDS(py_image_memory),
+     "image_memory(...) -> ImageMemory\n\n`bytes` of memory for a render's image, from the "
+     "buffers frames keep (a writable buffer; back to be kept when the last view of it is "
+     "gone)."},
+    {"pool_profile", WITH_KEYWORDS(py_pool_profile),
+     "pool_profile(...) -> dict\n\nThe thread pool's counters since the last call (jobs, "
+     "inside_ms, busy_ms, offered_ms; see sc_pool_counters), zeroed; profiles from now on if "
+     "`enable` (the stages' stats then fill their ms_pool_* fields), by the calling thread's "
+     "CPU clock with `cpu_clock` (for one thread)."},
     {"signature", py_signature, METH_O,
      "signature(name) -> ((argument, what it is, may be left out), ...)\n\nThe arguments of "
      "entry point `name` in call order, from the one table module.c parses them by."},
@@ -1561,4 +1707,13 @@ static struct PyModuleDef module = {
     NULL, NULL, NULL, NULL,
 };
 
-PyMODINIT_FUNC PyInit_splatcore(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit_splatcore(void) {
+    PyObject *m = PyModule_Create(&module);
+    if (!m) return NULL;
+    image_memory_type = PyType_FromSpec(&image_memory_spec); /* kept for the module's life */
+    if (!image_memory_type) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

@@ -1,7 +1,8 @@
 /* The forward pipeline: project -> sort by depth -> bin into tiles -> composite each tile.
  * Working memory is O(Gaussians + tile pairs + tiles): at most 132 bytes per Gaussian (the
  * projected and the depth-sorted splats side by side during the gather), 4 per Gaussian/tile
- * pair (12 more for training's pair index) and 12 per tile and binning chunk; nothing is kept
+ * pair (12 more for training's pair index) and 4 per tile and binning chunk (at most 32 MiB of
+ * these beyond one chunk per thread: binning.c); nothing is kept
  * per pixel beyond the caller's images. The front half (project, sort, bin) is shared with the training forward
  * (train.c), which keeps it for the backward pass. */
 #include <math.h>
@@ -43,7 +44,7 @@ void sc_frame_free(sc_frame *f) {
  * largest moment is counted in stats->peak_bytes (besides what sc_bin allocates, counted there). */
 sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc_options *opt,
                            int with_pairs, sc_frame *frame, sc_stats *stats) {
-    const double start = sc_now_ms();
+    const double start = sc_now_ms(), pool_start = sc_pool_inside_ms();
     const int wrap = sc_wraps(cam); /* twice the rows: each Gaussian's seam copy */
     *frame = (sc_frame){0};
     if (wrap && g->count > (1LL << 30)) return SC_ERR_TOO_LARGE;
@@ -61,7 +62,7 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     if ((status = sc_project_fast(g, cam, opt, 1, &proj, stats)) != SC_OK) goto done;
     sc_buffer_free(proj.valid);
     proj.valid = NULL;
-    const double projected = sc_now_ms();
+    const double projected = sc_now_ms(), pool_projected = sc_pool_inside_ms();
 
     /* Only Gaussians that reach a pixel take part (the projection keyed the others +inf, which
      * sort last), front to back. */
@@ -78,14 +79,15 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     frame->splats = sc_buffer_alloc(sizeof(sc_splat) * (size_t)(drawn ? drawn : 1));
     if (!frame->splats) goto done;
     gather_job gather = {proj.splats, frame->order, frame->splats};
-    sc_parallel_for(opt->threads, drawn, 8192, gather_sorted, &gather);
+    /* (A 64-byte record: 16 values.) */
+    sc_parallel_for(opt->threads, drawn, sc_grain(drawn, 16, opt->threads), gather_sorted, &gather);
     const int64_t gathered = (int64_t)(sizeof(sc_splat) * (rows + (size_t)drawn) +
                                        sizeof(uint32_t) * rows);
     peak = gathered > peak ? gathered : peak;
     sc_buffer_free(proj.splats);
     proj.splats = NULL;
     frame->drawn = drawn;
-    const double sorted_ms = sc_now_ms();
+    const double sorted_ms = sc_now_ms(), pool_sorted = sc_pool_inside_ms();
 
     int64_t bin_bytes = 0;
     if ((status = sc_bin(frame->splats, drawn, cam, opt->threads, &frame->offsets, &frame->list,
@@ -97,6 +99,9 @@ sc_status sc_frame_prepare(const sc_gaussians *g, const sc_camera *cam, const sc
     stats->ms_project = projected - start;
     stats->ms_sort = sorted_ms - projected;
     stats->ms_bin = sc_now_ms() - sorted_ms;
+    stats->ms_pool_project = pool_projected - pool_start;
+    stats->ms_pool_sort = pool_sorted - pool_projected;
+    stats->ms_pool_bin = sc_pool_inside_ms() - pool_sorted;
     stats->visible = drawn;
     stats->tile_pairs = frame->offsets[frame->ntiles];
     status = SC_OK;
@@ -149,13 +154,14 @@ sc_status sc_render(const sc_gaussians *g, const sc_camera *cam, const sc_option
     sc_frame frame;
     sc_status status = sc_frame_prepare(g, cam, opt, 0, &frame, stats);
     if (status != SC_OK) return status;
-    const double binned = sc_now_ms();
+    const double binned = sc_now_ms(), pool_binned = sc_pool_inside_ms();
 
     stats->evaluations = sc_composite_frame(&frame, cam, image, NULL, NULL, opt->exhaustive,
                                             opt->threads < MAX_THREADS ? opt->threads : MAX_THREADS);
     const double composited = sc_now_ms();
 
     stats->ms_composite = composited - binned;
+    stats->ms_pool_composite = sc_pool_inside_ms() - pool_binned;
     stats->ms_total = composited - start;
     sc_frame_free(&frame);
     return SC_OK;

@@ -7,9 +7,9 @@
  * the largest finite key.
  *
  * In parallel: the keys are cut into chunks; per pass, each chunk counts its digits, the
- * prefix sums over (digit, chunk) give each chunk its first position per digit, and each chunk
- * scatters its keys in their order. That is the one stable order, so the result never depends
- * on the chunks or threads. Key and payload travel as one 64-bit value (one write stream per
+ * prefix sums over (digit, chunk) give each chunk its first position per digit (in parallel
+ * too, sc_prefix_by_column), and each chunk scatters its keys in their order. That is the one
+ * stable order, so the result never depends on the chunks or threads. Key and payload travel as one 64-bit value (one write stream per
  * element, not two), and the last pass writes the payload alone. */
 #include <math.h>
 #include <string.h>
@@ -36,7 +36,7 @@ typedef struct {
     const uint64_t *from; /* this pass's input (NULL in the first pass: keys and payload) */
     uint64_t *to;         /* this pass's output, or NULL in the last: ... */
     uint32_t *order;      /* ... the payloads alone */
-    uint32_t *histogram;  /* (chunks, BUCKETS): counts, then each chunk's write cursors */
+    uint32_t *histogram;  /* (chunks, mask + 1): counts, then each chunk's write cursors */
     struct {
         uint32_t lo, hi;
         int64_t finite;
@@ -77,8 +77,8 @@ static void count_digits(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     sort_job *j = ctx;
     for (int64_t c = begin; c < end; ++c) {
-        uint32_t *h = j->histogram + c * BUCKETS;
-        memset(h, 0, sizeof(uint32_t) * BUCKETS);
+        uint32_t *h = j->histogram + c * ((int64_t)j->mask + 1);
+        memset(h, 0, sizeof(uint32_t) * ((size_t)j->mask + 1));
         int64_t lo, hi;
         chunk_range(j, c, &lo, &hi);
         if (j->from) {
@@ -93,7 +93,7 @@ static void scatter(void *ctx, int64_t begin, int64_t end, int thread) {
     (void)thread;
     sort_job *j = ctx;
     for (int64_t c = begin; c < end; ++c) {
-        uint32_t *cursor = j->histogram + c * BUCKETS;
+        uint32_t *cursor = j->histogram + c * ((int64_t)j->mask + 1);
         int64_t lo, hi;
         chunk_range(j, c, &lo, &hi);
         const int shift = j->shift;
@@ -118,17 +118,6 @@ static void scatter(void *ctx, int64_t begin, int64_t end, int thread) {
             }
         }
     }
-}
-
-/* Turn the chunks' counts into their write cursors: digit-major, chunk-minor. */
-static void prefix_sums(uint32_t *histogram, int64_t chunks, uint32_t mask) {
-    uint32_t sum = 0;
-    for (uint32_t b = 0; b <= mask; ++b)
-        for (int64_t c = 0; c < chunks; ++c) {
-            const uint32_t n = histogram[c * BUCKETS + b];
-            histogram[c * BUCKETS + b] = sum;
-            sum += n;
-        }
 }
 
 int64_t sc_sort_by_depth(const float *keys, int64_t count, const uint32_t *payload, int threads,
@@ -186,7 +175,13 @@ int64_t sc_sort_by_depth(const float *keys, int64_t count, const uint32_t *paylo
         j.to = p == passes - 1 ? NULL : buffers[p & 1];
         j.order = single ? single : order;
         sc_parallel_for(threads, chunks, 1, count_digits, &j);
-        prefix_sums(j.histogram, chunks, j.mask);
+        /* The counts become the chunks' write cursors: digit-major, chunk-minor. */
+        if (sc_prefix_by_column(j.histogram, chunks, (int64_t)j.mask + 1, NULL, count,
+                                threads) < 0) {
+            sc_buffer_free(values_a);
+            sc_buffer_free(j.histogram);
+            return -1;
+        }
         sc_parallel_for(threads, chunks, 1, scatter, &j);
     }
     if (single) memcpy(order, single, sizeof(uint32_t) * (size_t)count);

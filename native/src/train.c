@@ -53,7 +53,7 @@ sc_status sc_render_train(const sc_gaussians *g, const sc_camera *cam, const sc_
     if (!state->final_t || !state->n_contrib || !state->depth) return SC_ERR_MEMORY;
     sc_status status = sc_frame_prepare(g, cam, opt, 1, &state->frame, stats);
     if (status != SC_OK) return status;
-    const double binned = sc_now_ms();
+    const double binned = sc_now_ms(), pool_binned = sc_pool_inside_ms();
 
     stats->evaluations = sc_composite_frame(&state->frame, cam, image, state->final_t,
                                             state->n_contrib, opt->exhaustive,
@@ -61,6 +61,7 @@ sc_status sc_render_train(const sc_gaussians *g, const sc_camera *cam, const sc_
     memcpy(state->depth, image->depth, sizeof(float) * pixels);
     const double composited = sc_now_ms();
     stats->ms_composite = composited - binned;
+    stats->ms_pool_composite = sc_pool_inside_ms() - pool_binned;
     stats->ms_total = composited - start;
     return SC_OK;
 }
@@ -205,7 +206,7 @@ static void backward_gaussians(void *ctx, int64_t begin, int64_t end, int thread
 sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const float *d_rgb,
                       const float *d_alpha, const float *d_depth, int threads,
                       sc_gaussian_grads *out, sc_backward_stats *stats) {
-    const double start = sc_now_ms();
+    const double start = sc_now_ms(), pool_start = sc_pool_inside_ms();
     const sc_frame *f = &state->frame;
     threads = clamp_threads(threads);
     memset(stats, 0, sizeof *stats);
@@ -232,10 +233,12 @@ sc_status sc_backward(const sc_train_state *state, const sc_gaussians *g, const 
     sc_camera_centre(state->camera.world_to_camera, j->campos);
 
     sc_parallel_for(threads, f->ntiles, 1, backward_tiles, j);
-    const double composited = sc_now_ms();
-    sc_parallel_for(threads, f->drawn, 4096, gather_gradients, j);
+    const double composited = sc_now_ms(), pool_composited = sc_pool_inside_ms();
+    sc_parallel_for(threads, f->drawn, sc_grain(f->drawn, 16, threads), gather_gradients, j);
     sc_parallel_for(threads, g->count, 1024, backward_gaussians, j);
     const double done = sc_now_ms();
+    stats->ms_pool_composite = pool_composited - pool_start;
+    stats->ms_pool_project = sc_pool_inside_ms() - pool_composited;
 
     stats->ms_composite = composited - start;
     stats->ms_project = done - composited;

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from addon.blender import splat_object, viewport
+from addon.core.render.renderer import RenderResult, viewport_image
 from scenes import random_gaussians
 
 W, H = 48, 36
@@ -116,8 +117,9 @@ def test_orthographic_view_is_blenders_orthographic_camera(rng):
     viewport_window = window.copy()
     viewport_window[2, 2], viewport_window[2, 3] = -2 / 100.0, 0.0  # clip -50..50
     assert viewport.view_near(viewport_window, 0.01) == pytest.approx(-50.0)
-    depth = np.array([[-20.0, 0.0, 25.0, np.inf]])
-    stored = viewport.window_depth(depth, viewport_window)
+    depth = np.float32([[-20.0, 0.0, 25.0, np.inf]])
+    flat = RenderResult(np.zeros((1, 4, 3), np.float32), np.zeros((1, 4), np.float32), depth)
+    stored = viewport_image(flat, viewport_window)[1]
     np.testing.assert_allclose(stored, [[0.3, 0.5, 0.75, 1.0]], atol=1e-6)
 
 

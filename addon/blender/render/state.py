@@ -16,6 +16,7 @@ from ...core.cameras import Camera, image_coverage
 from ...core.gaussians import Gaussians
 from ..sources import gather
 from ..camera_adapter import camera_of, near_of, render_problem
+from ..threads import scene_threads
 from .compositor_bridge import ENGINE_ID
 
 
@@ -73,13 +74,11 @@ def render_border(render) -> tuple[float, float, float, float] | None:
     return (render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y)
 
 
-def render_threads(scene, settings) -> int:
-    """Threads for a final render's splats: the add-on's own setting, or with 0 as many as
-    Blender renders with (Render > Performance > Threads; `blender -t N` on a shared farm
-    machine), so that a worker limited to N threads composes its splats on N too."""
-    if settings.threads:
-        return settings.threads
-    return max(0, int(getattr(scene.render, "threads", 0)))
+def render_threads(scene) -> int:
+    """Threads for a final render's splats (`blender/threads.py`): the add-on's own setting, or
+    with 0 as many as Blender renders with (Render > Performance > Threads; `blender -t N` on a
+    shared farm machine), so that a worker limited to N threads composes its splats on N too."""
+    return scene_threads(scene, beside_ui=False)
 
 
 def capture_frame(scene, depsgraph) -> FrameSplats:
@@ -111,6 +110,6 @@ def capture_frame(scene, depsgraph) -> FrameSplats:
     return FrameSplats(scene.name, depsgraph.view_layer.name, scene.frame_current, gaussians,
                        camera, antialiased, color_space,
                        min(settings.sh_degree, gaussians.degree), near,
-                       render_threads(scene, settings),
+                       render_threads(scene),
                        1000 * (time.perf_counter() - start), warnings, reused,
                        None if camera is None else image_coverage(camera))

@@ -438,7 +438,9 @@ class TrainingSettings:
                            description="Spherical-harmonics bands to train (view-dependent colour)")
     seed: IntProperty(name="Seed", default=0, min=0)
     threads: IntProperty(name="Threads", default=0, min=0, soft_max=64,
-                         description="Worker threads for the kernels (0: every core)")
+                         description="Worker threads for the kernels (0: the scene's Gaussian "
+                                     "Splats Threads, which with 0 is as many as Blender renders "
+                                     "with; in the background every core but one at most)")
     update_every: IntProperty(name="Update Every", default=200, min=0, soft_max=2000,
                               description="Steps between updates of the splat object while "
                                           "training in the background, at most one every 3 s "
@@ -511,7 +513,8 @@ class SPLAT_OT_train(TrainingSettings, JobOperator, bpy.types.Operator):
         self.collection = collection.name
         config = TrainConfig(steps=self.steps, max_gaussians=self.max_gaussians,
                              strategy=self.strategy, sh_degree=self.sh_degree, seed=self.seed,
-                             threads=self.threads, antialiased=self.antialiased)
+                             threads=self.job_threads(context, self.threads),
+                             antialiased=self.antialiased)
         try:
             request = train_request(collection, config, image_folder=self.image_folder,
                                     downscale=self.downscale, max_width=self.max_width,

@@ -545,8 +545,9 @@ class SPLAT_OT_bake_to_splats(TrainingSettings, JobOperator, bpy.types.Operator)
             self.report({"ERROR"}, "a bake is already training")
             return {"CANCELLED"}
         try:
+            options = self._options() | {"threads": self.job_threads(context, self.threads)}
             with preparing(context, "Baking", "rendering views") as progress:
-                request = prepare_scene_to_splats(context, progress=progress, **self._options())
+                request = prepare_scene_to_splats(context, progress=progress, **options)
         except (SceneToSplatsError, ValueError, RuntimeError, OSError, ImportError) as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}

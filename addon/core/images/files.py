@@ -27,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import native
 from ..atomic import atomic_path
 
 _TYPES = {"uint8": np.uint8, "uint16": np.uint16, "half": np.float16, "float": np.float32}
@@ -138,6 +139,17 @@ def to_float(pixels: np.ndarray) -> np.ndarray:
     if scale is not None:
         out *= np.float32(1.0 / scale)
     return out
+
+
+def rgb_float(pixels: np.ndarray, *, threads: int = 0) -> np.ndarray:
+    """(H, W, 3) float32 colour of (H, W, C) pixels: `to_float(rgb_alpha(pixels)[0])`, bit for
+    bit. 8-bit colour (3 or more channels, the usual photo) converts natively on `threads`
+    threads (0: every core), what a training step does with its photo; the rest in NumPy."""
+    if pixels.dtype == np.uint8 and pixels.ndim == 3 and pixels.shape[2] >= 3:
+        out = np.empty(pixels.shape[:2] + (3,), np.float32)
+        native.photo_rgb(np.ascontiguousarray(pixels), out, threads=threads)
+        return out
+    return to_float(rgb_alpha(pixels)[0])
 
 
 def rgb_alpha(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

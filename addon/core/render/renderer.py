@@ -70,7 +70,8 @@ def project(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False, 
 def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | None = None,
            mesh_rgba: np.ndarray | None = None, mesh_depth: np.ndarray | None = None,
            antialiased: bool = False, near: float = 0.01, sh_degree: int | None = None,
-           threads: int = 0, exhaustive: bool = False) -> RenderResult:
+           threads: int = 0, exhaustive: bool = False,
+           out: RenderResult | None = None) -> RenderResult:
     """Render `gaussians` seen by `camera`, optionally composed with a mesh layer.
 
     background: RGB (3,) behind everything, or None for black.
@@ -81,6 +82,10 @@ def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | Non
     exhaustive: evaluate every Gaussian over the whole bounding span of each of its tiles, not only
         the half rows its alpha >= 1/255 ellipse reaches: the slow twin of that optimisation, for
         tests and benchmarks; the image is the same bit for bit.
+    out: a RenderResult of this size to render into (its arrays are overwritten and returned),
+        or None for new images. New images come from the memory the renderer keeps between
+        frames (`kept_image`): fresh memory's page faults cost a 3840x2160 frame as much as its
+        composite, 7680x4320 more.
     """
     _, _, width, height = native.camera_args(camera)
     if (mesh_rgba is None) != (mesh_depth is None):
@@ -89,13 +94,38 @@ def render(gaussians: Gaussians, camera: Camera, *, background: np.ndarray | Non
     if mesh_rgba is not None:
         mesh_rgba = native.float_image("mesh_rgba", mesh_rgba, (height, width, 4))
         mesh_depth = native.float_image("mesh_depth", mesh_depth, (height, width))
-    rgb = np.empty((height, width, 3), np.float32)
-    alpha = np.empty((height, width), np.float32)
-    depth = np.empty((height, width), np.float32)
-    stats = native.render(gaussians, camera, background, mesh_rgba, mesh_depth, rgb, alpha, depth,
-                          sh_degree=sh_degree, near=near, antialiased=antialiased,
-                          threads=threads, exhaustive=exhaustive)
-    return RenderResult(rgb, alpha, depth, stats)
+    if out is None:
+        out = RenderResult(kept_image((height, width, 3)), kept_image((height, width)),
+                           kept_image((height, width)))
+    out.stats = native.render(gaussians, camera, background, mesh_rgba, mesh_depth, out.rgb,
+                              out.alpha, out.depth, sh_degree=sh_degree, near=near,
+                              antialiased=antialiased, threads=threads, exhaustive=exhaustive)
+    return out
+
+
+def kept_image(shape: tuple[int, ...]) -> np.ndarray:
+    """An uninitialised float32 image of `shape` in memory the renderer keeps between frames
+    (native/src/buffers.c): once it and every view of it are gone, the memory goes back to be
+    kept, and the next frame's images are written into the same pages instead of fresh ones
+    faulted in and zeroed by the system. `release_buffers()` frees what is kept."""
+    count = int(np.prod(shape))
+    return np.frombuffer(native.image_memory(4 * count), np.float32, count).reshape(shape)
+
+
+def viewport_image(result: RenderResult, projection, *,
+                   threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A render as a viewport draws it: premultiplied RGBA (H, W, 4) float32 and the depth-buffer
+    value of each pixel's planar depth under the 4x4 OpenGL `projection` (default depth range
+    [0, 1]; 1 where nothing was hit), (H, W) float32, both rows bottom to top (a texture's
+    order). New arrays in kept memory (`kept_image`), filled natively in one parallel pass
+    (tests/reference.py's `window_depth` is the float64 formula)."""
+    p = np.asarray(projection, np.float64)
+    height, width = result.alpha.shape
+    rgba, depth = kept_image((height, width, 4)), kept_image((height, width))
+    native.viewport_image(result.rgb, result.alpha, result.depth,
+                          np.array([p[2, 2], p[2, 3], p[3, 2], p[3, 3]], np.float64), rgba, depth,
+                          threads=threads)
+    return rgba, depth
 
 
 def release_buffers() -> None:

@@ -117,8 +117,9 @@ class ImageDataset(Views):
         self.train_indices, self.test_indices = split_indices(len(cameras), test_every)
         self.background = np.zeros(3, np.float32)
 
-    def image(self, i: int) -> np.ndarray:
-        """(H, W, 3) float32: the premultiplied target over `self.background`."""
+    def image(self, i: int, *, threads: int = 0) -> np.ndarray:
+        """(H, W, 3) float32: the premultiplied target over `self.background` (`threads`: as
+        ColmapDataset.image takes it; unused)."""
         rgba = self.rgba[i]
         return rgba[..., :3] + (1.0 - rgba[..., 3:4]) * self.background
 

@@ -46,7 +46,7 @@ from . import kernels
 from ..cameras import Camera
 from ..gaussians import Gaussians, sh_count
 from .optimizer import GaussianParameters, logit
-from ..render.renderer import render
+from ..render.renderer import RenderResult, render
 from ..sh import SH_C0
 from .free_space import FreeSpace
 from .strategies import StepInfo, Strategy, make_strategy
@@ -183,6 +183,9 @@ class Trainer:
         self._coarse_views: dict[tuple[int, int], tuple[Camera, np.ndarray]] = {}
         self._grads: kernels.Gradients | None = None
         self._loss_grad: dict[tuple[int, int], np.ndarray] = {}
+        # The forward's images per image size, rendered into again each step (new ones cost
+        # their page faults every step).
+        self._images: dict[tuple[int, int], RenderResult] = {}
 
     # -- parameters -----------------------------------------------------------------------
     def set_gaussians(self, gaussians: Gaussians) -> None:
@@ -235,13 +238,14 @@ class Trainer:
         level = self.image_level(camera, level)
         if level == 0:
             self._coarse_views.clear()  # past the coarse steps: give their memory back
-            return camera, self.dataset.image(view)
+            return camera, self.dataset.image(view, threads=self.config.threads)
         key = (view, level)
         if key not in self._coarse_views:
             # Kept while they fit COARSE_CACHE_BYTES (every view of cup: 7.5 MB) and the
             # dataset's photos do not change (a bake's background does); made again each step
             # they took 0.55 ms of a 12 ms step at 50x37.
-            small = downscaled_view(camera, self.dataset.image(view), 2 ** level)
+            small = downscaled_view(camera, self.dataset.image(view, threads=self.config.threads),
+                                    2 ** level)
             if (not getattr(self.dataset, "fixed_images", True)
                     or self.coarse_view_bytes + small[1].nbytes > COARSE_CACHE_BYTES):
                 return small
@@ -275,10 +279,18 @@ class Trainer:
         camera, target = self.training_view(view, level)
         degree = min(c.sh_degree, (self.step - 1) // c.sh_degree_interval)
         gaussians = self.gaussians
+        images = self._images.get(target.shape[:2])
+        if images is None:
+            h, w = target.shape[:2]
+            images = self._images[target.shape[:2]] = RenderResult(
+                np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
+                np.empty((h, w), np.float32))
         result, state = kernels.render_train(gaussians, camera, background=self.background,
                                         antialiased=c.antialiased, sh_degree=degree,
-                                        threads=c.threads)
-        grad_image = self._loss_grad.setdefault(target.shape[:2], np.empty(target.shape, np.float32))
+                                        threads=c.threads, out=images)
+        grad_image = self._loss_grad.get(target.shape[:2])
+        if grad_image is None:
+            grad_image = self._loss_grad[target.shape[:2]] = np.empty(target.shape, np.float32)
         loss = kernels.l1_ssim_loss(result.rgb, target, lambda_dssim=c.lambda_dssim,
                                out_grad=grad_image, threads=c.threads)
         if self._grads is None or not self._grads.fits(len(gaussians), gaussians.sh.shape[1]):

@@ -351,3 +351,23 @@ def test_depth_beyond_float32_is_never_valid(scene):
     assert np.isfinite(projection.depth).all() and np.isfinite(projection.xy).all()
     rgb, alpha, depth = api.render(g, cam)
     assert not alpha.any() and np.isinf(depth).all()
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3, 0])
+def test_the_first_non_finite_value_of_a_big_array_is_named(rng, threads):
+    """FINITE arguments of a million values are scanned in chunks of 65,536 on the call's threads
+    (native/src/finite.c): the error names the first bad index whatever chunk finds one first."""
+    from addon.core.train import kernels
+
+    image = rng.random((600, 600, 3), dtype=np.float32)  # 1,080,000 values: 17 chunks
+    target = rng.random((600, 600, 3), dtype=np.float32)
+    assert kernels.l1_ssim_loss(image, target, threads=threads).loss > 0
+    flat = target.reshape(-1)
+    flat[1_000_000] = np.inf   # a later chunk
+    flat[700_001] = np.nan     # the first one
+    flat[700_002] = -np.inf
+    with pytest.raises(ValueError, match="target has a non-finite value .* at flat index 700001"):
+        kernels.l1_ssim_loss(image, target, threads=threads)
+    flat[700_001] = 1.0
+    with pytest.raises(ValueError, match="at flat index 700002"):
+        kernels.l1_ssim_loss(image, target, threads=threads)

@@ -382,6 +382,22 @@ def test_gradients_identical_for_any_thread_count(rng):
                     f"{name} differs with threads={threads} {sorted(options)}"
 
 
+def test_gradients_of_a_big_frame_identical_for_any_thread_count(rng):
+    """A big frame with many Gaussians (the parallel prefix sums of the sort and binning,
+    the pair index summed per chunk: native/src/prefix.c, binning.c): bit for bit the
+    gradients of one thread."""
+    gaussians = fast_random_gaussians(rng, 100_000, degree=1)
+    camera = random_camera(rng, 1280, 720)
+    w = weights(rng, camera, True, False)
+    first = native_gradients(gaussians, camera, *w, threads=1)
+    assert (first.opacity_logits != 0).sum() > 1000  # a real workload (most are hidden)
+    for threads in (2, 3, 5):
+        other = native_gradients(gaussians, camera, *w, threads=threads)
+        for name in ("means", "log_scales", "quats", "opacity_logits", "sh", "xy", "xy_abs"):
+            assert np.array_equal(getattr(first, name), getattr(other, name)), \
+                f"{name} differs with threads={threads}"
+
+
 def test_state_and_outputs_are_reusable(rng):
     gaussians, camera = tiny_scene(rng, n=10, degree=1, width=40, height=30)
     _, state = kernels.render_train(gaussians, camera)
