@@ -120,6 +120,18 @@ class TrainConfig:
     # (strategies/auto.py `LargeImageStrategy`: 5 dB better held-out at equal CPU time on the
     # demo scene at 480x360; issue 25). 0: never.
     auto_reference_above_pixels: int = 100_000
+    # "auto" on large images (`LargeImageStrategy`) sizes the model by contribution, not by the
+    # ceiling: every `importance_every` steps from `importance_from` while it densifies (not in
+    # the first `stop_check_every` steps after an opacity reset), the Gaussians that together
+    # carry the smallest `importance_prune_weight` of the blending weight on the training views
+    # are pruned (`importance.py`; 0: never).
+    importance_prune_weight: float = 0.0
+    importance_every: int = 500
+    importance_from: int = 1000
+    # ... and it stops growing (clone and split; pruning goes on) once `auto_patience` stopping
+    # checks in a row at full resolution gained less held-out PSNR than this many dB per doubling
+    # of the count since the check before (runs until done only; 0: grows to `densify_until`).
+    auto_settle_db_per_doubling: float = 0.0
     auto_patience: int = 2
     auto_growth: float = 0.10  # the count added an interval while growing (MCMC's is 5 %)
     # It relocates and grows from this step on, not `densify_from` (MCMC's 500): on cup, 1 thread,

@@ -65,7 +65,8 @@ class DefaultStrategy(Strategy):
                            self.grad_accum / np.maximum(self.grad_count, 1), 0.0)
         max_scale = np.exp(params.params["log_scales"].max(axis=1))
         candidates = np.flatnonzero(average >= c.densify_grad_threshold)
-        room = max(c.max_gaussians - before, 0)  # each clone or split adds one Gaussian
+        # each clone or split adds one Gaussian
+        room = max(c.max_gaussians - before, 0) if self.may_grow() else 0
         if len(candidates) > room:  # the budget: the strongest gradients first
             candidates = candidates[np.argsort(-average[candidates], kind="stable")[:room]]
         small = max_scale[candidates] <= c.percent_dense * self.extent
@@ -94,6 +95,10 @@ class DefaultStrategy(Strategy):
         params.append_and_keep([], ~prune)
         self.reset(len(params))
         return len(params) - before
+
+    def may_grow(self) -> bool:
+        """Whether densification may clone and split now (pruning goes on either way)."""
+        return True
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         return {"grad_accum": self.grad_accum, "grad_count": self.grad_count}
