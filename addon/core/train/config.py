@@ -128,6 +128,7 @@ class TrainConfig:
     importance_prune_weight: float = 0.0
     importance_every: int = 500
     importance_from: int = 1000
+    importance_replaces_reset: bool = False  # then no opacity reset (`opacity_reset_every`)
     # ... and it stops growing (clone and split; pruning goes on) once `auto_patience` stopping
     # checks in a row at full resolution gained less held-out PSNR than this many dB per doubling
     # of the count since the check before (runs until done only; 0: grows to `densify_until`).

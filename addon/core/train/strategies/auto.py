@@ -184,6 +184,10 @@ class LargeImageStrategy(DefaultStrategy):
     def may_grow(self) -> bool:
         return not self.settled
 
+    def resets_opacity(self) -> bool:
+        c = self.config
+        return not (c.importance_replaces_reset and c.importance_prune_weight > 0)
+
     def densify_and_prune(self, params: GaussianParameters, *, prune_large: bool) -> int:
         changed = super().densify_and_prune(params, prune_large=prune_large)
         if self.importance_due(self.step):

@@ -43,9 +43,13 @@ class DefaultStrategy(Strategy):
         if c.densify_from < step < c.densify_until and step % c.densify_every == 0:
             changed = self.densify_and_prune(
                 params, prune_large=step > c.opacity_reset_every and c.prune_large_fraction > 0)
-        if step < c.densify_until and step % c.opacity_reset_every == 0:
+        if self.resets_opacity() and step < c.densify_until and step % c.opacity_reset_every == 0:
             reset_opacity(params)
         return changed
+
+    def resets_opacity(self) -> bool:
+        """Whether opacities are reset every `opacity_reset_every` steps."""
+        return True
 
     def recovering(self, step: int) -> bool:
         """Within `stop_check_every` steps after an opacity reset (resets at multiples of
@@ -54,7 +58,7 @@ class DefaultStrategy(Strategy):
         and stopped the run)."""
         c = self.config
         since = step % c.opacity_reset_every
-        return step >= c.opacity_reset_every and since <= c.stop_check_every \
+        return self.resets_opacity() and step >= c.opacity_reset_every and since <= c.stop_check_every \
             and step - since < c.densify_until
 
     def densify_and_prune(self, params: GaussianParameters, *, prune_large: bool) -> int:
