@@ -145,3 +145,19 @@ def test_growth_settles_when_the_checks_stop_paying(dataset) -> None:
     strategy.grad_accum[:] = 1.0
     strategy.grad_count[:] = 1
     assert strategy.densify_and_prune(params, prune_large=False) <= 0
+
+
+def test_importance_pruning_may_replace_the_opacity_reset(dataset) -> None:
+    common = dict(steps=60, opacity_reset_every=30, densify_until=200)
+    ceiling = np.log(0.01 / 0.99)  # the logit a reset clamps every opacity to
+    reset = Trainer(dataset, large_config(**common))
+    assert reset.strategy.resets_opacity() and reset.strategy.recovering(31)
+    list(reset.run())  # step 60 resets
+    assert reset.params["opacity_logits"].max() <= ceiling + 1e-6
+    replaced = Trainer(dataset, large_config(importance_replaces_reset=True, **common))
+    assert not replaced.strategy.resets_opacity() and not replaced.strategy.recovering(31)
+    list(replaced.run())
+    assert replaced.params["opacity_logits"].max() > ceiling + 1.0
+    off = Trainer(dataset, large_config(importance_replaces_reset=True, importance_prune_weight=0.0,
+                                        **common))
+    assert off.strategy.resets_opacity()  # no importance pruning: the reference's reset
