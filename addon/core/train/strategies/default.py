@@ -42,13 +42,19 @@ class DefaultStrategy(Strategy):
         changed = 0
         if c.densify_from < step < c.densify_until and step % c.densify_every == 0:
             changed = self.densify_and_prune(
-                params, prune_large=step > c.opacity_reset_every and c.prune_large_fraction > 0)
+                params, prune_large=(step > c.opacity_reset_every and c.prune_large_fraction > 0
+                                     and self.resets_opacity()))
         if self.resets_opacity() and step < c.densify_until and step % c.opacity_reset_every == 0:
             reset_opacity(params)
         return changed
 
     def resets_opacity(self) -> bool:
-        """Whether opacities are reset every `opacity_reset_every` steps."""
+        """Whether opacities are reset every `opacity_reset_every` steps (and, as the reference
+        does after the first reset, Gaussians too large are pruned).
+
+        Without the reset, large ones stay: on the demo scene at 480x360, with importance pruning,
+        no reset but the large pruning from step 3,000, the held-out PSNR fell from 29.7 dB at
+        step 3,000 to 15.7 at 3,500; without the large pruning it did not fall."""
         return True
 
     def recovering(self, step: int) -> bool:
