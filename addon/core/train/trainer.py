@@ -417,6 +417,8 @@ class Trainer:
             # A checkpoint from before "auto" switched to the reference's densification on
             # large images holds the MCMC sizing's state: it resumes as it was made.
             saved.setdefault("auto_reference_above_pixels", 0)
+            # One from before importance pruning resumes without it (and with the reset).
+            saved.setdefault("importance_prune_weight", 0.0)
             config = TrainConfig(**{k: tuple(v) if isinstance(v, list) else v
                                     for k, v in saved.items()})
             trainer = cls(dataset, config, gaussians=Gaussians.empty(config.sh_degree))

@@ -150,7 +150,7 @@ def test_growth_settles_when_the_checks_stop_paying(dataset) -> None:
 def test_importance_pruning_may_replace_the_opacity_reset(dataset) -> None:
     common = dict(steps=60, opacity_reset_every=30, densify_until=200)
     ceiling = np.log(0.01 / 0.99)  # the logit a reset clamps every opacity to
-    reset = Trainer(dataset, large_config(**common))
+    reset = Trainer(dataset, large_config(importance_replaces_reset=False, **common))
     assert reset.strategy.resets_opacity() and reset.strategy.recovering(31)
     list(reset.run())  # step 60 resets
     assert reset.params["opacity_logits"].max() <= ceiling + 1e-6
