@@ -39,6 +39,10 @@ the demo scene at 480x360 (issue 25, one thread, CPU seconds on the shared 2-cor
 this MCMC sizing, with the pixel floor, reached 23.4 dB held-out with 27,000 Gaussians at
 82 s, the reference's densification 27.6 dB with 57,000 at 90 s and 28.9 dB at 159 s; on
 thumbnails (cup 200x150, the demo at 120x90, beer 88x156) this strategy is the better one.
+On the larger images it also prunes by contribution (`importance.py`) every 500 steps and
+skips the opacity reset, so that the count is the scene's, not the ceiling's (issue 37: the
+demo at 480x360 ended with 33,935 Gaussians and 29.82 dB held out, against 28.49 dB at best
+with 93,516 and more).
 """
 
 from __future__ import annotations
