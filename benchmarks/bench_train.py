@@ -170,6 +170,10 @@ def curve(dataset: ColmapDataset, scene: str, config: TrainConfig, eval_every: i
         points.append(_point(trainer, probe, seconds, trainer.step, wall, compacted=True))
         why = "converged" if trainer.converged else "at the most steps"
         show(points[-1], 0.0, f" compacted ({why})")
+    # The modelled work (`stopping.step_work`, what the stop rule counts: the same on any
+    # machine and load) beside the measured seconds.
+    print(f"end: step {trainer.step}, {len(trainer)} Gaussians, {seconds:.0f} CPU s, "
+          f"{wall:.0f} wall s, work {trainer.work:.0f} modelled s", flush=True)
     return points
 
 

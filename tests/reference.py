@@ -165,7 +165,9 @@ def project(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, c
 def render(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy, width, height,
            *, background=None, mesh_rgba=None, mesh_depth=None, near=0.01, antialiased=False,
            sh_degree=None, **camera_model) -> dict[str, np.ndarray]:
-    """Composite front to back per pixel; returns rgb (H, W, 3), alpha, depth, ambiguous (H, W).
+    """Composite front to back per pixel; returns rgb (H, W, 3), alpha, depth, ambiguous (H, W)
+    and weights (rows of `proj`: the N Gaussians, then any seam copies): per Gaussian the sum
+    over pixels of its blending weight alpha T.
 
     Per pixel (centre at i + 0.5, j + 0.5), the valid Gaussians in ascending depth (ties keep
     index order; the key is the depth rounded to float32, see "Order" below):
@@ -212,6 +214,7 @@ def render(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy
     stopped = np.zeros((height, width), bool)
     mesh_pending = np.full((height, width), has_mesh)
     ambiguous = np.zeros((height, width), bool)
+    gaussian_weights = np.zeros(len(proj["depth"]))
 
     def composite_mesh(where: np.ndarray) -> None:
         t = transmittance[where]
@@ -255,6 +258,7 @@ def render(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy
         ambiguous |= take & near_to(test_t, T_MIN, AMBIGUOUS_T)
 
         weight = np.where(add, alpha * transmittance, 0.0)
+        gaussian_weights[g] = weight.sum()
         colour += weight[:, :, None] * proj["rgb"][g]
         depth_sum += weight * z
         weight_sum += weight
@@ -267,7 +271,8 @@ def render(means, log_scales, quats, opacity_logits, sh, viewmat, fx, fy, cx, cy
         colour += transmittance[:, :, None] * _f64(background).reshape(3)
     with np.errstate(invalid="ignore", divide="ignore"):
         depth = np.where(weight_sum > 0, depth_sum / weight_sum, np.inf)
-    return {"rgb": colour, "alpha": 1.0 - transmittance, "depth": depth, "ambiguous": ambiguous}
+    return {"rgb": colour, "alpha": 1.0 - transmittance, "depth": depth, "ambiguous": ambiguous,
+            "weights": gaussian_weights}
 
 
 def camera_args(camera) -> tuple:

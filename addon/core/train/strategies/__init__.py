@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...cameras import Camera
 from ..config import TrainConfig
 from ..free_space import FreeSpace
 from .auto import AutoStrategy, LargeImageStrategy
@@ -20,11 +21,13 @@ STRATEGIES: dict[str, type[Strategy]] = {"auto": AutoStrategy, "default": Defaul
 
 
 def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator,
-                  pixels: int = 0, free_space: FreeSpace | None = None) -> Strategy:
+                  pixels: int = 0, free_space: FreeSpace | None = None,
+                  cameras: list[Camera] | None = None) -> Strategy:
     """The strategy `config.strategy` names, for a scene of radius `extent` whose largest
     training image has `pixels` pixels ("auto" on images above
     `auto_reference_above_pixels`: `LargeImageStrategy`, the reference's densification),
-    pruning what enters `free_space`."""
+    pruning what enters `free_space`; `cameras`: the training views (where importance is
+    measured)."""
     try:
         kind = STRATEGIES[config.strategy]
     except KeyError:
@@ -32,7 +35,7 @@ def make_strategy(config: TrainConfig, extent: float, rng: np.random.Generator,
                          f"choose one of {', '.join(STRATEGIES)}") from None
     if kind is AutoStrategy and 0 < config.auto_reference_above_pixels < pixels:
         kind = LargeImageStrategy
-    return kind(config, extent, rng, free_space)
+    return kind(config, extent, rng, free_space, cameras)
 
 
 __all__ = ["STRATEGIES", "AutoStrategy", "DefaultStrategy", "LargeImageStrategy", "MCMCStrategy",

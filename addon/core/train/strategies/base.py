@@ -12,6 +12,8 @@ A step of `Trainer.train_step`, and where the strategy comes in:
 - `prepare_initial(gaussians)`: the Gaussians made from the sparse points, as this strategy
   wants to start from (not called for Gaussians the caller passes in).
 - `reset(count)`: the parameters were replaced (start, compaction): statistics start over.
+- `after_check(step, value, count)`: a stopping check measured `value` dB (held-out PSNR, else
+  training views) with `count` Gaussians at `step` (runs until done only).
 - `recovering(step)`: True while the strategy's own disruption (an opacity reset) still lowers
   the views' PSNR: stopping checks then measure the disruption, not progress, and are not taken.
 - `state_arrays()` / `load_state_arrays(data)`: what a checkpoint must hold to resume exactly.
@@ -56,11 +58,13 @@ class Strategy:
     sparse_adam = False
 
     def __init__(self, config: TrainConfig, extent: float, rng: np.random.Generator,
-                 free_space: FreeSpace | None = None) -> None:
+                 free_space: FreeSpace | None = None,
+                 cameras: list[Camera] | None = None) -> None:
         self.config = config
         self.extent = extent  # the scene's radius (`train.scene_extent`)
         self.rng = rng
         self.free_space = free_space  # where no Gaussian belongs (None: anywhere may hold one)
+        self.cameras = list(cameras or [])  # the training views, at full size
 
     def in_free_space(self, params: GaussianParameters) -> np.ndarray:
         """(N,) bool: the Gaussians whose centres lie in `free_space` (to prune)."""
@@ -79,6 +83,9 @@ class Strategy:
 
     def after_step(self, params: GaussianParameters, info: StepInfo) -> int:
         return 0
+
+    def after_check(self, step: int, value: float, count: int) -> None:
+        pass
 
     def recovering(self, step: int) -> bool:
         return False

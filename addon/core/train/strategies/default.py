@@ -42,10 +42,20 @@ class DefaultStrategy(Strategy):
         changed = 0
         if c.densify_from < step < c.densify_until and step % c.densify_every == 0:
             changed = self.densify_and_prune(
-                params, prune_large=step > c.opacity_reset_every and c.prune_large_fraction > 0)
-        if step < c.densify_until and step % c.opacity_reset_every == 0:
+                params, prune_large=(step > c.opacity_reset_every and c.prune_large_fraction > 0
+                                     and self.resets_opacity()))
+        if self.resets_opacity() and step < c.densify_until and step % c.opacity_reset_every == 0:
             reset_opacity(params)
         return changed
+
+    def resets_opacity(self) -> bool:
+        """Whether opacities are reset every `opacity_reset_every` steps (and, as the reference
+        does after the first reset, Gaussians too large are pruned).
+
+        Without the reset, large ones stay: on the demo scene at 480x360, with importance pruning,
+        no reset but the large pruning from step 3,000, the held-out PSNR fell from 29.7 dB at
+        step 3,000 to 15.7 at 3,500; without the large pruning it did not fall."""
+        return True
 
     def recovering(self, step: int) -> bool:
         """Within `stop_check_every` steps after an opacity reset (resets at multiples of
@@ -54,7 +64,7 @@ class DefaultStrategy(Strategy):
         and stopped the run)."""
         c = self.config
         since = step % c.opacity_reset_every
-        return step >= c.opacity_reset_every and since <= c.stop_check_every \
+        return self.resets_opacity() and step >= c.opacity_reset_every and since <= c.stop_check_every \
             and step - since < c.densify_until
 
     def densify_and_prune(self, params: GaussianParameters, *, prune_large: bool) -> int:
@@ -65,7 +75,8 @@ class DefaultStrategy(Strategy):
                            self.grad_accum / np.maximum(self.grad_count, 1), 0.0)
         max_scale = np.exp(params.params["log_scales"].max(axis=1))
         candidates = np.flatnonzero(average >= c.densify_grad_threshold)
-        room = max(c.max_gaussians - before, 0)  # each clone or split adds one Gaussian
+        # each clone or split adds one Gaussian
+        room = max(c.max_gaussians - before, 0) if self.may_grow() else 0
         if len(candidates) > room:  # the budget: the strongest gradients first
             candidates = candidates[np.argsort(-average[candidates], kind="stable")[:room]]
         small = max_scale[candidates] <= c.percent_dense * self.extent
@@ -94,6 +105,10 @@ class DefaultStrategy(Strategy):
         params.append_and_keep([], ~prune)
         self.reset(len(params))
         return len(params) - before
+
+    def may_grow(self) -> bool:
+        """Whether densification may clone and split now (pruning goes on either way)."""
+        return True
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         return {"grad_accum": self.grad_accum, "grad_count": self.grad_count}
