@@ -447,6 +447,7 @@ def draw_view(context) -> None:
     region_id = region.as_pointer()
     if settings is None or not settings.viewport or space.shading.type not in ("SOLID", "MATERIAL"):
         return
+    _shader()  # made at the first redraw, not the first with splats (software OpenGL: 50 ms)
     found = viewport_splats(context.evaluated_depsgraph_get(), scene)
     view, window = np.array(rv3d.view_matrix), np.array(rv3d.window_matrix)
     if found is None or camera_from_view(view, window, region.width, region.height) is None:
