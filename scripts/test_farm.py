@@ -458,9 +458,10 @@ RIG_AT_REST = ("import importlib; importlib.import_module('bl_ext.user_default.g
                ".blender.sources.deformed').Deformable.rest_data = lambda self: None")
 
 
-def run_rig(farm, blend, evaluated, storage, local, results, timings) -> None:
-    """The armature-deformed splats on the farm (w1 and w2), frame for frame as locally."""
-    name = "rig"
+def _farm_frames(farm, blend, evaluated, storage, local, name, timings):
+    """Submit job `name` (w1 and w2), wait for it, and hold its frames against the local ones
+    of the same name: (tasks, frames written, frames missing, worst difference, pairs of
+    frames the same)."""
     submitted = time.monotonic()
     job = farm.api.submit(name, job_settings(evaluated, blend, storage / "render", name))
     first: list[float] = []
@@ -470,12 +471,20 @@ def run_rig(farm, blend, evaluated, storage, local, results, timings) -> None:
             first.append(time.monotonic() - submitted)
 
     record, tasks = farm.wait_job(job["id"], timeout=300, on_poll=on_poll)
-    timings["farm_rig_s"] = time.monotonic() - submitted
-    timings["rig_first_frame_s"] = first[0] if first else float("nan")
+    timings[f"farm_{name}_s"] = time.monotonic() - submitted
+    timings[f"{name}_first_frame_s"] = first[0] if first else float("nan")
     written = frames_in(job_output(record))
-    missing, worst = compare_frames(written, frames_in(local / "rig"), FRAMES)
+    missing, worst = compare_frames(written, frames_in(local / name), FRAMES)
     same = [(a, b) for a in FRAMES for b in FRAMES if a < b and a in written and b in written
             and worst_difference(written[a], written[b]) <= 1]
+    return tasks, written, missing, worst, same
+
+
+def run_rig(farm, blend, evaluated, storage, local, results, timings) -> None:
+    """The armature-deformed splats on the farm (w1 and w2), frame for frame as locally."""
+    name = "rig"
+    tasks, written, missing, worst, same = _farm_frames(farm, blend, evaluated, storage, local,
+                                                        name, timings)
     at_rest = frames_in(local / "rig_at_rest")
     bent = {f: worst_difference(written[f], at_rest[f]) for f in FRAMES
             if f != FRAMES[0] and f in written and f in at_rest}
@@ -527,21 +536,8 @@ def _blender_running(farm, worker: str) -> bool:
 
 def run_sequence(farm, blend, evaluated, storage, local, results, timings) -> None:
     name = "sequence"
-    submitted = time.monotonic()
-    job = farm.api.submit(name, job_settings(evaluated, blend, storage / "render", name))
-    first: list[float] = []
-
-    def on_poll(job_record, _tasks):
-        if not first and frames_in(job_output(job_record)):
-            first.append(time.monotonic() - submitted)
-
-    record, tasks = farm.wait_job(job["id"], timeout=300, on_poll=on_poll)
-    timings["farm_sequence_s"] = time.monotonic() - submitted
-    timings["sequence_first_frame_s"] = first[0] if first else float("nan")
-    written = frames_in(job_output(record))
-    missing, worst = compare_frames(written, frames_in(local / "sequence"), FRAMES)
-    same = [(a, b) for a in FRAMES for b in FRAMES if a < b and a in written and b in written
-            and worst_difference(written[a], written[b]) <= 1]
+    tasks, written, missing, worst, same = _farm_frames(farm, blend, evaluated, storage, local,
+                                                        name, timings)
     ok = _render_tasks_completed(tasks) and not missing and worst <= 1 and not same
     detail = f"render tasks {_statuses(tasks)}" + (f"; identical frames {same}" if same else "") + \
         (f"; frames {missing} missing" if missing else "")
