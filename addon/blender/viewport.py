@@ -435,55 +435,94 @@ def _draw() -> None:
     draw_view(bpy.context)
 
 
+def _shows_splats(scene, space) -> bool:
+    """Whether the add-on draws splats in this 3D view (the scene's switch, the shading)."""
+    settings = getattr(scene, "splat_render", None)
+    return settings is not None and settings.viewport and \
+        space.shading.type in ("SOLID", "MATERIAL")
+
+
+def _update_view(scene, depsgraph, region, rv3d) -> tuple | None:
+    """Ask for the images this view needs as the splats are now (a coarse one first after a
+    view change, full resolution straight away when only the splats changed); the view's draw
+    key (see `draw_view`), None when it shows no splats."""
+    settings = scene.splat_render
+    region_id = region.as_pointer()
+    found = viewport_splats(depsgraph, scene)
+    view, window = np.array(rv3d.view_matrix), np.array(rv3d.window_matrix)
+    if found is None or camera_from_view(view, window, region.width, region.height) is None:
+        renderer.forget(region_id)
+        _views.pop(region_id, None)
+        _texture_cache.pop(region_id, None)
+        return None
+    gaussians, options = found
+    key = (view.tobytes(), window.tobytes(), region.width, region.height, id(gaussians),
+           tuple(sorted(options.items())), settings.viewport_resolution)
+    state = _views.setdefault(region_id, _ViewState())
+    if key == state.key:
+        return key
+    pixels = region.width * region.height
+    coarse_scale = min(1.0, float(np.sqrt(settings.viewport_coarse_pixels / max(pixels, 1))))
+    full_scale = settings.viewport_resolution
+    if _same_view(key, state.key):
+        # Only the splats changed (training's updates, an edit): the last image stays up until
+        # the full one is ready; a coarse one between would flicker and cost a redraw.
+        coarse_scale = full_scale
+    if view_of(key) != view_of(state.key):
+        state.view_changed_at = time.monotonic()
+    state.key, state.changed_at, state.full_requested = key, time.monotonic(), False
+    state.job = _Job(region_id, key, gaussians,
+                     camera_from_view(view, window, region.width, region.height, full_scale),
+                     window, False, options)
+    if coarse_scale < full_scale:
+        renderer.submit(_Job(region_id, key, gaussians, camera_from_view(
+            view, window, region.width, region.height, coarse_scale), window, True, options))
+    else:
+        renderer.submit(state.job)
+        state.full_requested = True
+    _ensure_timer()
+    return key
+
 
 def draw_view(context) -> None:
     """The draw handler's work for one 3D view (`context`: scene, space_data, region,
     region_data and evaluated_depsgraph_get, as a draw callback's context has them)."""
     scene, space, region, rv3d = context.scene, context.space_data, context.region, \
         context.region_data
-    if scene is None or rv3d is None or space is None or space.type != "VIEW_3D":
-        return
-    settings = getattr(scene, "splat_render", None)
-    region_id = region.as_pointer()
-    if settings is None or not settings.viewport or space.shading.type not in ("SOLID", "MATERIAL"):
+    if scene is None or rv3d is None or space is None or space.type != "VIEW_3D" or \
+            not _shows_splats(scene, space):
         return
     _shader()  # made at the first redraw, not the first with splats (software OpenGL: 50 ms)
-    found = viewport_splats(context.evaluated_depsgraph_get(), scene)
-    view, window = np.array(rv3d.view_matrix), np.array(rv3d.window_matrix)
-    if found is None or camera_from_view(view, window, region.width, region.height) is None:
-        renderer.forget(region_id)
-        _views.pop(region_id, None)
-        _texture_cache.pop(region_id, None)
+    key = _update_view(scene, context.evaluated_depsgraph_get(), region, rv3d)
+    if key is None:
         return
-    gaussians, options = found
-    key = (view.tobytes(), window.tobytes(), region.width, region.height, id(gaussians),
-           tuple(sorted(options.items())), settings.viewport_resolution)
-    state = _views.setdefault(region_id, _ViewState())
-    if key != state.key:
-        pixels = region.width * region.height
-        coarse_scale = min(1.0, float(np.sqrt(settings.viewport_coarse_pixels / max(pixels, 1))))
-        full_scale = settings.viewport_resolution
-        if _same_view(key, state.key):
-            # Only the splats changed (training's updates, an edit): the last image stays up
-            # until the full one is ready; a coarse one between would flicker and cost a redraw.
-            coarse_scale = full_scale
-        if view_of(key) != view_of(state.key):
-            state.view_changed_at = time.monotonic()
-        state.key, state.changed_at, state.full_requested = key, time.monotonic(), False
-        state.job = _Job(region_id, key, gaussians,
-                         camera_from_view(view, window, region.width, region.height, full_scale),
-                         window, False, options)
-        if coarse_scale < full_scale:
-            renderer.submit(_Job(region_id, key, gaussians, camera_from_view(
-                view, window, region.width, region.height, coarse_scale), window, True, options))
-        else:
-            renderer.submit(state.job)
-            state.full_requested = True
-        _ensure_timer()
-    image = renderer.result(region_id)
+    state = _views[region.as_pointer()]
+    image = renderer.result(region.as_pointer())
     if image is not None and (view_of(image.key) == view_of(key) or
                               time.monotonic() - state.view_changed_at < REST_SECONDS):
-        draw_image(image, cache_key=region_id)
+        draw_image(image, cache_key=region.as_pointer())
+
+
+def _views_on_screen():
+    """(scene, depsgraph, region, view) of each 3D view's main region the add-on draws
+    splats in."""
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type != "VIEW_3D" or not _shows_splats(window.scene, area.spaces.active):
+                continue
+            for region in area.regions:
+                if region.type == "WINDOW" and region.as_pointer() in _views and \
+                        region.data is not None:
+                    yield window.scene, window.view_layer.depsgraph, region, region.data
+
+
+def refresh() -> None:
+    """Render each 3D view's splats again as they are now, without a redraw first (a job's new
+    snapshot, shown in place of its object's data): the view redraws once, when the new image
+    is ready (`_tick`). A redraw to see the new splats, then one for their image, cost two
+    whole redraws per update (0.15 s each in software OpenGL, issue 36)."""
+    for scene, depsgraph, region, rv3d in list(_views_on_screen()):
+        _update_view(scene, depsgraph, region, rv3d)
 
 
 def _redraw_views() -> None:

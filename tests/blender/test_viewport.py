@@ -265,6 +265,51 @@ def test_draw_handler_is_progressive(rng):
         viewport._texture_cache.clear()
 
 
+def test_a_jobs_snapshot_renders_before_any_redraw(rng, monkeypatch):
+    """Training's update (a snapshot shown in place of the object's data): `refresh` asks for
+    the view's new image at once, so the view redraws once, when it is ready, which draws it
+    without a new job; not a redraw to see the new splats and one more for their image."""
+    from addon.blender.sources import live
+
+    bs.reset_scene()
+    obj = splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
+    camera = bs.add_camera(width=W, height=H)
+    scene = bpy.context.scene
+    view, _ = view_matrices(camera)
+    width, height = 80, 60
+    window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
+                                                x=width, y=height))
+    context = _view_context(scene, view, window, width, height, 4444)
+    drawn = []
+    monkeypatch.setattr(viewport, "draw_image", lambda image, cache_key=None: drawn.append(image))
+    try:
+        viewport.refresh()                     # headless: no windows, nothing to refresh
+        assert not viewport.renderer.busy()
+        viewport.draw_view(context)
+        assert viewport.renderer.wait(30)
+        viewport._views[4444].changed_at -= 1.0
+        viewport._tick()
+        assert viewport.renderer.wait(30)
+        before = viewport.renderer.result(4444)
+        live.show(obj, random_gaussians(rng, 200, 1, radius=1.0), 100)
+        monkeypatch.setattr(viewport, "_views_on_screen", lambda: iter([(
+            scene, bpy.context.evaluated_depsgraph_get(), context.region, context.region_data)]))
+        viewport.refresh()
+        assert viewport.renderer.wait(30)
+        after = viewport.renderer.result(4444)
+        assert after.key != before.key and not after.coarse
+        assert not np.array_equal(after.rgba, before.rgba)
+        submitted = []
+        monkeypatch.setattr(viewport.renderer, "submit", submitted.append)
+        viewport.draw_view(context)            # the one redraw: the new image, no new job
+        assert drawn[-1] is after and submitted == []
+    finally:
+        live.end(obj)
+        viewport.renderer.forget(4444)
+        viewport._views.clear()
+        viewport._texture_cache.clear()
+
+
 def test_a_rested_view_never_shows_another_views_image(rng, monkeypatch):
     """After a view change (numpad 1/3/7, numpad 5, the end of an orbit) the image of the view
     before is drawn only while the view moves; once it rests, only this view's image, or

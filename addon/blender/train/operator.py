@@ -63,7 +63,7 @@ from ...core.gaussians import Gaussians
 from ...core.jobs import Progress, TrainingJob, compaction_note, how_far
 from ...core.train.trainer import TrainConfig
 from ...core.train.config import STRATEGY_NAMES
-from .. import dependencies, job_runner, splat_object
+from .. import dependencies, job_runner, splat_object, viewport
 from ..blender_splats import any_splats
 from ..camera_adapter import camera_of
 from ..sources import live
@@ -363,14 +363,15 @@ def training_job(request: TrainRequest) -> OperatorJob:
 
     def apply(step, gaussians):
         # The first snapshot of a new object is written (the object exists from then on), the
-        # later ones shown in its place until the end (`sources.live`: a redraw of the view,
-        # not a depsgraph update and its redraw per anti-aliasing sample).
+        # later ones shown in its place until the end (`sources.live`: one redraw of the view
+        # when their image is ready, not a depsgraph update and its redraw per anti-aliasing
+        # sample).
         obj = target()
         if obj is None:
             write_splats(name, gaussians, antialiased=request.config.antialiased, step=step)
         else:
             live.show(obj, gaussians, step)
-            job_runner.tag_redraw(("VIEW_3D",))
+            viewport.refresh()
 
     def finish(running, write):
         live.end(target())
