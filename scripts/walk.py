@@ -222,8 +222,9 @@ def viewport_walks(camera) -> dict[str, Walk]:
         rendered.append(viewport.render_view(job.gaussians, job.camera, job.window_matrix,
                                              key=job.key, coarse=job.coarse, **job.options))
 
-    original = viewport.renderer.submit
+    original, shader = viewport.renderer.submit, viewport._shader
     viewport.renderer.submit = submit
+    viewport._shader = lambda: None  # GPU work (none in background mode), not the add-on's walk
     walks = {}
     try:
         for cache in ("cold", "warm"):
@@ -235,7 +236,7 @@ def viewport_walks(camera) -> dict[str, Walk]:
             walks[cache].trace(viewport.draw_view, context)
             assert rendered, "the draw asked for no render"
     finally:
-        viewport.renderer.submit = original
+        viewport.renderer.submit, viewport._shader = original, shader
         viewport.renderer.forget(4343)
         viewport._views.clear()
     return walks
