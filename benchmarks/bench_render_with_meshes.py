@@ -31,6 +31,20 @@ peak of the NumPy arrays the add-on holds during the frame (tracemalloc). Memory
 renders of its own, outside the timed ones.
 
 `f12_overhead()` returns one scene's figures as a dict (benchmarks/bench_render.py reports them).
+
+    .venv/bin/python benchmarks/bench_render_with_meshes.py --profile [--repeat 5]
+        [--splats FILE] [--profile-out STATS]
+
+times the add-on's own work inside an F12 instead (`addon_cost`): every handler it registered
+and its engine's render (and the frame's steps within them: gather, read, prepare, compose,
+write), calls and CPU ms per frame (the calling thread's, and the process's: the add-on's
+native threads and the EXR Blender writes for it), medians of --repeat frames with splats on
+and off; which handlers Blender called per frame, for which scene and depsgraph (an extra
+render of the helper scene, or an extra depsgraph, shows there); `--profile-out` writes
+cProfile stats of one more frame. The script runs unchanged in a real Blender
+(`blender -b --factory-startup --python benchmarks/bench_render_with_meshes.py -- --profile
+...`, with the repository and an abi3 `splatcore` importable) and in `bpy` 5.3 (Python 3.13),
+and against an older checkout of the add-on (copy it there: it uses only what both have).
 """
 
 from __future__ import annotations
@@ -186,6 +200,142 @@ def f12_overhead(splats: str | None = None, *, random: int = 0, size: str = "128
     return result
 
 
+# ------------------------------------------------------------------ the add-on's own work (--profile)
+
+class _Meter:
+    """CPU time and calls per name: the calling thread's CPU (`time.thread_time`) and the
+    process's (every thread: the add-on's native threads, and Blender's work the add-on asks
+    for, such as the EXR it has Blender write)."""
+
+    def __init__(self) -> None:
+        self.rows: dict[str, list[float]] = {}   # name -> [calls, thread ms, process ms]
+
+    def wrap(self, name: str, function):
+        def timed(*args, **kwargs):
+            thread, process = time.thread_time(), time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                row = self.rows.setdefault(name, [0, 0.0, 0.0])
+                row[0] += 1
+                row[1] += 1000 * (time.thread_time() - thread)
+                row[2] += 1000 * (time.process_time() - process)
+        timed.__wrapped__ = function
+        return timed
+
+
+def _handler_lists():
+    for kind in dir(bpy.app.handlers):
+        handlers = getattr(bpy.app.handlers, kind)
+        if isinstance(handlers, list):
+            yield kind, handlers
+
+
+def _instrument(meter: _Meter, events: list) -> None:
+    """Every handler the add-on registered timed by `meter`; Blender's handler calls recorded
+    in `events` as (handler, scene, depsgraph mode); the engine's render and the frame's
+    main steps timed (an unchanged `__wrapped__` marks what is already wrapped)."""
+    from addon.blender.render import hooks
+
+    for kind, handlers in _handler_lists():
+        for i, function in enumerate(list(handlers)):
+            module = getattr(function, "__module__", "") or ""
+            if module.startswith("addon") and not hasattr(function, "__wrapped__"):
+                short = module.rsplit(".", 1)[-1]
+                handlers[i] = bpy.app.handlers.persistent(  # through a file load too
+                    meter.wrap(f"{kind}: {short}.{function.__name__}", function))
+        if kind in ("version_update", "_version_update") or kind.startswith("_"):
+            continue
+
+        def record(*args, _kind=kind):
+            scene = args[0] if args and hasattr(args[0], "render") else None
+            depsgraph = args[1] if len(args) > 1 else None
+            events.append((_kind, getattr(scene, "name", None),
+                           getattr(depsgraph, "mode", None)))
+        handlers.append(bpy.app.handlers.persistent(record))
+    engine = hooks.SplatRenderEngine
+    if not hasattr(engine.render, "__wrapped__"):
+        timed = meter.wrap("engine: render (all of it)", engine.render)
+
+        def render(self, depsgraph):  # Blender passes what the signature names
+            return timed(self, depsgraph)
+        render.__wrapped__ = timed
+        engine.render = render
+    for name in ("capture_frame", "read_render_layer", "compose", "write_result", "prepare"):
+        function = getattr(hooks, name, None)
+        if function is not None and not hasattr(function, "__wrapped__"):
+            setattr(hooks, name, meter.wrap(f"  {name}", function))
+    from addon.blender.render import state
+    for module in (state, hooks):
+        function = getattr(module, "capture_frame", None)
+        if function is not None and not hasattr(function, "__wrapped__"):
+            setattr(module, "capture_frame", meter.wrap("  capture_frame", function))
+    gather_module = state.gather
+    if not hasattr(gather_module.gather, "__wrapped__"):
+        gather_module.gather = meter.wrap("    gather", gather_module.gather)
+
+
+def addon_cost(splats: str | None = None, *, size: str = "1280x720", samples: int = 4,
+               repeat: int = 3, profile_out: str | None = None) -> dict:
+    """The add-on's own work in an F12, handler by handler: the calls, the calling thread's
+    CPU ms and the process's CPU ms of each, per frame (medians of `repeat` frames after a
+    warm-up), for the scene with splats on and with them off (the bridge removed); the
+    handler calls Blender made per frame (event, scene, depsgraph mode: an extra render of the
+    helper scene or an extra depsgraph shows there); and each frame's wall and process CPU
+    ms. With `profile_out`, one more frame with splats under cProfile, its stats written
+    there."""
+    scene = build(splats, size=size, samples=samples)
+    meter, events = _Meter(), []
+    _instrument(meter, events)
+    result: dict = {}
+    for on in (True, False):
+        _use_splats(scene, on)
+        _render()  # warm-up: the gather cache, Cycles' kernels
+        frames, walls, cpus, event_lists = [], [], [], []
+        for _ in range(repeat):
+            meter.rows.clear()
+            events.clear()
+            cpu: list[float] = []
+            walls.append(_render(cpu))
+            cpus.append(cpu[0])
+            frames.append({k: list(v) for k, v in meter.rows.items()})
+            event_lists.append(list(events))
+        names = sorted({n for f in frames for n in f})
+        median = statistics.median
+        rows = {n: [median(f.get(n, [0, 0.0, 0.0])[i] for f in frames) for i in range(3)]
+                for n in names}
+        counted: dict = {}
+        for event in event_lists[-1]:
+            counted[event] = counted.get(event, 0) + 1
+        result["on" if on else "off"] = {"rows": rows, "events": counted,
+                                         "wall": median(walls), "cpu": median(cpus),
+                                         "walls": walls, "cpus": cpus}
+    if profile_out:
+        import cProfile
+
+        _use_splats(scene, True)
+        profiler = cProfile.Profile()
+        profiler.enable()
+        _render()
+        profiler.disable()
+        profiler.dump_stats(profile_out)
+    return result
+
+
+def print_cost(result: dict) -> None:
+    for key in ("on", "off"):
+        r = result[key]
+        print(f"\nsplats {key}: F12 wall {r['wall']:.0f} ms {[round(w) for w in r['walls']]}, "
+              f"process CPU {r['cpu']:.0f} ms {[round(c) for c in r['cpus']]}")
+        print("| add-on call | calls | thread CPU ms | process CPU ms |")
+        print("| --- | --- | --- | --- |")
+        for name, (calls, thread, process) in r["rows"].items():
+            print(f"| {name} | {calls:g} | {thread:.1f} | {process:.1f} |")
+        print("handler calls (handler, scene, depsgraph mode): count")
+        for (kind, scene, mode), count in sorted(r["events"].items(), key=str):
+            print(f"  {kind}, {scene}, {mode}: {count}")
+
+
 HEADER = ("splats", "Blender", "with splats", "extra", *PARTS, "other", "extra CPU",
           "gather (first)", "peak RSS +MB (off / on)", "NumPy peak MB")
 
@@ -215,8 +365,20 @@ def main() -> None:
                         default=[str(p) for p in (PLAYBOT, DEMO) if p.exists()])
     parser.add_argument("--random", nargs="*", type=int, default=[])
     parser.add_argument("--repeat", type=int, default=5)
-    args = parser.parse_args()
+    parser.add_argument("--profile", action="store_true",
+                        help="the add-on's own work per F12, handler by handler (the first "
+                             "--splats file; see addon_cost)")
+    parser.add_argument("--profile-out", default=None, help="cProfile stats of one more frame")
+    # inside a real Blender (`blender -b --python FILE -- ARGS`) the arguments follow "--"
+    args = parser.parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv
+                             else sys.argv[1:])
     _register()
+    if args.profile:
+        result = addon_cost(args.splats[0] if args.splats else None, size=args.size,
+                            samples=args.samples, repeat=args.repeat,
+                            profile_out=args.profile_out)
+        print_cost(result)
+        return
     from addon.core.native import cpu_count
 
     print(f"F12 at {args.size}, Cycles CPU {args.samples} samples, {cpu_count()} cores; "
