@@ -172,6 +172,19 @@ def remove_the_cube():
     bpy.data.objects.remove(bpy.data.objects[record.pop("cube")])
 
 
+def settle(seconds: float = 3.0):
+    """A step: wait for Blender's redraws after the last change (one per anti-aliasing sample,
+    up to 2 s on a busy machine) to end before the next phase, so they are not counted in it."""
+    state = {}
+
+    def step():
+        if "waited" in state:
+            return None
+        state["waited"] = True
+        return seconds
+    return step
+
+
 def viewport(on: bool):
     def step():
         bpy.context.scene.splat_render.viewport = on
@@ -188,7 +201,7 @@ ui_kit.run_steps(bpy, [
     count_draws, import_scene, ticker.measure("idle"),
     redraws(True), ticker.measure("3D view redrawn every 0.25 s"), redraws(False),
     add_a_cube_soon, ticker.measure("a cube added (Blender's own update), then idle"),
-    remove_the_cube,
+    remove_the_cube, settle(),
     start_training(), ticker.measure("training", training_steps),
     viewport(False), ticker.measure("training, splats not in the viewport", training_steps),
     stop_training, wait_until_stopped, viewport(True),
