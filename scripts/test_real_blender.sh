@@ -18,7 +18,8 @@
 # Render Result held against the native composite), Solid and Material Preview screenshots of the viewport held
 # against the native render (tests/real_blender/viewport_figures.py); F12 and -a through an
 # orthographic, an equirectangular and a fisheye camera, and the Front/Right/Top orthographic
-# viewports; a view turned as numpad 1 turns it (never the view before once it rests); the splat object's display through import, Clean Up, undo and redo
+# viewports; a view turned as numpad 1 turns it (never the view before once it rests); training's
+# updates drawn from the UI (tests/real_blender/training_view.py); the splat object's display through import, Clean Up, undo and redo
 # (scripts/test_undo_display.sh). Exits non-zero on any failure, after a summary table.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -203,6 +204,18 @@ print(f\"the view before on screen {r['stale_seconds']} s after rest, {r['draws_
     else
         note "$suite" "viewport turn (numpad 1)" FAIL "no screenshot (see $io/ui_turn/ui.log)"
     fi
+
+    # Train Gaussians from the UI: each update of the training asks for the view's image of the
+    # new splats at once (no redraw first), and the next image drawn is that one.
+    rm -rf "$io/colmap" && cp -r examples/demo_colmap "$io/colmap" && rm -f "$io/out/training_view.json"
+    timeout 300 "$RB/run.sh" "$suite" sh -c "xvfb-run -a -s '-screen 0 1600x900x24' \
+        blender $t/scene.blend --python $t/training_view.py -- $t/colmap $t/out/training_view.json > $t/training_view.log 2>&1"
+    detail=$($PY -c "import json, sys; r = json.load(open(sys.argv[1])); print(*r['errors'], \
+', '.join(f\"step {u['step']}: asked {u['asked']}, drawn at image {u['draws_until_drawn']}\" for u in r['updates'])); \
+sys.exit(not r['ok'])" "$io/out/training_view.json" 2>&1)
+    rc=$?
+    note "$suite" "training's updates in the view" "$([ $rc = 0 ] && echo ok || echo FAIL)" \
+        "${detail:-no result (see $io/training_view.log)}"
 
     # Import, Clean Up, Ctrl+Z, Ctrl+Shift+Z, an Edit Mode delete, Ctrl+Z: splats and no vertex
     # dots in a screenshot after each (scripts/test_undo_display.sh, its own io folder).
