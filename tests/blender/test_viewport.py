@@ -211,20 +211,26 @@ def _view_context(scene, view, window, width: int, height: int, region_id: int):
         evaluated_depsgraph_get=staticmethod(bpy.context.evaluated_depsgraph_get)))()
 
 
+def _splats_in_view(rng, width: int, height: int, count: int = 200):
+    """A scene with a splat object of `count` random splats and a camera; (scene, the object,
+    the camera's view matrix, its window matrix for a width x height view)."""
+    bs.reset_scene()
+    obj = splat_object.create_splat_object(random_gaussians(rng, count, 1, radius=1.0), "Splats")
+    camera = bs.add_camera(width=W, height=H)
+    view, _ = view_matrices(camera)
+    window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
+                                                x=width, y=height))
+    return bpy.context.scene, obj, view, window
+
+
 def test_draw_handler_is_progressive(rng):
     """The handler's logic with a stand-in for the 3D view's context: a coarse image first,
     full resolution once the view rests, drawn offscreen."""
     import gpu
 
-    bs.reset_scene()
-    splat_object.create_splat_object(random_gaussians(rng, 300, 1, radius=1.0), "Splats")
-    camera = bs.add_camera(width=W, height=H)
-    scene = bpy.context.scene
-    scene.splat_render.viewport_coarse_pixels = 10_000
-    view, window = view_matrices(camera)
     width, height = 160, 120
-    window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
-                                                x=width, y=height))
+    scene, _, view, window = _splats_in_view(rng, width, height, 300)
+    scene.splat_render.viewport_coarse_pixels = 10_000
 
     context = _view_context(scene, view, window, width, height, 4242)
     offscreen = gpu.types.GPUOffScreen(width, height, format="RGBA8")
@@ -271,14 +277,8 @@ def test_a_jobs_snapshot_renders_before_any_redraw(rng, monkeypatch):
     without a new job; not a redraw to see the new splats and one more for their image."""
     from addon.blender.sources import live
 
-    bs.reset_scene()
-    obj = splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
-    camera = bs.add_camera(width=W, height=H)
-    scene = bpy.context.scene
-    view, _ = view_matrices(camera)
     width, height = 80, 60
-    window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
-                                                x=width, y=height))
+    scene, obj, view, window = _splats_in_view(rng, width, height)
     context = _view_context(scene, view, window, width, height, 4444)
     drawn = []
     monkeypatch.setattr(viewport, "draw_image", lambda image, cache_key=None: drawn.append(image))
@@ -315,14 +315,8 @@ def test_a_rested_view_never_shows_another_views_image(rng, monkeypatch):
     before is drawn only while the view moves; once it rests, only this view's image, or
     nothing until it is ready."""
 
-    bs.reset_scene()
-    splat_object.create_splat_object(random_gaussians(rng, 200, 1, radius=1.0), "Splats")
-    camera = bs.add_camera(width=W, height=H)
-    scene = bpy.context.scene
-    view, _ = view_matrices(camera)
     width, height = 80, 60
-    window = np.array(camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(),
-                                                x=width, y=height))
+    scene, _, view, window = _splats_in_view(rng, width, height)
 
     def context_for(view_matrix):
         return _view_context(scene, view_matrix, window, width, height, 4343)
