@@ -19,7 +19,8 @@ only while the view moves (changed less than `REST_SECONDS` ago: an orbit, a smo
 turn); once it rests, only an image of this view is drawn (coarse, then full), and nothing
 until one is ready. Before this, the previous view's picture stayed up for seconds after
 numpad 1/3/7, numpad 5 or an orbit, composed with the new view's grid and gizmo. An image of
-this view with older splats (training's updates, an edit) is drawn until the new one is ready.
+this view with older splats (training's updates, an edit) is drawn until the new one is ready;
+a training update asks for its image at once (`refresh`), so the view redraws only when it is.
 
 Switches: `Scene.splat_render.viewport` (all splats of the scene) and
 `Object.splat.show_in_viewport` (one object). Perspective and orthographic views are drawn
@@ -496,11 +497,11 @@ def draw_view(context) -> None:
     key = _update_view(scene, context.evaluated_depsgraph_get(), region, rv3d)
     if key is None:
         return
-    state = _views[region.as_pointer()]
-    image = renderer.result(region.as_pointer())
+    region_id = region.as_pointer()
+    image = renderer.result(region_id)
     if image is not None and (view_of(image.key) == view_of(key) or
-                              time.monotonic() - state.view_changed_at < REST_SECONDS):
-        draw_image(image, cache_key=region.as_pointer())
+                              time.monotonic() - _views[region_id].view_changed_at < REST_SECONDS):
+        draw_image(image, cache_key=region_id)
 
 
 def _views_on_screen():
