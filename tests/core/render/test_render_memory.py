@@ -64,15 +64,18 @@ def test_images_come_from_kept_memory_and_never_while_held(rng):
     # still held are never handed out again, however many frames follow.
     gaussians, camera = random_scene(rng, 3000, 640, 360, 1)
     other = random_scene(rng, 3000, 640, 360, 1)[0]
+    def address(image: np.ndarray) -> int:
+        return image.__array_interface__["data"][0]
+
     first = api.render(gaussians, camera)
     kept = [a.copy() for a in first]
-    address = first.rgb.__array_interface__["data"][0]
+    dropped = {address(first.rgb)}  # every frame's colour image, all dropped by the end
     for _ in range(3):
         again = api.render(other, camera)
+        dropped.add(address(again.rgb))
         assert not any(np.shares_memory(a, b) for a in first for b in again)
     assert _same(first, kept)  # untouched by the frames after it
-    dropped = {address, again.rgb.__array_interface__["data"][0]}
     del first, again
-    assert api.render(gaussians, camera).rgb.__array_interface__["data"][0] in dropped
+    assert address(api.render(gaussians, camera).rgb) in dropped
     native.splatcore().release_buffers()
     assert _same(api.render(gaussians, camera), kept)
