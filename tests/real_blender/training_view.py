@@ -30,18 +30,9 @@ UPDATES = 3
 record: dict = {"version": list(bpy.app.version), "updates": [], "errors": []}
 
 
-def addon_module(name: str):
-    return sys.modules[next(m for m in sys.modules if m.endswith(".blender." + name))]
-
-
-viewport = addon_module("viewport")
-job_runner = addon_module("job_runner")
+viewport = ui_kit.addon_module("viewport")
+job_runner = ui_kit.addon_module("job_runner")
 drawn: list[tuple] = []  # the draw keys of the images drawn, in order
-
-
-def override():
-    window, area, region = ui_kit.view3d(bpy)
-    return bpy.context.temp_override(window=window, area=area, region=region)
 
 
 def region_id() -> int:
@@ -59,14 +50,14 @@ def watch_draws():
 
 
 def import_scene():
-    with override():
+    with ui_kit.override(bpy):
         result = bpy.ops.splat.import_colmap(directory=COLMAP)
     if "FINISHED" not in result:
         raise RuntimeError(f"import_colmap: {result}")
 
 
 def start_training():
-    with override():
+    with ui_kit.override(bpy):
         result = bpy.ops.splat.train("EXEC_DEFAULT", interactive=True, update_every=50)
     if "RUNNING_MODAL" not in result:
         raise RuntimeError(f"train: {result}")
@@ -100,7 +91,7 @@ def wait_for_updates():
 
 
 def stop_training():
-    with override():
+    with ui_kit.override(bpy):
         bpy.ops.splat.train_stop()
 
 

@@ -19,6 +19,19 @@ def view3d(bpy):
     raise RuntimeError("no 3D view")
 
 
+def override(bpy):
+    """A context override for operators run as from the first 3D view's main region."""
+    window, area, region = view3d(bpy)
+    return bpy.context.temp_override(window=window, area=area, region=region)
+
+
+def addon_module(name: str):
+    """The installed add-on's module `blender.<name>` (e.g. "viewport", "train.operator")."""
+    import sys
+
+    return sys.modules[next(m for m in sys.modules if m.endswith(".blender." + name))]
+
+
 def shot(path: str) -> None:
     """The X screen (Blender's own screenshot reads a black front buffer under Xvfb)."""
     subprocess.run(["import", "-window", "root", path], check=True)

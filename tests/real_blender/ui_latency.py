@@ -36,15 +36,6 @@ draws = [0]
 events: list[tuple] = []  # (time.perf_counter(), what, seconds): stalls, draws, object updates
 
 
-def addon_module(name: str):
-    return sys.modules[next(m for m in sys.modules if m.endswith(".blender." + name))]
-
-
-def override():
-    window, area, region = ui_kit.view3d(bpy)
-    return bpy.context.temp_override(window=window, area=area, region=region)
-
-
 class Ticker:
     """A 10 ms timer that records how much later than asked each call came."""
 
@@ -86,7 +77,7 @@ ticker = Ticker()
 
 def count_draws():
     """Count the add-on's draw handler calls: one per redraw of the 3D view."""
-    viewport = addon_module("viewport")
+    viewport = ui_kit.addon_module("viewport")
     draw_view = viewport.draw_view
 
     def counted(context):
@@ -97,7 +88,7 @@ def count_draws():
         finally:
             events.append((round(start, 3), "draw", round(time.perf_counter() - start, 3)))
     viewport.draw_view = counted  # the handler looks the function up at each call
-    operator = addon_module("train.operator")
+    operator = ui_kit.addon_module("train.operator")
     write_splats = operator.write_splats
 
     def timed_write(*args, **kwargs):
@@ -110,7 +101,7 @@ def count_draws():
 
 
 def import_scene():
-    with override():
+    with ui_kit.override(bpy):
         result = bpy.ops.splat.import_colmap(directory=COLMAP)
     if "FINISHED" not in result:
         raise RuntimeError(f"import_colmap: {result}")
@@ -118,7 +109,7 @@ def import_scene():
 
 def start_training(**settings):
     def step():
-        with override():
+        with ui_kit.override(bpy):
             # What the dialog's Train button runs, in the background (interactive).
             result = bpy.ops.splat.train("EXEC_DEFAULT", interactive=True, **settings)
         if "RUNNING_MODAL" not in result:
@@ -127,19 +118,19 @@ def start_training(**settings):
 
 
 def training_steps() -> dict:
-    job = next(iter(addon_module("job_runner").RUNNING.values()), None)
+    job = next(iter(ui_kit.addon_module("job_runner").RUNNING.values()), None)
     if job is None:
         return {"steps": None, "note": "training was not running at the end"}
     return {"steps": job.progress.step, "gaussians": job.progress.gaussians}
 
 
 def stop_training():
-    with override():
+    with ui_kit.override(bpy):
         bpy.ops.splat.train_stop()
 
 
 def wait_until_stopped():
-    return 0.5 if addon_module("job_runner").RUNNING else None
+    return 0.5 if ui_kit.addon_module("job_runner").RUNNING else None
 
 
 def redraws(on: bool):
@@ -162,7 +153,7 @@ def add_a_cube_soon():
     """Blender's own cost of an update that adds an object (Add > Mesh > Cube, 1 s into the
     next phase): the floor under the update that makes the splat object."""
     def add():
-        with override():
+        with ui_kit.override(bpy):
             bpy.ops.mesh.primitive_cube_add(location=(0.0, 0.0, -100.0))
         record["cube"] = bpy.context.active_object.name
     bpy.app.timers.register(add, first_interval=1.0)

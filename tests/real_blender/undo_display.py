@@ -49,11 +49,6 @@ def view3d():
     return ui_kit.view3d(bpy)
 
 
-def override():
-    window, area, region = view3d()
-    return bpy.context.temp_override(window=window, area=area, region=region)
-
-
 def press(key: str, *, ctrl: bool = False, shift: bool = False) -> None:
     """A key press and release as the window gets it, the mouse over the 3D view."""
     window, area, region = view3d()
@@ -65,7 +60,7 @@ def press(key: str, *, ctrl: bool = False, shift: bool = False) -> None:
 
 def set_up() -> None:
     window, area, region = view3d()
-    with override():
+    with ui_kit.override(bpy):
         bpy.ops.screen.screen_full_area(use_hide_panels=True)
     window, area, region = view3d()
     space = area.spaces.active
@@ -91,10 +86,10 @@ def act(name: str):
     def run():
         record["_step"] = name
         if name == "import":
-            with override():
+            with ui_kit.override(bpy):
                 bpy.ops.splat.import_splats("EXEC_DEFAULT", True, filepath=PLY)
         elif name == "clean_up":
-            with override():
+            with ui_kit.override(bpy):
                 bpy.ops.splat.clean_up("EXEC_DEFAULT", True)
         elif name in ("undo", "edit_undo", "undo_edit"):
             press("Z", ctrl=True)
@@ -116,7 +111,7 @@ def act(name: str):
 def edit_delete():
     if bpy.context.mode != "EDIT_MESH":
         raise RuntimeError(f"Tab did not enter Edit Mode (mode {bpy.context.mode})")
-    with override():
+    with ui_kit.override(bpy):
         # Selecting pushes no undo step here (the user's X > Vertices after Tab is one step).
         bpy.ops.mesh.select_all(action="DESELECT")
         bpy.ops.mesh.select_random(ratio=0.5, seed=7)
