@@ -14,7 +14,8 @@
 # `blender -b scene.blend -a`, each written PNG held against the native composite within 1/255
 # (tests/real_blender/check.py); forced composite failures (a missing module, splats that cannot
 # be gathered, a native error), each of which must fail the render with a non-zero exit code and
-# no file; and the UI under Xvfb: F12 as a user presses it (tests/real_blender/ui_f12.py, the
+# no file; and the UI under Xvfb: F12 as a user presses it (tests/real_blender/ui_f12.py: read
+# through the render cache, never by saving the Render Result from the render thread; the
 # Render Result held against the native composite), Solid and Material Preview screenshots of the viewport held
 # against the native render (tests/real_blender/viewport_figures.py); F12 and -a through an
 # orthographic, an equirectangular and a fisheye camera, and the Front/Right/Top orthographic
@@ -152,7 +153,8 @@ import scene_kit; scene_kit.set_camera_kind(bpy.context.scene.camera.data, '$kin
         detail=$($PY tests/real_blender/check.py render "$io/out/ui_f12.png" "$io/out/meshes.exr" "$io/splats.npz")
         rc=$?; note "$suite" "F12 in the UI" "$([ $rc = 0 ] && echo ok || echo FAIL)" "${detail#*: }"
     else
-        note "$suite" "F12 in the UI" FAIL "exit $rc (see $io/ui_f12.log)"
+        note "$suite" "F12 in the UI" FAIL \
+            "exit $rc $(grep -m1 -o 'ui_f12: FAIL.*' "$io/ui_f12.log" | cut -c1-160) (see $io/ui_f12.log)"
     fi
 
     rm -rf "$io/ui" && mkdir -p "$io/ui"

@@ -67,7 +67,7 @@ from .layers import (
     frame_target,
     pass_image,
     read_render_layer,
-    render_result_image,
+    reads_render_cache,
     splat_passes,
     wants_splat_passes,
     world_colour,
@@ -282,6 +282,8 @@ def _on_render_init(scene, _depsgraph=None) -> None:
     state.current.frame_start_ns = time.time_ns()
     settings = settings_of(scene)
     if not settings.enabled or scene.render.engine == ENGINE_ID:
+        if bridge.bridge_node(scene) is not None:  # the helper passes the meshes through
+            _read_through_render_cache(scene)
         return
     try:
         node = bridge.bridge_node(scene)
@@ -298,14 +300,20 @@ def _on_render_init(scene, _depsgraph=None) -> None:
         if blockers:
             fail_render(scene, "; ".join(blockers), "init")
             return
-        if render_result_image() is None or state.current.force_cache_file:
-            # `blender -b -a`: no Render Result image to read the render from; the render
-            # cache writes it (this flag is read when the render starts, after this handler).
-            state.current.cache_restore[scene.name] = scene.render.use_render_cache
-            scene.render.use_render_cache = True
+        _read_through_render_cache(scene)
     except Exception as error:
         traceback.print_exc()
         fail_render(scene, f"cannot prepare the splat composite: {error}", "init")
+
+
+def _read_through_render_cache(scene) -> None:
+    """Where the helper engine reads the meshes' render from the render cache (`layers`), turn
+    the scene's cache on for this render (Blender reads the flag when the render starts, after
+    render_init); `_on_render_done` puts the user's value back."""
+    if reads_render_cache():
+        state.current.cache_restore[scene.name] = scene.render.use_render_cache
+        if not scene.render.use_render_cache:
+            scene.render.use_render_cache = True
 
 
 @persistent
@@ -366,8 +374,9 @@ def _on_render_write(scene, _depsgraph=None) -> None:
 def _on_render_done(scene, _depsgraph=None) -> None:
     if bridge.is_helper(scene):
         return
-    if scene.name in state.current.cache_restore:
-        scene.render.use_render_cache = state.current.cache_restore.pop(scene.name)
+    users_cache = state.current.cache_restore.pop(scene.name, None)
+    if users_cache is not None and scene.render.use_render_cache != users_cache:
+        scene.render.use_render_cache = users_cache
     camera = state.current.camera_restore.pop(scene.name, None)
     if camera is not None:
         scene.camera = camera

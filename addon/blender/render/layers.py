@@ -1,12 +1,19 @@
 """The meshes' render layer, round trip: what the helper engine reads from the scene's render
 and writes back (see `hooks` for how a frame is made).
 
-Reading the render: `Image.save_render` of the Render Result to an uncompressed float
-multilayer EXR in a private temporary folder (the output format is switched for that one call
-and put back). A command-line render (`blender -b file.blend -a`) has no "Render Result" image
-unless the file brought one; then the scene's render cache (`render.use_render_cache`, switched
-on for the render and back off after it) writes that EXR and it is read from Blender's cache
-path. Writing: the engine's render result, and the splat layer for multilayer EXR files.
+Reading the render, two ways (`reads_render_cache` chooses when the render starts):
+- In the UI, and wherever there is no "Render Result" image (a command-line render of a file
+  that never showed one), the scene's render cache (`render.use_render_cache`, switched on for
+  the render and back to the user's value after it) writes the meshes' render as an EXR, and it
+  is read from Blender's cache path. In the UI the render runs in a job thread while the main
+  thread draws the Render Result; `Image.save_render` of that image from the render thread can
+  deadlock with it (Debian's Blender 5.2.2 under Xvfb hung inside it twice in about 200 F12s,
+  its main thread waiting on a mutex; docs/benchmarks/render_with_meshes.md).
+- In background renders (`blender -b`, the `bpy` module), where the render runs on the main
+  thread and nothing draws: `Image.save_render` of the Render Result to an uncompressed float
+  multilayer EXR in a private temporary folder (the output format is switched for that one
+  call and put back), the faster way: the file is in memory and read in place.
+Writing: the engine's render result, and the splat layer for multilayer EXR files.
 
 Why a file: Python has no other way to the render's pixels while it runs. The Render Result
 image has no pixels in Python (`Image.pixels` is empty, `foreach_get` gives nothing: measured in
@@ -93,6 +100,13 @@ def render_result_image():
     return next((image for image in bpy.data.images if image.type == "RENDER_RESULT"), None)
 
 
+def reads_render_cache() -> bool:
+    """Whether the render about to start is read from Blender's render cache file rather than
+    saved from the Render Result (see the module docstring)."""
+    return (not bpy.app.background or render_result_image() is None
+            or state.current.force_cache_file)
+
+
 def cache_file_path(scene) -> str:
     """Where Blender's render cache (`render.use_render_cache`) writes a scene's render
     (`render_result_exr_file_cache_path` in Blender's render_result.cc)."""
@@ -114,23 +128,24 @@ def read_render_layer(scene, layer: str) -> tuple[np.ndarray, np.ndarray, dict]:
     """The colour (H, W, 4 premultiplied scene-linear) and planar depth (H, W) the scene's
     engine rendered for view layer `layer`, rows top to bottom, read while the render runs
     (read-only views of the file's rows: no copy); and timings (ms), with "layer": the view
-    layer read (another one if `layer` was not rendered)."""
+    layer read (another one if `layer` was not rendered); "save_ms" only where the render was
+    saved from the Render Result, not read from the render cache."""
     timings = {}
-    start = time.perf_counter()
-    image = render_result_image()
-    own_file = not (image is None or state.current.force_cache_file)
+    own_file = scene.name not in state.current.cache_restore  # (the cache is on: render_init)
     if not own_file:
         path = cache_file_path(scene)
         since = state.current.frame_start_ns - 50_000_000
         if not os.path.exists(path) or os.stat(path).st_mtime_ns < since:
-            raise RuntimeError(
-                f"cannot read the render: there is no Render Result image and no fresh render "
-                f"cache file at {path}")
+            raise RuntimeError(f"cannot read the render: no fresh render cache file at {path}")
     else:
+        start = time.perf_counter()
         path = os.path.join(_private_dir(), f"render-{abs(hash(scene.name))}.exr")
+        image = render_result_image()
+        if image is None:
+            raise RuntimeError("cannot read the render: the Render Result image is gone")
         with _float_exr_output(scene):
             image.save_render(path, scene=scene)
-    timings["save_ms"] = 1000 * (time.perf_counter() - start)
+        timings["save_ms"] = 1000 * (time.perf_counter() - start)
     start = time.perf_counter()
     try:
         # No OpenImageIO (Blender's Python may lack it). Our own file is mapped, not read: no

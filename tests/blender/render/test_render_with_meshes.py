@@ -478,16 +478,22 @@ def _render_fails_with(scene, tmp_path, match):
     assert any(match in e for e in failures.last_errors()), failures.last_errors()
 
 
-def test_render_cache_path_gives_the_same_image(rng, tmp_path):
-    """Without a "Render Result" image (a command-line render of a file that has none), the
-    render is read from Blender's render cache file instead: same image."""
+@pytest.mark.parametrize("composite", [True, False], ids=["splats", "composite-off"])
+def test_render_cache_path_gives_the_same_image(rng, tmp_path, composite):
+    """Where the render is read from Blender's render cache file (the UI; a command-line render
+    of a file with no "Render Result" image) rather than saved from the Render Result: the same
+    image, also where "Composite Splats" is off and the helper passes the meshes through."""
     scene, *_ = build_scene(rng, "BLENDER_WORKBENCH")
+    render_still(scene, tmp_path / "first")  # the bridge is set up: it stays when turned off
+    scene.splat_render.enabled = composite
     normal = read_png(render_still(scene, tmp_path / "normal"))
+    assert "save_ms" in hooks.last_stats
     state.current.force_cache_file = True
     try:
         cached = read_png(render_still(scene, tmp_path / "cached"))
     finally:
         state.current.force_cache_file = False
+    assert "save_ms" not in hooks.last_stats and "read_ms" in hooks.last_stats
     assert not scene.render.use_render_cache  # put back after the render
     assert np.array_equal(cached, normal)
 

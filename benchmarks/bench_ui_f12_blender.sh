@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# F12 in a real Blender's UI (under Xvfb), the two ways the splat composite can read the meshes'
+# render: through Blender's render cache (the add-on as it is) and by saving the Render Result
+# from the render thread (before 2026-11-29; it can hang Blender). The scene of
+# scripts/test_real_blender.sh (Workbench meshes, 2,000 splats) at WxH; RUNS F12s per way, the
+# ways alternated twice. A benchmark that prints a table, never a test.
+#
+#   benchmarks/bench_ui_f12_blender.sh [SUITE] [WxH] [RUNS]    (SUITE: trixie = Blender 4.3, sid = 5.2)
+set -uo pipefail
+cd "$(dirname "$0")/.."
+SUITE=${1:-sid}; SIZE=${2:-1920x1080}; RUNS=${3:-5}
+RB=${REAL_BLENDER_SCRIPTS:-$(cd ../shared/real-blender 2>/dev/null && pwd)}
+[ -n "$RB" ] && [ -x "$RB/run.sh" ] || { echo "bench_ui_f12_blender: no ../shared/real-blender" >&2; exit 1; }
+PY=.venv/bin/python
+$PY scripts/build_extension.py --platform linux-x64 > /dev/null || exit 1
+zip=$(ls -t dist/gaussian_splatting-*-linux_x64.zip | head -1)
+"$RB/setup.sh" "$SUITE" > /dev/null || exit 1
+root=$("$RB/root.sh" "$SUITE")
+io=$root/io/splat-ui-f12; t=/io/splat-ui-f12
+rm -rf "$io" && mkdir -p "$io/user"
+cp "$zip" "$io/extension.zip"
+cp tests/real_blender/*.py "$io/"
+$PY tests/real_blender/check.py make "$io/splats.npz"
+blender() { "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user blender "$@"; }
+blender --command extension install-file -r user_default -e $t/extension.zip > "$io/install.log" 2>&1 \
+    || { echo "bench_ui_f12_blender: install failed (see $io/install.log)"; exit 1; }
+blender -b --factory-startup --python $t/scene.py -- $t/splats.npz $t/scene.blend > "$io/scene.log" 2>&1
+[ -f "$io/scene.blend" ] || { echo "bench_ui_f12_blender: no scene (see $io/scene.log)"; exit 1; }
+for turn in 1 2; do
+    for mode in cache save_render; do
+        timeout 600 "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user sh -c \
+            "xvfb-run -a -s '-screen 0 1600x900x24' blender $t/scene.blend \
+             --python $t/ui_f12_timing.py -- $t/$mode-$turn.json $SIZE $RUNS $mode > $t/$mode-$turn.log 2>&1"
+        [ -f "$io/$mode-$turn.json" ] || { echo "bench_ui_f12_blender: no result (see $io/$mode-$turn.log)"; exit 1; }
+    done
+done
+$PY - "$io" "$SUITE" <<'PYEOF'
+import glob, json, os, sys
+import numpy as np
+results = [json.load(open(p)) for p in sorted(glob.glob(os.path.join(sys.argv[1], "*-[12].json")))]
+first = results[0]
+print(f"Blender {'.'.join(map(str, first['version']))} ({sys.argv[2]}) under Xvfb, F12 at {first['size']}, "
+      f"{sum(len(r['runs']) for r in results) // 2} per way; medians (min-max) in ms")
+print("| the meshes' render read | F12, wall | the meshes' render until the compositor | the add-on's composite | saved from the Render Result |")
+print("| --- | ---: | ---: | ---: | ---: |")
+for mode, label in (("cache", "from the render cache (now)"), ("save_render", "saved by the render thread (before)")):
+    runs = [run for r in results if r["mode"] == mode for run in r["runs"]]
+    def cell(key):
+        v = np.array([run[key] for run in runs if run[key] is not None])
+        return f"{np.median(v):.0f} ({v.min():.0f}-{v.max():.0f})" if len(v) else "-"
+    print(f"| {label} | {cell('wall_ms')} | {cell('meshes_ms')} | {cell('addon_ms')} | "
+          f"{sum(run['saved'] for run in runs)} of {len(runs)} |")
+PYEOF
