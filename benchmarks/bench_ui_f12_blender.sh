@@ -9,21 +9,8 @@
 set -uo pipefail
 cd "$(dirname "$0")/.."
 SUITE=${1:-sid}; SIZE=${2:-1920x1080}; RUNS=${3:-5}
-RB=${REAL_BLENDER_SCRIPTS:-$(cd ../shared/real-blender 2>/dev/null && pwd)}
-[ -n "$RB" ] && [ -x "$RB/run.sh" ] || { echo "bench_ui_f12_blender: no ../shared/real-blender" >&2; exit 1; }
-PY=.venv/bin/python
-$PY scripts/build_extension.py --platform linux-x64 > /dev/null || exit 1
-zip=$(ls -t dist/gaussian_splatting-*-linux_x64.zip | head -1)
-"$RB/setup.sh" "$SUITE" > /dev/null || exit 1
-root=$("$RB/root.sh" "$SUITE")
-io=$root/io/splat-ui-f12; t=/io/splat-ui-f12
-rm -rf "$io" && mkdir -p "$io/user"
-cp "$zip" "$io/extension.zip"
-cp tests/real_blender/*.py "$io/"
+. benchmarks/real_blender_ui.sh "$SUITE" splat-ui-f12
 $PY tests/real_blender/check.py make "$io/splats.npz"
-blender() { "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user blender "$@"; }
-blender --command extension install-file -r user_default -e $t/extension.zip > "$io/install.log" 2>&1 \
-    || { echo "bench_ui_f12_blender: install failed (see $io/install.log)"; exit 1; }
 blender -b --factory-startup --python $t/scene.py -- $t/splats.npz $t/scene.blend > "$io/scene.log" 2>&1
 [ -f "$io/scene.blend" ] || { echo "bench_ui_f12_blender: no scene (see $io/scene.log)"; exit 1; }
 for turn in 1 2; do

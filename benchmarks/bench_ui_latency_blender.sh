@@ -8,21 +8,8 @@
 set -uo pipefail
 cd "$(dirname "$0")/.."
 SUITE=${1:-trixie}; SECONDS_EACH=${2:-30}
-RB=${REAL_BLENDER_SCRIPTS:-$(cd ../shared/real-blender 2>/dev/null && pwd)}
-[ -n "$RB" ] && [ -x "$RB/run.sh" ] || { echo "bench_ui_latency_blender: no ../shared/real-blender" >&2; exit 1; }
-PY=.venv/bin/python
-$PY scripts/build_extension.py --platform linux-x64 > /dev/null || exit 1
-zip=$(ls -t dist/gaussian_splatting-*-linux_x64.zip | head -1)
-"$RB/setup.sh" "$SUITE" > /dev/null || exit 1
-root=$("$RB/root.sh" "$SUITE")
-io=$root/io/splat-ui-latency; t=/io/splat-ui-latency
-rm -rf "$io" && mkdir -p "$io/user"
-cp "$zip" "$io/extension.zip"
+. benchmarks/real_blender_ui.sh "$SUITE" splat-ui-latency
 cp -r examples/demo_colmap "$io/colmap"
-cp tests/real_blender/ui_latency.py tests/real_blender/ui_kit.py "$io/"
-blender() { "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user blender "$@"; }
-blender --command extension install-file -r user_default -e $t/extension.zip > "$io/install.log" 2>&1 \
-    || { echo "bench_ui_latency_blender: install failed (see $io/install.log)"; exit 1; }
 blender -b --python-expr "import bpy; bpy.ops.wm.read_homefile(); \
 bpy.ops.wm.save_as_mainfile(filepath='$t/start.blend')" > "$io/start.log" 2>&1
 timeout $((6 * SECONDS_EACH + 300)) "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=$t/user sh -c \
