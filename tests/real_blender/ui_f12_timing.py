@@ -46,6 +46,9 @@ for event in ("frame_change_post", "render_complete"):
 
 def step():
     if "start" in current:
+        now = time.monotonic()  # this timer's gaps: how long the main thread was away
+        current["longest"] = max(current.get("longest", 0.0), now - current.get("tick", now))
+        current["tick"] = now
         if bpy.app.is_job_running("RENDER"):
             return 0.02
         wall = 1000 * (time.monotonic() - current.pop("start"))
@@ -53,7 +56,8 @@ def step():
         runs.append({"wall_ms": wall,
                      "meshes_ms": starts[1] - starts[0] if len(starts) >= 2 else None,
                      "addon_ms": hooks.last_stats.get("total_ms"),
-                     "saved": "save_ms" in hooks.last_stats})
+                     "saved": "save_ms" in hooks.last_stats,
+                     "longest_stall_ms": 1000 * current.get("longest", 0.0)})
         current.clear()
         if len(runs) == int(RUNS):
             with open(OUT, "w") as file:
