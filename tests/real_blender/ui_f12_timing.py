@@ -5,7 +5,10 @@ and writes how long each took (benchmarks/bench_ui_f12_blender.sh prints the tab
 
 MODE `cache`: the add-on as it is (the UI reads the meshes' render from Blender's render
 cache). MODE `save_render`: the render thread saves the Render Result instead, as the add-on
-did before 2026-11-29 (for the comparison only: that can hang Blender).
+did before 2026-11-29 (for the comparison only: that can hang Blender). MODE `meshes_only`:
+the splat objects deleted and the compositor bridge removed (the add-on's own undo of it), so
+the meshes' F12 alone; MODE `meshes_only_cache`: the same with the scene's Cache Result on
+(what Blender's writing of its render cache costs by itself).
 """
 
 from __future__ import annotations
@@ -25,6 +28,10 @@ hooks = addon_module("render.hooks")
 if MODE == "save_render":
     hooks.reads_render_cache = lambda: False
 scene = bpy.context.scene
+if MODE.startswith("meshes_only"):
+    for obj in [o for o in scene.objects if o.name.startswith("Splats")]:
+        bpy.data.objects.remove(obj)
+    addon_module("render.compositor_bridge").remove_bridge(scene)
 scene.render.resolution_x, scene.render.resolution_y = map(int, SIZE.split("x"))
 scene.render.resolution_percentage = 100
 runs: list[dict] = []
@@ -66,6 +73,8 @@ def step():
             bpy.ops.wm.quit_blender()
             return None
         return 1.0
+    if MODE.startswith("meshes_only"):
+        scene.render.use_render_cache = MODE == "meshes_only_cache"
     window = bpy.context.window_manager.windows[0]
     with bpy.context.temp_override(window=window):
         bpy.ops.render.render("INVOKE_DEFAULT")
