@@ -207,12 +207,14 @@ print(f\"the view before on screen {r['stale_seconds']} s after rest, {r['draws_
         note "$suite" "viewport turn (numpad 1)" FAIL "no screenshot (see $io/ui_turn/ui.log)"
     fi
 
-    # Train Gaussians from the UI: each update of the training asks for the view's image of the
-    # new splats at once (no redraw first), and the next image drawn is that one.
+    # Train Gaussians from the UI: the scene (its own splats removed) is bridged for F12 at the
+    # click; each update of the training asks for the view's image of the new splats at once (no
+    # redraw first), and the next image drawn is that one.
     rm -rf "$io/colmap" && cp -r examples/demo_colmap "$io/colmap" && rm -f "$io/out/training_view.json"
     timeout 300 "$RB/run.sh" "$suite" sh -c "xvfb-run -a -s '-screen 0 1600x900x24' \
         blender $t/scene.blend --python $t/training_view.py -- $t/colmap $t/out/training_view.json > $t/training_view.log 2>&1"
     detail=$($PY -c "import json, sys; r = json.load(open(sys.argv[1])); print(*r['errors'], \
+f\"bridged for F12 before the click {r.get('bridged_before')}, at it {r.get('bridged_at_click')};\", \
 ', '.join(f\"step {u['step']}: asked {u['asked']}, drawn at image {u['draws_until_drawn']}\" for u in r['updates'])); \
 sys.exit(not r['ok'])" "$io/out/training_view.json" 2>&1)
     rc=$?

@@ -46,6 +46,7 @@ from bpy.props import BoolProperty, StringProperty
 from ..core.gaussians import Gaussians
 from ..core.jobs import Progress, ProgressPrinter, StagedJob, TrainingJob, status_line
 from .registration import register_classes, unregister_classes
+from .render import hooks
 from .threads import scene_threads
 
 TIMER_STEP = 0.25  # seconds between polls of a background job
@@ -314,6 +315,8 @@ class JobOperator:
         return {"CANCELLED"} if level == "ERROR" else {"FINISHED"}
 
     def _start_background(self, context, job: OperatorJob) -> set:
+        if job.apply is not None:  # it will add splats: the scene's render set-up comes now
+            hooks.expect_splats(context.scene)
         RUNNING[job.key] = job
         self._key = job.key
         job.job.start()

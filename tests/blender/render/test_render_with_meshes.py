@@ -543,6 +543,22 @@ def test_bridge_keeps_and_restores_a_users_compositor(rng):
     assert compositor_bridge.helper_scene(create=False) is None
 
 
+def test_a_job_about_to_add_splats_bridges_the_scene_first(rng):
+    """Training started from the UI bridges its scene at the click (`expect_splats`), not when
+    its object appears: there the scene's change cost the object's first redraws one more."""
+    scene, splats, *_ = build_scene(rng, "BLENDER_WORKBENCH")
+    bpy.data.objects.remove(splats)
+    hooks.set_up_bridge_later(scene.name)
+    assert compositor_bridge.bridge_node(scene) is None  # no splats yet: nothing to bridge
+    scene.render.engine = compositor_bridge.ENGINE_ID
+    hooks.expect_splats(scene)
+    assert compositor_bridge.bridge_node(scene) is None  # the splats-only engine needs none
+    scene.render.engine = "BLENDER_WORKBENCH"
+    hooks.expect_splats(scene)
+    assert compositor_bridge.bridge_node(scene) is not None
+    assert compositor_bridge.problems(scene) == []
+
+
 def test_a_compositor_reading_the_depth_gets_the_composites(rng, tmp_path):
     """The helper render fills its Depth pass only when the compositor reads it (the bridge
     node's Depth output linked, e.g. by a user's compositor): then that is the composite's."""
