@@ -474,8 +474,9 @@ def set_up_bridge_later(scene_name: str, *, expecting: bool = False) -> float | 
 def expect_splats(scene) -> None:
     """A job started from the UI will add splats to `scene` (training's object): bridge the
     scene now, as part of the click's response. Bridged when the object appeared, the scene's
-    change cost that object's first redraws one more redraw and one 0.15 s longer (0.39 s
-    against Add Cube's 0.24 s beside a CPU-bound process, software OpenGL: issue 36)."""
+    change cost that object's first redraws one more redraw and a longer one (0.28-0.36 s
+    against Add Cube's 0.22-0.23 s beside a CPU-bound process, software OpenGL: issue 36,
+    benchmarks/bench_ui_new_object_blender.sh)."""
     if scene is None:
         return
     name = scene.name
