@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The main thread's stalls after one new object appears, in a real Blender under Xvfb
 # (tests/real_blender/ui_new_object.py): Add Cube against a splat object as training makes it,
-# with the scene's F12 bridge set up before it, with it, or as it appears (issue 36). Run it
-# beside other work too (e.g. `python3 -c 'while 1: pass' &`). A benchmark that prints a table,
-# never a test. Needs the real-Blender roots (../shared/real-blender); builds the linux-x64 zip.
+# with the scene's F12 bridge (and its helper scene) set up before it, with it, or after it
+# (issue 36). Run it beside other work too (e.g. `python3 -c 'while 1: pass' &`). A benchmark
+# that prints a table, never a test. Needs the real-Blender roots (../shared/real-blender); builds the linux-x64 zip.
 #
 #   benchmarks/bench_ui_new_object_blender.sh [SUITE] [ROUNDS]     (SUITE: trixie = Blender 4.3, sid = 5.2)
 set -uo pipefail

@@ -207,14 +207,16 @@ print(f\"the view before on screen {r['stale_seconds']} s after rest, {r['draws_
         note "$suite" "viewport turn (numpad 1)" FAIL "no screenshot (see $io/ui_turn/ui.log)"
     fi
 
-    # Train Gaussians from the UI: the scene (its own splats removed) is bridged for F12 at the
-    # click; each update of the training asks for the view's image of the new splats at once (no
-    # redraw first), and the next image drawn is that one.
+    # Train Gaussians from the UI: the import makes F12's helper scene, and the scene (its own
+    # splats removed) is bridged in the same update as the training's object; each update of
+    # the training asks for the view's image of the new splats at once (no redraw first), and
+    # the next image drawn is that one.
     rm -rf "$io/colmap" && cp -r examples/demo_colmap "$io/colmap" && rm -f "$io/out/training_view.json"
     timeout 300 "$RB/run.sh" "$suite" sh -c "xvfb-run -a -s '-screen 0 1600x900x24' \
         blender $t/scene.blend --python $t/training_view.py -- $t/colmap $t/out/training_view.json > $t/training_view.log 2>&1"
     detail=$($PY -c "import json, sys; r = json.load(open(sys.argv[1])); print(*r['errors'], \
-f\"bridged for F12 before the click {r.get('bridged_before')}, at it {r.get('bridged_at_click')};\", \
+f\"F12 helper after the import {r.get('helper_after_import')}, at the click {r.get('helper_at_click')}; \
+bridged before the click {r.get('bridged_before')}, at it {r.get('bridged_at_click')}, with the object {r.get('bridged_with_object')};\", \
 ', '.join(f\"step {u['step']}: asked {u['asked']}, drawn at image {u['draws_until_drawn']}\" for u in r['updates'])); \
 sys.exit(not r['ok'])" "$io/out/training_view.json" 2>&1)
     rc=$?

@@ -315,8 +315,8 @@ class JobOperator:
         return {"CANCELLED"} if level == "ERROR" else {"FINISHED"}
 
     def _start_background(self, context, job: OperatorJob) -> set:
-        if job.apply is not None:  # it will add splats: the scene's render set-up comes now
-            hooks.expect_splats(context.scene)
+        if job.apply is not None:  # it will add splats: see `hooks.make_helper_ahead`
+            hooks.make_helper_ahead(context.scene)
         RUNNING[job.key] = job
         self._key = job.key
         job.job.start()
@@ -345,6 +345,7 @@ class JobOperator:
             return
         start = time.monotonic()
         running.apply(*snapshot)
+        hooks.bridge_new_splats(running.target())
         running.shown_at = time.monotonic()
         running.write_cost = running.shown_at - start
         running.probe = StallProbe(COST_WINDOW)
@@ -389,6 +390,8 @@ class JobOperator:
                 self.report({"WARNING"}, f"{running.title}: the object is in Edit Mode or the "
                                          f"interface is locked: not updated")
             level, message, obj = running.finish(running, write)
+            if running.apply is not None:
+                hooks.bridge_new_splats(obj)
         finally:
             tag_redraw()
         return self._report_end(context, level, message, obj)

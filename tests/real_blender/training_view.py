@@ -9,8 +9,9 @@ Updates are not paced by their cost here (`job_runner.UPDATE_SHARE` 1: one every
 that three come within a short run. OUT.json: per update after the first (which makes the
 object), whether the view's key changed inside the update (a render asked for) and how many
 images were drawn until the one of that key (1: the first redraw after the update drew it);
-`ok` when the scene was bridged for F12 at the click and every update asked for its image and
-drew it.
+`ok` when F12's helper scene was there at the click (made by the import, or by the click
+when the import's is gone), the scene was bridged in the same update as the training's object
+(not at the click, not after) and every update asked for its image and drew it.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ record: dict = {"version": list(bpy.app.version), "updates": [], "errors": []}
 
 
 viewport = ui_kit.addon_module("viewport")
+bridge = ui_kit.addon_module("render.compositor_bridge")
 job_runner = ui_kit.addon_module("job_runner")
 drawn: list[tuple] = []  # the draw keys of the images drawn, in order
 
@@ -55,27 +57,34 @@ def import_scene():
         result = bpy.ops.splat.import_colmap(directory=COLMAP)
     if "FINISHED" not in result:
         raise RuntimeError(f"import_colmap: {result}")
+    record["helper_after_import"] = bridge.helper_scene(create=False) is not None
 
 
 def without_splats():
-    """The scene's own splats and its F12 bridge removed: training's object will be its first."""
+    """The scene's own splats and its F12 bridge (with the helper scene) removed: training's
+    object will be its first, and the helper the import's."""
     for obj in [o for o in bpy.context.scene.objects if o.splat.is_splat]:
         bpy.data.objects.remove(obj)
-    ui_kit.addon_module("render.compositor_bridge").remove_bridge(bpy.context.scene)
+    bridge.remove_bridge(bpy.context.scene)
 
 
 def start_training():
-    bridged_before = ui_kit.addon_module("render.compositor_bridge").bridge_node(
-        bpy.context.scene) is not None
+    scene = bpy.context.scene
+    record["bridged_before"] = bridge.bridge_node(scene) is not None
     with ui_kit.override(bpy):
         result = bpy.ops.splat.train("EXEC_DEFAULT", interactive=True, update_every=50)
     if "RUNNING_MODAL" not in result:
         raise RuntimeError(f"train: {result}")
-    # The scene is bridged for F12 at the click, not when the object appears (issue 36).
-    bridge = ui_kit.addon_module("render.compositor_bridge")
-    record["bridged_at_click"] = bridge.bridge_node(bpy.context.scene) is not None
-    record["bridged_before"] = bridged_before
+    # F12's helper scene is made by the click at the latest; the scene is bridged in the same
+    # update as the object appears, seen from that update's handler (issue 36).
+    record["helper_at_click"] = bridge.helper_scene(create=False) is not None
+    record["bridged_at_click"] = bridge.bridge_node(scene) is not None
     running = next(iter(job_runner.RUNNING.values()))
+
+    def first_update_with_the_object(_scene, _depsgraph=None):
+        if running.target() is not None and "bridged_with_object" not in record:
+            record["bridged_with_object"] = bridge.bridge_node(scene) is not None
+    bpy.app.handlers.depsgraph_update_post.append(first_update_with_the_object)
     apply = running.apply
 
     def watched(step, gaussians):
@@ -119,8 +128,9 @@ def finish():
         later = drawn[update.pop("draws_before"):]
         update["draws_until_drawn"] = later.index(key) + 1 if key in later else None
     record.pop("deadline", None)
-    record["ok"] = not record["errors"] and record.get("bridged_at_click", False) and \
-        not record.get("bridged_before", True) and \
+    record["ok"] = not record["errors"] and record.get("helper_after_import", False) and \
+        not record.get("bridged_before", True) and record.get("helper_at_click", False) and \
+        not record.get("bridged_at_click", True) and record.get("bridged_with_object", False) and \
         len(record["updates"]) >= UPDATES and all(
         u["asked"] and u["draws_until_drawn"] is not None for u in record["updates"])
     with open(OUT + ".tmp", "w") as f:

@@ -1,6 +1,6 @@
 """Runs inside a real Blender's UI (under Xvfb): the main thread's stalls after one new object
 appears, Blender's Add Cube against a splat object as training makes it, with the scene's F12
-bridge set up in the ways the add-on could set it up (issue 36).
+bridge (and its helper scene) set up in the ways the add-on could set them up (issue 36).
 
     blender START.blend --python ui_new_object.py -- COLMAP_DIR SPLATS.ply OUT.json [ROUNDS]
 
@@ -28,9 +28,11 @@ ROUNDS = int(args[3]) if len(args) > 3 else 3
 WAIT = 4.0
 KINDS = {
     "cube": "Add Cube (Blender's own)",
-    "unbridged": "splat object, the scene bridged as it appears (before)",
-    "bridged_before": "splat object, the scene bridged 4 s before (at the click: now)",
-    "bridged_with": "splat object, the scene bridged in the same update",
+    "unbridged": "splat object, the scene bridged after it by a timer (until 0b305a5)",
+    "bridged_before": "splat object, the scene bridged 4 s before (0b305a5: at the click)",
+    "bridged_with": "splat object, the helper scene made and the scene bridged in its update",
+    "helper_before": "splat object, the helper made 4 s before, the scene bridged in its update "
+                     "(now)",
 }
 record: dict = {"version": list(bpy.app.version), "kinds": KINDS,
                 "trials": {k: [] for k in KINDS}, "errors": []}
@@ -72,9 +74,11 @@ def trial(kind: str):
         scene = bpy.context.scene
         phase["at"] += 1
         if phase["at"] == 1:  # the bridge as the kind has it
-            bridge.remove_bridge(scene)
+            bridge.remove_bridge(scene)  # and the helper scene with it
             if kind == "bridged_before":
-                hooks.expect_splats(scene)
+                bridge.ensure_bridge(scene)
+            elif kind == "helper_before":
+                hooks.make_helper_ahead(scene)
             return WAIT
         if phase["at"] == 2:
             stalls.clear()
@@ -83,9 +87,10 @@ def trial(kind: str):
                     bpy.ops.mesh.primitive_cube_add(location=(0.0, 0.0, -100.0))
                 phase["object"] = bpy.context.active_object.name
             else:
-                if kind == "bridged_with":
-                    hooks.expect_splats(scene)
-                phase["object"] = operator.write_splats("ui_new_object", gaussians[0]).name
+                obj = operator.write_splats("ui_new_object", gaussians[0])
+                if kind in ("bridged_with", "helper_before"):
+                    hooks.bridge_new_splats(obj)
+                phase["object"] = obj.name
             return WAIT
         if phase["at"] == 3:
             record["trials"][kind].append(list(stalls))

@@ -63,6 +63,7 @@ from ..camera_adapter import (
 from ..job_runner import JobOperator, OperatorJob
 from . import photo_scene
 from ..registration import module_registration
+from ..render import hooks
 
 SENSOR_WIDTH = 36.0
 
@@ -399,6 +400,7 @@ def import_steps(directory: str | os.PathLike, image_folder: str = "images", *,
         photo_scene.use_photo_colours(scene)
     if mesh_light:
         photo_scene.add_mesh_light(scene)
+    hooks.make_helper_ahead(scene)  # a scene imported to be trained: F12's helper, in this run
     return collection
 
 

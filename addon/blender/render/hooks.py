@@ -30,6 +30,7 @@ transparency, with no mesh render at all.
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 import traceback
@@ -454,16 +455,19 @@ def _bridge_broken(scene) -> bool:
     return False
 
 
-def set_up_bridge_later(scene_name: str, *, expecting: bool = False) -> float | None:
-    """Timer: bridge the scene once no render runs, if it has splats (or, `expecting`, a job
-    is about to add them)."""
+def _rendering() -> bool:
+    return state.current.scene is not None or (hasattr(bpy.app, "is_job_running")
+                                               and bpy.app.is_job_running("RENDER"))
+
+
+def set_up_bridge_later(scene_name: str) -> float | None:
+    """Timer: bridge the scene once no render runs, if it has splats."""
     scene = bpy.data.scenes.get(scene_name)
-    if state.current.scene is not None or (hasattr(bpy.app, "is_job_running")
-                                    and bpy.app.is_job_running("RENDER")):
+    if _rendering():
         return 0.5  # never while a render runs: try again when it is done
     if scene is not None and scene.render.engine != ENGINE_ID and settings_of(scene).enabled \
             and (bridge.bridge_node(scene) is None or _bridge_broken(scene)) \
-            and (expecting or bridge.has_splats(scene)):
+            and bridge.has_splats(scene):
         try:
             bridge.ensure_bridge(scene)
         except Exception:
@@ -471,19 +475,37 @@ def set_up_bridge_later(scene_name: str, *, expecting: bool = False) -> float | 
     return None
 
 
-def expect_splats(scene) -> None:
-    """A job started from the UI will add splats to `scene` (training's object): bridge the
-    scene now, as part of the click's response. Bridged when the object appeared, the scene's
-    change cost that object's first redraws one more redraw and a longer one (0.28-0.36 s
-    against Add Cube's 0.22-0.23 s beside a CPU-bound process, software OpenGL: issue 36,
-    benchmarks/bench_ui_new_object_blender.sh)."""
-    if scene is None:
+# Why the UI sets the bridge up as it does (issue 36, benchmarks/bench_ui_new_object_blender.sh):
+# Blender answers any change to the file by restarting the 3D view's anti-aliasing, a run of
+# about 8 redraws (0.1-0.15 s each with software OpenGL on an idle 2-core machine, 0.2-0.25 s
+# beside a CPU-bound process), and setting a scene's render engine (the helper scene's) resets
+# every viewport engine, which makes the next redraw 0.1-0.15 s longer still. So the helper scene
+# is made where a run comes anyway (a COLMAP import, else the click that starts a job), and the
+# bridge itself in the same update as a job's first splats: their run, not one of its own.
+
+def make_helper_ahead(scene) -> None:
+    """`scene` is about to get splats (a COLMAP scene imported to train, a job about to add
+    them): make the F12 helper scene now (see above). Nothing for the splats-only engine or
+    with Composite Splats off; never while a render runs (then from a timer)."""
+    if scene is None or scene.render.engine == ENGINE_ID or not settings_of(scene).enabled \
+            or bridge.helper_scene(create=False) is not None:
         return
-    name = scene.name
-    retry = set_up_bridge_later(name, expecting=True)
-    if retry is not None:
-        bpy.app.timers.register(lambda: set_up_bridge_later(name, expecting=True),
-                                first_interval=retry)
+    if _rendering():
+        name = scene.name
+        bpy.app.timers.register(lambda: make_helper_ahead(bpy.data.scenes.get(name)),
+                                first_interval=0.5)
+        return
+    bridge.helper_scene()
+
+
+def bridge_new_splats(obj) -> None:
+    """A job has just written splats into `obj` from the UI: bridge its scenes in this same
+    update (see above), not from the timer of the depsgraph update that follows."""
+    for scene in getattr(obj, "users_scene", ()):
+        retry = set_up_bridge_later(scene.name)
+        if retry is not None:
+            bpy.app.timers.register(functools.partial(set_up_bridge_later, scene.name),
+                                    first_interval=retry)
 
 
 @persistent

@@ -543,18 +543,29 @@ def test_bridge_keeps_and_restores_a_users_compositor(rng):
     assert compositor_bridge.helper_scene(create=False) is None
 
 
-def test_a_job_about_to_add_splats_bridges_the_scene_first(rng):
-    """Training started from the UI bridges its scene at the click (`expect_splats`), not when
-    its object appears: there the scene's change cost the object's first redraws one more."""
+def test_splats_a_job_adds_are_bridged_in_their_own_update(rng):
+    """The UI makes the F12 helper scene ahead (`make_helper_ahead`: at a COLMAP import, or at
+    the click that starts a job) and bridges a scene in the same update as a job's first splats
+    (`bridge_new_splats`), not from a timer after it: each is a run of redraws (issue 36)."""
     scene, splats, *_ = build_scene(rng, "BLENDER_WORKBENCH")
+    gaussians = bs.mesh_gaussians(splats)
     bpy.data.objects.remove(splats)
-    hooks.set_up_bridge_later(scene.name)
-    assert compositor_bridge.bridge_node(scene) is None  # no splats yet: nothing to bridge
+    assert compositor_bridge.helper_scene(create=False) is None
     scene.render.engine = compositor_bridge.ENGINE_ID
-    hooks.expect_splats(scene)
-    assert compositor_bridge.bridge_node(scene) is None  # the splats-only engine needs none
+    hooks.make_helper_ahead(scene)
+    assert compositor_bridge.helper_scene(create=False) is None  # the splats-only engine
     scene.render.engine = "BLENDER_WORKBENCH"
-    hooks.expect_splats(scene)
+    scene.splat_render.enabled = False
+    hooks.make_helper_ahead(scene)
+    assert compositor_bridge.helper_scene(create=False) is None  # Composite Splats off
+    scene.splat_render.enabled = True
+    hooks.make_helper_ahead(scene)
+    assert compositor_bridge.helper_scene(create=False) is not None
+    assert compositor_bridge.bridge_node(scene) is None  # no splats yet: nothing to bridge
+    hooks.bridge_new_splats(None)  # a job that wrote nothing
+    assert compositor_bridge.bridge_node(scene) is None
+    obj = splat_object.create_splat_object(gaussians, "Trained")
+    hooks.bridge_new_splats(obj)
     assert compositor_bridge.bridge_node(scene) is not None
     assert compositor_bridge.problems(scene) == []
 

@@ -17,6 +17,7 @@ import pytest
 
 from addon.blender.io import colmap_import
 from addon.blender import job_runner
+from addon.blender.render import compositor_bridge
 from addon.blender.train import operator
 from addon.blender.job_runner import RUNNING, JobOperator
 from addon.blender.sources import gather, live
@@ -272,12 +273,18 @@ def test_modal_handler_updates_the_object_and_stops_on_esc(demo, monkeypatch) ->
     running = training_job(request)
     RUNNING[running.key] = running
     harness = _Harness(running.key)
+    scene = bpy.context.scene
+    # The import made F12's helper scene; the scene is bridged with the object (issue 36).
+    assert compositor_bridge.helper_scene(create=False) is not None
+    assert compositor_bridge.bridge_node(scene) is None
     running.job.start()
     deadline = time.monotonic() + 30
     updates, times = [], []
     while time.monotonic() < deadline:  # the timer ticks until the object has formed thrice
         assert harness.modal(bpy.context, _event("TIMER")) == {"PASS_THROUGH"}
         obj = running.target()
+        # In the tick that made it: no timer (none runs in background) nor depsgraph update.
+        assert (obj is None) == (compositor_bridge.bridge_node(scene) is None)
         snapshot = live.shown(obj)
         step = None if obj is None else (obj["splat_trained_steps"] if snapshot is None
                                          else snapshot[0])
