@@ -501,7 +501,11 @@ def make_helper_ahead(scene) -> None:
 def bridge_new_splats(obj) -> None:
     """A job has just written splats into `obj` from the UI: bridge its scenes in this same
     update (see above), not from the timer of the depsgraph update that follows."""
-    for scene in getattr(obj, "users_scene", ()):
+    try:
+        scenes = obj.users_scene if obj is not None else ()
+    except (AttributeError, ReferenceError):  # not an object, or one removed meanwhile
+        return
+    for scene in scenes:
         retry = set_up_bridge_later(scene.name)
         if retry is not None:
             bpy.app.timers.register(functools.partial(set_up_bridge_later, scene.name),

@@ -563,6 +563,9 @@ def test_splats_a_job_adds_are_bridged_in_their_own_update(rng):
     assert compositor_bridge.helper_scene(create=False) is not None
     assert compositor_bridge.bridge_node(scene) is None  # no splats yet: nothing to bridge
     hooks.bridge_new_splats(None)  # a job that wrote nothing
+    gone = splat_object.create_splat_object(gaussians, "Removed")
+    bpy.data.objects.remove(gone)
+    hooks.bridge_new_splats(gone)  # its object removed meanwhile
     assert compositor_bridge.bridge_node(scene) is None
     obj = splat_object.create_splat_object(gaussians, "Trained")
     hooks.bridge_new_splats(obj)
