@@ -477,9 +477,9 @@ def set_up_bridge_later(scene_name: str) -> float | None:
 
 # Why the UI sets the bridge up as it does (issue 36, benchmarks/bench_ui_new_object_blender.sh):
 # Blender answers any change to the file by restarting the 3D view's anti-aliasing, a run of
-# about 8 redraws (0.1-0.15 s each with software OpenGL on an idle 2-core machine, 0.2-0.25 s
+# about 8 redraws (0.1-0.15 s each with software OpenGL on an idle 2-core machine, 0.15-0.3 s
 # beside a CPU-bound process), and setting a scene's render engine (the helper scene's) resets
-# every viewport engine, which makes the next redraw 0.1-0.15 s longer still. So the helper scene
+# every viewport engine, which makes the next redraw up to 0.15 s longer still. So the helper scene
 # is made where a run comes anyway (a COLMAP import, else the click that starts a job), and the
 # bridge itself in the same update as a job's first splats: their run, not one of its own.
 
