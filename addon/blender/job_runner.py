@@ -69,6 +69,10 @@ UPDATE_SHARE = 0.03
 COST_WINDOW = 4.0
 STALL = 0.05
 MAX_SHOW_INTERVAL = 60.0
+# The update that makes the object: training waits this long after it, while Blender redraws
+# the view once per anti-aliasing sample (eight, 1-2 s in software OpenGL), so that those
+# redraws have the cores to themselves (issue 36). Once per run.
+NEW_OBJECT_HOLD = 2.0
 
 
 class StallProbe:
@@ -344,8 +348,11 @@ class JobOperator:
             running.pending = snapshot
             return
         start = time.monotonic()
+        made = running.target() is None
         running.apply(*snapshot)
         hooks.bridge_new_splats(running.target())
+        if made and isinstance(running.job, TrainingJob):
+            running.job.hold(NEW_OBJECT_HOLD)
         running.shown_at = time.monotonic()
         running.write_cost = running.shown_at - start
         running.probe = StallProbe(COST_WINDOW)

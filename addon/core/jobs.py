@@ -205,6 +205,7 @@ class TrainingJob:
         self._snapshot: tuple[int, Gaussians] | None = None
         self._window = deque(maxlen=max(1, int(window)))
         self._thread: threading.Thread | None = None
+        self._held_until = 0.0  # time.monotonic(): no step before it (`hold`)
 
     # -- control ----------------------------------------------------------------------------
     def start(self) -> "TrainingJob":
@@ -228,6 +229,11 @@ class TrainingJob:
     def cancel(self) -> None:
         """Ask the worker to stop after the current step (it then saves the checkpoint)."""
         self._cancel.set()
+
+    def hold(self, seconds: float) -> None:
+        """No step for `seconds` from now (after the one running); a cancel ends the wait."""
+        with self._lock:
+            self._held_until = max(self._held_until, time.monotonic() + seconds)
 
     def poll(self, seconds: float = 0.0) -> None:
         """Nothing to do: the work runs on its own thread (see `StagedJob.poll`)."""
@@ -346,12 +352,24 @@ class TrainingJob:
         finally:
             self._done.set()
 
+    def _wait_out_hold(self) -> bool:
+        """Sleep until `hold`'s time is over (or a cancel); True if it slept."""
+        slept = False
+        while True:
+            with self._lock:
+                left = self._held_until - time.monotonic()
+            if left <= 0 or self._cancel.wait(left):
+                return slept
+            slept = True
+
     def _train(self, trainer: Trainer, total: int) -> None:
         losses: deque = deque(maxlen=self._window.maxlen)
         psnrs: deque = deque(maxlen=self._window.maxlen)
         started = last = time.perf_counter()
         steps = trainer.run(total)
         while not self._cancel.is_set():
+            if self._wait_out_hold():
+                last = time.perf_counter()  # a held step's time is not the step's
             if self.before_step is not None:
                 self.before_step(trainer)
             try:

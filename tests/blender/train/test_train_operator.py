@@ -285,6 +285,10 @@ def test_modal_handler_updates_the_object_and_stops_on_esc(demo, monkeypatch) ->
         obj = running.target()
         # In the tick that made it: no timer (none runs in background) nor depsgraph update.
         assert (obj is None) == (compositor_bridge.bridge_node(scene) is None)
+        if obj is not None and not updates:  # training waits while Blender redraws the object
+            held_at = running.job.trainer.step
+            time.sleep(0.5)
+            assert running.job.trainer.step <= held_at + 1  # the step that was running
         snapshot = live.shown(obj)
         step = None if obj is None else (obj["splat_trained_steps"] if snapshot is None
                                          else snapshot[0])

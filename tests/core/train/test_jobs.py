@@ -155,3 +155,43 @@ def test_a_training_whose_kernels_share_the_uis_cores_yields_to_it(monkeypatch) 
         base = nice()  # this thread's, which the worker inherited
         assert seen["steps"] == ({max(base, BACKGROUND_NICE)} if start else {base})
         assert seen["evaluating"] == {base}
+
+
+def test_a_held_training_takes_no_step_until_its_time() -> None:
+    """`hold`: the UI's redraws of a new object have the cores to themselves (`job_runner`,
+    issue 36): after the step that runs, none starts before the time is over, and a cancel ends
+    the wait at once."""
+    import time
+    from pathlib import Path
+
+    from addon.core.colmap import read_colmap
+    from addon.core.jobs import TrainingJob
+    from addon.core.train.dataset import ColmapDataset
+    from addon.core.train.trainer import Trainer, TrainConfig
+
+    demo = Path(__file__).resolve().parents[3] / "examples" / "demo_colmap"
+    dataset = ColmapDataset(read_colmap(demo), downscale=8)
+    trainer = Trainer(dataset, TrainConfig(steps=100_000, sh_degree=0, threads=1))
+    job = TrainingJob(trainer, evaluate=False).start()
+
+    def wait_for(condition, seconds: float = 20.0) -> float:
+        deadline = time.monotonic() + seconds
+        while not condition():
+            assert time.monotonic() < deadline
+            time.sleep(0.005)
+        return time.monotonic()
+
+    wait_for(lambda: trainer.step >= 3)
+    held = time.monotonic()
+    job.hold(0.6)
+    time.sleep(0.15)  # the step that was running ends
+    step = trainer.step
+    time.sleep(0.3)
+    assert trainer.step == step  # none in the held time
+    resumed = wait_for(lambda: trainer.step > step)
+    assert resumed >= held + 0.6
+    job.hold(60.0)
+    time.sleep(0.05)
+    job.cancel()
+    assert job.join(10.0)  # long before the hold's 60 s
+    assert job.progress().phase == "cancelled"
