@@ -20,7 +20,6 @@ timeout $((40 * ROUNDS + 300)) "$RB/run.sh" "$SUITE" env BLENDER_USER_RESOURCES=
 [ -f "$io/new_object.json" ] || { echo "bench_ui_new_object_blender: no result (see $io/ui.log)"; exit 1; }
 $PY - "$io/new_object.json" "$SUITE" <<'PYEOF'
 import json, sys
-import numpy as np
 r = json.load(open(sys.argv[1]))
 if r["errors"]:
     sys.exit("bench_ui_new_object_blender: " + r["errors"][0])
